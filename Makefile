@@ -1,0 +1,38 @@
+# jointseg: `make run` sets up a fresh machine and runs the main job; `make test` runs every check.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+TORCH  ?= torch==2.13.0
+DEMO   ?= demo
+
+.PHONY: setup system run test lint typecheck pytest clean
+
+setup: system $(VENV)/.installed
+
+system:
+	bash scripts/setup_system.sh
+
+# torch first, pinned: an unpinned torch would pull the multi-GB CUDA build.
+$(VENV)/.installed: pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q "$(TORCH)"
+	$(BIN)/pip install -q -e ".[dev]"
+	touch $@
+
+run: setup
+	mkdir -p $(DEMO)
+	$(BIN)/jointseg synth --seed 0 --points 1000000 -o $(DEMO)/room.ply
+	$(BIN)/jointseg info $(DEMO)/room.ply
+
+lint: setup
+	$(BIN)/ruff check jointseg server web tests bench
+	$(BIN)/mypy
+
+pytest: setup
+	$(BIN)/python -m pytest -q
+
+test: lint pytest
+
+clean:
+	rm -rf $(VENV) $(DEMO) .pytest_cache .ruff_cache .mypy_cache

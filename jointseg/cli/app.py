@@ -1,0 +1,45 @@
+"""Typer application: error handling shared by every command.
+
+Errors a user can cause (a bad file, a bad parameter) print one line and exit with status 2;
+anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+
+import typer
+from rich.markup import escape
+
+from jointseg.cli import scan_commands
+from jointseg.cli.progress_bar import stderr_console
+from jointseg.exceptions import JointsegError
+
+app = typer.Typer(
+    name="jointseg",
+    help="Semantic segmentation of indoor 3D scans (network + geometry + fusion).",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+scan_commands.register(app)
+
+
+@app.callback()
+def _root(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details."),
+) -> None:
+    logging.basicConfig(
+        level=logging.INFO if verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the console script."""
+    try:
+        app(args=argv, standalone_mode=True)
+    except JointsegError as exc:
+        stderr_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        sys.exit(2)

@@ -1,0 +1,1 @@
+"""jointseg job service (FastAPI + Huey). Depends on `jointseg`, never the other way."""

@@ -1,0 +1,1 @@
+"""jointseg viewer (viser scene and job page). Depends on `server` and `jointseg`."""
