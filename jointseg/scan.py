@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -103,19 +102,3 @@ class Scan:
         merged = dict(self.fields)
         merged.update(fields)
         return Scan(self.xyz, self.rgb, self.labels, merged, self.source_format)
-
-    def replace(
-        self,
-        *,
-        rgb: np.ndarray | None | type[...] = ...,
-        labels: np.ndarray | None | type[...] = ...,
-        fields: Mapping[str, np.ndarray] | None = None,
-    ) -> Scan:
-        """A new scan with ``rgb``, ``labels`` or ``fields`` replaced (``...`` keeps the old one)."""
-        return Scan(
-            self.xyz,
-            self.rgb if rgb is ... else rgb,  # type: ignore[arg-type]
-            self.labels if labels is ... else labels,  # type: ignore[arg-type]
-            dict(self.fields if fields is None else fields),
-            self.source_format,
-        )

@@ -36,12 +36,8 @@ class ScanSummary(BaseModel):
 
 def summarise(scan: Scan) -> ScanSummary:
     """Describe ``scan``: bounds in metres, median point spacing, fields and label counts."""
-    if len(scan) == 0:
-        zero = (0.0, 0.0, 0.0)
-        lo, hi = zero, zero
-    else:
-        lo = tuple(float(v) for v in scan.xyz.min(axis=0))
-        hi = tuple(float(v) for v in scan.xyz.max(axis=0))
+    lo = scan.xyz.min(axis=0) if len(scan) else np.zeros(3)
+    hi = scan.xyz.max(axis=0) if len(scan) else np.zeros(3)
     fields = []
     for name, arr in sorted(scan.fields.items()):
         finite = arr[np.isfinite(arr)] if np.issubdtype(arr.dtype, np.floating) else arr
@@ -63,9 +59,9 @@ def summarise(scan: Scan) -> ScanSummary:
     return ScanSummary(
         points=len(scan),
         source_format=scan.source_format,
-        bounds_min=lo,  # type: ignore[arg-type]
-        bounds_max=hi,  # type: ignore[arg-type]
-        extent=tuple(h - low for h, low in zip(hi, lo, strict=True)),  # type: ignore[arg-type]
+        bounds_min=_triple(lo),
+        bounds_max=_triple(hi),
+        extent=_triple(hi - lo),
         spacing=estimate_spacing(scan.xyz),
         has_rgb=scan.rgb is not None,
         fields=fields,
@@ -78,3 +74,7 @@ def _safe_name(label: int) -> str:
         return class_name(label)
     except ValueError:
         return f"label_{label}"
+
+
+def _triple(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])

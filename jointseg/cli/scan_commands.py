@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import time
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 
 import typer
@@ -19,7 +19,7 @@ DEFAULT_MAX_POINTS = 50_000_000
 stdout_console = Console(highlight=False)
 
 
-class RoomShape(str, Enum):
+class RoomShape(StrEnum):
     box = "box"
     L = "L"
 

@@ -1,0 +1,5 @@
+"""`python -m jointseg` runs the command line."""
+
+from jointseg.cli import main
+
+main()

@@ -1,0 +1,175 @@
+"""Reading and writing scans, so every stage works on one :class:`~jointseg.scan.Scan` type.
+
+Formats (by extension): PLY, LAS/LAZ, E57 (read only), PCD, TXT/XYZ/CSV, NPY (read only), NPZ,
+and S3DIS room folders (read only). Every problem with an input file is raised as
+:class:`ScanFormatError` with a message naming the file and, where it can, the line, element or
+field; nothing half-read is ever returned, and writes are atomic.
+
+Examples
+--------
+>>> from jointseg.io import read_scan, write_scan      # doctest: +SKIP
+>>> scan = read_scan("room.ply")                       # doctest: +SKIP
+>>> write_scan(scan, "room.laz")                       # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import zipfile
+from pathlib import Path
+
+from jointseg.exceptions import ConfigError, ScanFormatError
+from jointseg.io.common import DEFAULT_MAX_POINTS, ScanInfo, check_input_file
+from jointseg.io.formats import (
+    READ_EXTENSIONS,
+    WRITE_EXTENSIONS,
+    detect_format,
+    get_format,
+    writer_for,
+)
+from jointseg.progress import ProgressFn
+from jointseg.scan import Scan
+
+__all__ = [
+    "DEFAULT_MAX_POINTS",
+    "READ_EXTENSIONS",
+    "WRITE_EXTENSIONS",
+    "ScanFormatError",
+    "ScanInfo",
+    "detect_format",
+    "probe_scan",
+    "read_scan",
+    "write_scan",
+]
+
+logger = logging.getLogger(__name__)
+
+# Errors third-party readers raise on bad input that a format module did not already wrap.
+_INPUT_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile)
+
+
+def _prepare_input(path: str | os.PathLike[str], max_points: int) -> tuple[Path, str]:
+    path = Path(path)
+    if max_points < 1:
+        raise ConfigError(f"max_points must be a positive integer, got {max_points}")
+    if not path.exists():
+        raise ScanFormatError(f"{path}: file not found")
+    fmt = detect_format(path)
+    if fmt != "s3dis":
+        check_input_file(path)
+    return path, fmt
+
+
+def read_scan(
+    path: str | os.PathLike[str],
+    *,
+    max_points: int = DEFAULT_MAX_POINTS,
+    progress: ProgressFn | None = None,
+) -> Scan:
+    """Read a scan file (or S3DIS room folder) of any supported format into a :class:`Scan`.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Scan file; the format comes from the extension (see ``READ_EXTENSIONS``), or a folder
+        with ``Annotations/<class>_<n>.txt`` (S3DIS room).
+    max_points : int
+        Refuse scans with more points; checked from the header, before the body is read, where
+        the format has one.
+    progress : ProgressFn, optional
+        Receives ``("read", fraction)`` as the file is read.
+
+    Returns
+    -------
+    Scan
+        ``source_format`` is set to the format name.
+
+    Raises
+    ------
+    ScanFormatError
+        For a missing, empty, truncated, malformed or too large input, an unknown extension,
+        or non-finite coordinates; the message names the file and where it can the line,
+        element or field.
+    """
+    path, fmt = _prepare_input(path, max_points)
+    logger.debug("reading %s as %s", path, fmt)
+    try:
+        scan = get_format(fmt).read(path, max_points=max_points, progress=progress)
+    except ScanFormatError:
+        raise
+    except _INPUT_ERRORS as exc:
+        raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
+    logger.info("read %s: %d points (%s)", path, len(scan), fmt)
+    return scan
+
+
+def probe_scan(path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_POINTS) -> ScanInfo:
+    """Validate a scan's header and point count cheaply, without reading its points.
+
+    Meant for refusing bad uploads before queuing work. Checks the format's magic and header,
+    the body size against the declared count where the format allows (binary PLY/PCD,
+    uncompressed LAS, NPY), and ``max_points``. Text formats are counted line by line.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        As for :func:`read_scan`.
+    max_points : int
+        Refuse scans with more points.
+
+    Returns
+    -------
+    ScanInfo
+
+    Raises
+    ------
+    ScanFormatError
+        As :func:`read_scan`, for what can be seen without reading the points.
+    """
+    path, fmt = _prepare_input(path, max_points)
+    try:
+        return get_format(fmt).probe(path, max_points=max_points)
+    except ScanFormatError:
+        raise
+    except _INPUT_ERRORS as exc:
+        raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
+
+
+def write_scan(
+    scan: Scan, path: str | os.PathLike[str], *, progress: ProgressFn | None = None
+) -> Path:
+    """Write ``scan`` in the format named by the extension, atomically.
+
+    The file appears complete or not at all: the data goes to a temporary file in the same
+    folder, is flushed and fsynced, then renamed over ``path``.
+
+    Parameters
+    ----------
+    scan : Scan
+    path : str or PathLike
+        Target; its extension picks the format (see ``WRITE_EXTENSIONS``) and its folder must
+        exist.
+    progress : ProgressFn, optional
+        Receives ``("write", fraction)``.
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    ScanFormatError
+        For an extension that cannot be written, a missing folder, a target that is a folder, or
+        a field the format cannot store.
+    """
+    path = Path(path)
+    write = writer_for(path)
+    if path.is_dir():
+        raise ScanFormatError(f"{path}: is a directory; give a file name to write to")
+    if not path.parent.is_dir():
+        raise ScanFormatError(f"{path}: folder {path.parent} does not exist")
+    write(scan, path, progress)
+    logger.info("wrote %s: %d points", path, len(scan))
+    return path

@@ -1,0 +1,135 @@
+"""Which file extensions name which format, and which module reads, probes and writes it.
+
+Kept in one table so the CLI's help, the upload API's checks and the dispatch in
+:mod:`jointseg.io` cannot disagree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+
+from jointseg.exceptions import ScanFormatError
+from jointseg.io import arrays, e57, las, pcd, ply, s3dis, text
+from jointseg.io.common import ScanInfo
+from jointseg.progress import ProgressFn
+from jointseg.scan import Scan
+
+Reader = Callable[..., Scan]
+Prober = Callable[..., ScanInfo]
+Writer = Callable[..., None]
+
+
+@dataclass(frozen=True)
+class Format:
+    """One supported format: its name and the functions handling it."""
+
+    name: str
+    read: Reader
+    probe: Prober
+    write: Writer | None = None
+
+
+FORMATS: dict[str, Format] = {
+    "ply": Format("ply", ply.read_ply, ply.probe_ply, ply.write_ply),
+    "las": Format("las", las.read_las, las.probe_las, partial(las.write_las, compress=False)),
+    "laz": Format("laz", las.read_las, las.probe_las, partial(las.write_las, compress=True)),
+    "e57": Format("e57", e57.read_e57, e57.probe_e57),
+    "pcd": Format("pcd", pcd.read_pcd, pcd.probe_pcd, pcd.write_pcd),
+    "txt": Format(
+        "txt",
+        partial(text.read_text, fmt="txt"),
+        partial(text.probe_text, fmt="txt"),
+        partial(text.write_text, comma=False),
+    ),
+    "xyz": Format(
+        "xyz",
+        partial(text.read_text, fmt="xyz"),
+        partial(text.probe_text, fmt="xyz"),
+        partial(text.write_text, comma=False),
+    ),
+    "csv": Format(
+        "csv",
+        partial(text.read_text, fmt="csv"),
+        partial(text.probe_text, fmt="csv"),
+        partial(text.write_text, comma=True),
+    ),
+    "npy": Format("npy", arrays.read_npy, arrays.probe_npy),
+    "npz": Format("npz", arrays.read_npz, arrays.probe_npz, arrays.write_npz),
+    "s3dis": Format("s3dis", s3dis.read_s3dis_room, s3dis.probe_s3dis_room),
+}
+
+#: File extensions :func:`jointseg.io.read_scan` accepts (a folder is read as an S3DIS room).
+READ_EXTENSIONS: tuple[str, ...] = tuple(
+    f".{name}" for name, fmt in FORMATS.items() if name != "s3dis"
+)
+#: File extensions :func:`jointseg.io.write_scan` accepts.
+WRITE_EXTENSIONS: tuple[str, ...] = tuple(
+    f".{name}" for name, fmt in FORMATS.items() if fmt.write is not None
+)
+
+
+def detect_format(path: str | Path) -> str:
+    """Name the format of ``path`` from its extension (a folder is an S3DIS room).
+
+    Parameters
+    ----------
+    path : str or Path
+        A scan file, or a room folder with ``Annotations/``; the file need not exist (for
+        writing), the folder must.
+
+    Returns
+    -------
+    str
+        One of ``ply las laz e57 pcd txt xyz csv npy npz s3dis``.
+
+    Raises
+    ------
+    ScanFormatError
+        On an unknown extension (listing the supported ones) or a folder that is not an S3DIS
+        room.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if path.is_dir():
+        if suffix in READ_EXTENSIONS:
+            raise ScanFormatError(f"{path}: is a directory, expected a {suffix} file")
+        s3dis.annotations_dir(path)
+        return "s3dis"
+    name = suffix[1:]
+    if name not in FORMATS or name == "s3dis":
+        raise ScanFormatError(
+            f"{path}: unsupported file extension {suffix or '(none)'!r}; supported: "
+            f"{', '.join(READ_EXTENSIONS)}, or an S3DIS room folder"
+        )
+    return name
+
+
+def get_format(name: str) -> Format:
+    """The :class:`Format` entry named ``name``."""
+    return FORMATS[name]
+
+
+def writer_for(path: Path) -> Callable[[Scan, Path, ProgressFn | None], None]:
+    """The writer for ``path``'s extension.
+
+    Raises
+    ------
+    ScanFormatError
+        When the extension cannot be written (listing the ones that can).
+    """
+    suffix = path.suffix.lower()
+    fmt = FORMATS.get(suffix[1:])
+    if fmt is None or fmt.write is None or suffix[1:] == "s3dis":
+        raise ScanFormatError(
+            f"{path}: cannot write {suffix or 'files without an extension'!r}; supported: "
+            f"{', '.join(WRITE_EXTENSIONS)}"
+        )
+    write = fmt.write
+
+    def run(scan: Scan, target: Path, progress: ProgressFn | None) -> None:
+        write(scan, target, progress=progress)
+
+    return run

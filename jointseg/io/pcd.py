@@ -1,0 +1,508 @@
+"""PCL's PCD format (v0.7): ``DATA ascii``, ``binary`` and ``binary_compressed`` (LZF).
+
+Reading: the header (FIELDS SIZE TYPE COUNT WIDTH HEIGHT VIEWPOINT POINTS DATA) is parsed here.
+Packed ``rgb`` / ``rgba`` (float32 or uint32 bits, 0x00RRGGBB) become the colour, a ``label``
+field the labels, every other field (``normal_x``, ``curvature``, ``intensity``...) a field of
+the same name and dtype; fields with COUNT > 1 become 2-D fields and ``_`` padding fields are
+skipped. VIEWPOINT is not applied. In organised clouds (HEIGHT > 1) points with NaN coordinates
+mark missing pixels and are dropped (logged); in unorganised clouds a NaN coordinate is an error.
+
+Writing: ``DATA binary`` with ``x y z`` as double (F 8), ``rgb`` packed in a float32, ``label``
+as int32 (I 4) and every field with its own type; a 2-D field keeps its width as COUNT.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from jointseg.exceptions import ScanFormatError
+from jointseg.io import lzf
+from jointseg.io.atomic import atomic_open
+from jointseg.io.common import (
+    LABEL_NAMES,
+    ScanInfo,
+    build_scan,
+    check_max_points,
+    narrow_dtype,
+    normalise_labels,
+    pick_colour_names,
+    pick_name,
+    safe_field_name,
+    to_rgb8,
+)
+from jointseg.io.tabular import count_lines, parse_table
+from jointseg.progress import ProgressFn, report
+from jointseg.scan import Scan
+
+logger = logging.getLogger(__name__)
+
+_MAX_HEADER_BYTES = 1 << 20
+_TYPES = {
+    ("I", 1): "i1",
+    ("I", 2): "i2",
+    ("I", 4): "i4",
+    ("I", 8): "i8",
+    ("U", 1): "u1",
+    ("U", 2): "u2",
+    ("U", 4): "u4",
+    ("U", 8): "u8",
+    ("F", 4): "f4",
+    ("F", 8): "f8",
+}
+_DATA_KINDS = ("ascii", "binary", "binary_compressed")
+_PACKED_COLOUR = ("rgb", "rgba")
+
+
+@dataclass
+class PcdHeader:
+    """The parsed PCD header."""
+
+    fields: list[str]
+    types: list[str]
+    counts: list[int]
+    width: int
+    height: int
+    points: int
+    data: str
+    body_offset: int
+    n_lines: int
+
+    def dtype(self) -> np.dtype:
+        """Packed little-endian record dtype (padding fields get unique private names)."""
+        spec = []
+        for i, (name, typ, count) in enumerate(
+            zip(self.fields, self.types, self.counts, strict=True)
+        ):
+            key = name if name != "_" else f"__pad{i}"
+            spec.append((key, "<" + typ) if count == 1 else (key, "<" + typ, (count,)))
+        return np.dtype(spec)
+
+
+def parse_header(head: bytes, path: Path) -> PcdHeader:
+    """Parse and check a PCD header.
+
+    Parameters
+    ----------
+    head : bytes
+        The start of the file (at least the whole header).
+    path : Path
+        The file, for messages.
+
+    Returns
+    -------
+    PcdHeader
+
+    Raises
+    ------
+    ScanFormatError
+        On a missing or inconsistent entry, an unknown type or DATA kind, or missing x/y/z.
+    """
+    entries: dict[str, list[str]] = {}
+    pos, line_no = 0, 0
+    data_line = None
+    while pos < len(head):
+        nl = head.find(b"\n", pos)
+        if nl < 0:
+            break
+        raw = head[pos:nl]
+        pos, line_no = nl + 1, line_no + 1
+        try:
+            line = raw.decode("ascii").strip()
+        except UnicodeDecodeError as exc:
+            raise ScanFormatError(
+                f"{path}: not a PCD file (line {line_no} of the header is not text)"
+            ) from exc
+        if not line or line.startswith("#"):
+            continue
+        word, *values = line.split()
+        key = word.upper()
+        if key not in (
+            "VERSION",
+            "FIELDS",
+            "SIZE",
+            "TYPE",
+            "COUNT",
+            "WIDTH",
+            "HEIGHT",
+            "VIEWPOINT",
+            "POINTS",
+            "DATA",
+        ):
+            raise ScanFormatError(
+                f"{path}: not a PCD file or bad header: line {line_no} starts with {word!r}, "
+                f"expected a PCD header keyword (VERSION, FIELDS, ..., DATA)"
+            )
+        entries[key] = values
+        if key == "DATA":
+            data_line = line_no
+            break
+    if data_line is None:
+        raise ScanFormatError(f"{path}: PCD header has no DATA line (not a PCD file, or truncated)")
+    for key in ("FIELDS", "SIZE", "TYPE", "WIDTH"):
+        if key not in entries:
+            raise ScanFormatError(f"{path}: PCD header has no {key} line")
+    fields = entries["FIELDS"]
+    n = len(fields)
+    counts_raw = entries.get("COUNT", ["1"] * n)
+    if not (len(entries["SIZE"]) == len(entries["TYPE"]) == len(counts_raw) == n):
+        raise ScanFormatError(
+            f"{path}: PCD header lists {n} FIELDS but {len(entries['SIZE'])} SIZE, "
+            f"{len(entries['TYPE'])} TYPE and {len(counts_raw)} COUNT values"
+        )
+    try:
+        sizes = [int(s) for s in entries["SIZE"]]
+        counts = [int(c) for c in counts_raw]
+        width = int(entries["WIDTH"][0])
+        height = int(entries.get("HEIGHT", ["1"])[0])
+        points = int(entries["POINTS"][0]) if "POINTS" in entries else width * height
+    except (ValueError, IndexError) as exc:
+        raise ScanFormatError(
+            f"{path}: PCD header has a non-integer SIZE/COUNT/WIDTH/HEIGHT/POINTS value"
+        ) from exc
+    types = []
+    for name, typ, size, count in zip(fields, entries["TYPE"], sizes, counts, strict=True):
+        code = _TYPES.get((typ.upper(), size))
+        if code is None or count < 1:
+            raise ScanFormatError(
+                f"{path}: PCD field {name!r} has unsupported TYPE {typ} / SIZE {size} / COUNT "
+                f"{count}"
+            )
+        types.append(code)
+    named = [f for f in fields if f != "_"]
+    if len(set(named)) != len(named):
+        raise ScanFormatError(f"{path}: PCD header repeats a field name: {' '.join(fields)}")
+    if points != width * height:
+        raise ScanFormatError(
+            f"{path}: PCD header says POINTS {points} but WIDTH × HEIGHT = {width} × {height} = "
+            f"{width * height}"
+        )
+    data = entries["DATA"][0].lower() if entries["DATA"] else ""
+    if data not in _DATA_KINDS:
+        raise ScanFormatError(
+            f"{path}: PCD DATA {data!r} is not supported (expected ascii, binary or "
+            f"binary_compressed)"
+        )
+    missing = [a for a in "xyz" if a not in fields or counts[fields.index(a)] != 1]
+    if missing:
+        raise ScanFormatError(
+            f"{path}: PCD has no scalar {'/'.join(missing)} field (fields: {' '.join(fields)})"
+        )
+    viewpoint = entries.get("VIEWPOINT")
+    if viewpoint and viewpoint != ["0", "0", "0", "1", "0", "0", "0"]:
+        logger.debug("%s: PCD VIEWPOINT %s is not applied", path, " ".join(viewpoint))
+    return PcdHeader(fields, types, counts, width, height, points, data, pos, data_line)
+
+
+def _scalar_fields(header: PcdHeader) -> list[str]:
+    """Fields with COUNT 1 (only those can be colour channels or labels)."""
+    return [n for n, c in zip(header.fields, header.counts, strict=True) if n != "_" and c == 1]
+
+
+def _read_head(path: Path) -> PcdHeader:
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    return parse_header(head, path)
+
+
+def _check_size(path: Path, header: PcdHeader, size: int) -> None:
+    dtype = header.dtype()
+    have = size - header.body_offset
+    if header.data == "binary":
+        need = header.points * dtype.itemsize
+        if have < need:
+            raise ScanFormatError(
+                f"{path}: truncated PCD: the header declares {header.points:,} points "
+                f"({need:,} bytes) but only {have:,} bytes follow "
+                f"({have // dtype.itemsize:,} complete points)"
+            )
+        if have - need >= dtype.itemsize:
+            raise ScanFormatError(
+                f"{path}: the PCD body holds {have // dtype.itemsize:,} points but the header "
+                f"declares {header.points:,}; the header's POINTS/WIDTH is wrong"
+            )
+    elif header.data == "binary_compressed":
+        if have < 8:
+            raise ScanFormatError(f"{path}: truncated PCD: no compressed-size fields after DATA")
+        with open(path, "rb") as fh:
+            fh.seek(header.body_offset)
+            sizes = np.frombuffer(fh.read(8), dtype="<u4")
+        compressed, uncompressed = int(sizes[0]), int(sizes[1])
+        if have - 8 < compressed:
+            raise ScanFormatError(
+                f"{path}: truncated PCD: {compressed:,} compressed bytes declared but only "
+                f"{have - 8:,} follow"
+            )
+        if uncompressed != header.points * dtype.itemsize:
+            raise ScanFormatError(
+                f"{path}: the PCD compressed block holds {uncompressed:,} bytes, but "
+                f"{header.points:,} points of {dtype.itemsize} bytes need "
+                f"{header.points * dtype.itemsize:,}; the header's POINTS/WIDTH is wrong"
+            )
+
+
+def _read_compressed(path: Path, header: PcdHeader) -> np.ndarray:
+    dtype = header.dtype()
+    with open(path, "rb") as fh:
+        fh.seek(header.body_offset)
+        compressed, uncompressed = (int(v) for v in np.frombuffer(fh.read(8), dtype="<u4"))
+        stream = fh.read(compressed)
+    try:
+        raw = lzf.decompress(stream, uncompressed)
+    except lzf.LZFError as exc:
+        raise ScanFormatError(f"{path}: corrupt binary_compressed PCD data: {exc}") from exc
+    out = np.empty(header.points, dtype=dtype)
+    offset = 0
+    for key in dtype.names or ():
+        sub = dtype[key]
+        nbytes = sub.itemsize * header.points
+        flat = np.frombuffer(raw, dtype=sub.base, count=nbytes // sub.base.itemsize, offset=offset)
+        out[key] = flat.reshape(out[key].shape)
+        offset += nbytes
+    return out
+
+
+def _read_ascii(
+    path: Path, header: PcdHeader, progress: ProgressFn | None
+) -> tuple[np.ndarray, int]:
+    body = path.read_bytes()
+    ncols = sum(header.counts)
+
+    def too_many(rows: int) -> ScanFormatError:
+        total = count_lines(body, header.body_offset)
+        return ScanFormatError(
+            f"{path}: the PCD header declares {header.points:,} points but the file has more "
+            f"data lines (about {max(rows, total):,}); the header's POINTS/WIDTH is wrong"
+        )
+
+    values, _ = parse_table(
+        body,
+        path=path,
+        start=header.body_offset,
+        first_line=header.n_lines + 1,
+        ncols=ncols,
+        limit=header.points,
+        on_limit=too_many,
+        progress=progress,
+    )
+    if values.shape[0] != header.points:
+        raise ScanFormatError(
+            f"{path}: the PCD header declares {header.points:,} points but the file has "
+            f"{values.shape[0]:,} data lines (truncated, or the header's POINTS is wrong)"
+        )
+    dtype = header.dtype()
+    out = np.empty(header.points, dtype=dtype)
+    col = 0
+    for key, count in zip(dtype.names or (), header.counts, strict=True):
+        block = values[:, col : col + count]
+        col += count
+        out[key] = block[:, 0] if count == 1 else block
+    return out, header.n_lines + 1
+
+
+def _unpack_rgb(values: np.ndarray, kind: str) -> np.ndarray:
+    bits = values.astype(np.float32).view(np.uint32) if kind == "f" else values.astype(np.uint32)
+    rgb = np.empty((bits.shape[0], 3), dtype=np.uint8)
+    rgb[:, 0] = (bits >> 16) & 0xFF
+    rgb[:, 1] = (bits >> 8) & 0xFF
+    rgb[:, 2] = bits & 0xFF
+    return rgb
+
+
+def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+    """Read a PCD file.
+
+    Parameters
+    ----------
+    path : Path
+    max_points : int
+        Refuse files whose header declares more points (checked before the body is read).
+    progress : ProgressFn, optional
+        Receives ``("read", fraction)``.
+
+    Returns
+    -------
+    Scan
+
+    Raises
+    ------
+    ScanFormatError
+        On a bad header, a body shorter or longer than declared, unparsable ASCII lines,
+        corrupt compressed data, NaN coordinates in an unorganised cloud or too many points.
+    """
+    header = _read_head(path)
+    check_max_points(header.points, max_points, path)
+    _check_size(path, header, os.path.getsize(path))
+    report(progress, "read", 0.0)
+    first_line = 0
+    if header.data == "binary":
+        with open(path, "rb") as fh:
+            fh.seek(header.body_offset)
+            rec = np.fromfile(fh, dtype=header.dtype(), count=header.points)
+        if rec.shape[0] != header.points:
+            raise ScanFormatError(
+                f"{path}: truncated PCD: read {rec.shape[0]:,} of {header.points:,} points"
+            )
+    elif header.data == "binary_compressed":
+        rec = _read_compressed(path, header)
+    else:
+        rec, first_line = _read_ascii(path, header, progress)
+    names = [n for n in header.fields if n != "_"]
+    scalar = _scalar_fields(header)
+    kinds = dict(zip(header.fields, header.types, strict=True))
+    xyz = np.stack([rec[a].astype(np.float64) for a in "xyz"], axis=1)
+    index = np.arange(len(rec))
+    if header.height > 1:
+        nan = np.isnan(xyz).any(axis=1)
+        if nan.any():
+            logger.info(
+                "%s: dropped %d invalid (NaN) points of the organised %d×%d cloud",
+                path,
+                int(nan.sum()),
+                header.width,
+                header.height,
+            )
+            keep = ~nan
+            rec, xyz, index = rec[keep], xyz[keep], index[keep]
+    used = {"x", "y", "z"}
+    rgb = None
+    packed = next((n for n in scalar if n.lower() in _PACKED_COLOUR and kinds[n][1] == "4"), None)
+    colour = pick_colour_names(scalar)
+    if packed is not None:
+        used.add(packed)
+        rgb = _unpack_rgb(rec[packed], kinds[packed][0])
+    elif colour is not None:
+        used.update(colour)
+        rgb = to_rgb8(np.stack([rec[c] for c in colour], axis=1), path=path)
+    labels = None
+    fields: dict[str, np.ndarray] = {}
+    label_name = pick_name(scalar, LABEL_NAMES)
+    if label_name is not None:
+        used.add(label_name)
+        labels, fields = normalise_labels(rec[label_name], path=path, source=label_name)
+    for name in names:
+        if name not in used:
+            fields[name] = np.ascontiguousarray(rec[name])
+    report(progress, "read", 1.0)
+
+    def locate(i: int) -> str:
+        if first_line:
+            return f"line {first_line + int(index[i])}"
+        return f"record {int(index[i])}"
+
+    return build_scan(path, "pcd", xyz, rgb, labels, fields, locate=locate)
+
+
+def probe_pcd(path: Path, *, max_points: int) -> ScanInfo:
+    """Check a PCD header and its body size (binary) or line count (ASCII).
+
+    Parameters
+    ----------
+    path : Path
+    max_points : int
+
+    Returns
+    -------
+    ScanInfo
+
+    Raises
+    ------
+    ScanFormatError
+        On a bad header, too many points, or a body that does not match the header.
+    """
+    header = _read_head(path)
+    check_max_points(header.points, max_points, path)
+    _check_size(path, header, os.path.getsize(path))
+    if header.data == "ascii":
+        body = path.read_bytes()[header.body_offset :].rstrip()
+        lines = count_lines(body) if body else 0
+        if lines != header.points:
+            raise ScanFormatError(
+                f"{path}: the PCD header declares {header.points:,} points but the file has "
+                f"{lines:,} data lines"
+            )
+    names = [n for n in header.fields if n != "_"]
+    scalar = _scalar_fields(header)
+    packed = any(n.lower() in _PACKED_COLOUR for n in scalar)
+    colour = pick_colour_names(scalar)
+    label = pick_name(scalar, LABEL_NAMES)
+    used = {"x", "y", "z", label} | {n for n in scalar if n.lower() in _PACKED_COLOUR}
+    used |= set(colour or ())
+    return ScanInfo(
+        path=str(path),
+        format="pcd",
+        n_points=header.points,
+        has_rgb=packed or colour is not None,
+        has_labels=label is not None,
+        fields=tuple(n for n in names if n not in used),
+    )
+
+
+def write_pcd(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> None:
+    """Write a binary PCD (x y z double, packed rgb, int32 label, fields with their types).
+
+    Parameters
+    ----------
+    scan : Scan
+    path : Path
+        Target file (written atomically).
+    progress : ProgressFn, optional
+        Receives ``("write", fraction)``.
+
+    Raises
+    ------
+    ScanFormatError
+        On a field name or dtype PCD cannot store.
+    """
+    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
+    if scan.rgb is not None:
+        rgb = scan.rgb.astype(np.uint32)
+        columns["rgb"] = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).view(np.float32)
+    if scan.labels is not None:
+        columns["label"] = scan.labels
+    for raw_name, values in scan.fields.items():
+        name = safe_field_name(raw_name, path=path)
+        if name in columns or name == "_":
+            raise ScanFormatError(
+                f"{path}: field {raw_name!r} cannot be written to PCD: the name {name!r} is "
+                f"taken; rename the field"
+            )
+        cols = values.reshape(len(values), -1)
+        narrowed = [narrow_dtype(cols[:, i], name=name, path=path) for i in range(cols.shape[1])]
+        common = np.result_type(*narrowed)
+        columns[name] = (
+            np.stack(narrowed, axis=1).astype(common) if values.ndim == 2 else (narrowed[0])
+        )
+    spec, sizes, types, counts = [], [], [], []
+    for name, col in columns.items():
+        base = col.dtype.newbyteorder("<")
+        spec.append((name, base) if col.ndim == 1 else (name, base, (col.shape[1],)))
+        sizes.append(str(base.itemsize))
+        types.append({"i": "I", "u": "U", "f": "F"}[base.kind])
+        counts.append(str(1 if col.ndim == 1 else col.shape[1]))
+    record = np.empty(len(scan), dtype=np.dtype(spec))
+    for name, col in columns.items():
+        record[name] = col
+    lines = [
+        "# .PCD v0.7 - Point Cloud Data file format (written by jointseg)",
+        "VERSION 0.7",
+        "FIELDS " + " ".join(columns),
+        "SIZE " + " ".join(sizes),
+        "TYPE " + " ".join(types),
+        "COUNT " + " ".join(counts),
+        f"WIDTH {len(scan)}",
+        "HEIGHT 1",
+        "VIEWPOINT 0 0 0 1 0 0 0",
+        f"POINTS {len(scan)}",
+        "DATA binary",
+        "",
+    ]
+    report(progress, "write", 0.0)
+    with atomic_open(path) as fh:
+        fh.write("\n".join(lines).encode("ascii"))
+        fh.write(record.tobytes())
+    report(progress, "write", 1.0)

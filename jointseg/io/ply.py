@@ -1,0 +1,503 @@
+"""PLY (ASCII, binary little- and big-endian): header parsed here, body read with numpy.
+
+Reading takes the ``vertex`` element: ``x y z``; colour from ``red green blue``, ``r g b`` or
+``diffuse_red diffuse_green diffuse_blue`` (uchar kept, ushort divided by 257 unless all ≤ 255,
+float 0–1 scaled); labels from ``label``, ``class``, ``classification``,
+``scalar_Classification`` or ``scalar_label`` (case-insensitive); every other vertex property
+becomes a field of the same name and dtype. Other elements (faces, ...) are ignored.
+
+Writing produces binary little-endian PLY: ``x y z`` double, ``red green blue`` uchar, ``label``
+int, then every field. PLY properties are scalars, so a 2-D field ``f`` of width k is written as
+``f_0 .. f_{k-1}`` and reads back as those 1-D fields.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from jointseg.exceptions import ScanFormatError
+from jointseg.io.atomic import atomic_open
+from jointseg.io.common import (
+    LABEL_NAMES,
+    ScanInfo,
+    build_scan,
+    check_max_points,
+    flatten_fields,
+    narrow_dtype,
+    normalise_labels,
+    pick_colour_names,
+    pick_name,
+    to_rgb8,
+)
+from jointseg.io.tabular import parse_table
+from jointseg.progress import ProgressFn, report
+from jointseg.scan import Scan
+
+logger = logging.getLogger(__name__)
+
+#: PLY type names (both spellings) to numpy type codes.
+PLY_TYPES: dict[str, str] = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
+_WRITE_TYPES = {
+    "i1": "char",
+    "u1": "uchar",
+    "i2": "short",
+    "u2": "ushort",
+    "i4": "int",
+    "u4": "uint",
+    "f4": "float",
+    "f8": "double",
+}
+_FORMATS = {"ascii": "", "binary_little_endian": "<", "binary_big_endian": ">"}
+_MAX_HEADER_BYTES = 1 << 20
+
+
+@dataclass
+class PlyProperty:
+    """One property of a PLY element: scalar (``dtype``) or list (``count_dtype`` + ``dtype``)."""
+
+    name: str
+    dtype: str
+    count_dtype: str | None = None
+
+
+@dataclass
+class PlyElement:
+    """One element declaration: name, instance count and properties."""
+
+    name: str
+    count: int
+    line: int
+    properties: list[PlyProperty] = field(default_factory=list)
+
+    @property
+    def fixed_size(self) -> bool:
+        """Whether every instance has the same byte size (no list properties)."""
+        return all(p.count_dtype is None for p in self.properties)
+
+    def dtype(self, order: str) -> np.dtype:
+        """Structured dtype of one instance (binary formats, fixed-size elements only)."""
+        return np.dtype([(p.name, order + p.dtype) for p in self.properties])
+
+
+@dataclass
+class PlyHeader:
+    """The parsed header: encoding, elements, and where the body starts."""
+
+    encoding: str
+    elements: list[PlyElement]
+    body_offset: int
+    n_lines: int
+
+
+def parse_header(buf: bytes, path: Path) -> PlyHeader:
+    """Parse and check a PLY header.
+
+    Parameters
+    ----------
+    buf : bytes
+        The start of the file (at least the whole header).
+    path : Path
+        The file, for messages.
+
+    Returns
+    -------
+    PlyHeader
+
+    Raises
+    ------
+    ScanFormatError
+        On a missing ``ply`` magic line or ``end_header``, an unknown format, type or keyword, a
+        duplicate property, or a missing vertex element or x/y/z property.
+    """
+    if buf[:3] != b"ply" or buf[3:4] not in (b"\n", b"\r"):
+        raise ScanFormatError(
+            f"{path}: not a PLY file (it does not start with the 'ply' magic line)"
+        )
+    end = buf.find(b"end_header", 0, _MAX_HEADER_BYTES)
+    if end < 0:
+        raise ScanFormatError(f"{path}: PLY header has no 'end_header' line (truncated file?)")
+    nl = buf.find(b"\n", end)
+    if nl < 0:
+        raise ScanFormatError(f"{path}: PLY file ends right after 'end_header' with no body")
+    try:
+        text = buf[:end].decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise ScanFormatError(f"{path}: PLY header contains non-ASCII bytes") from exc
+    encoding = None
+    elements: list[PlyElement] = []
+    lines = text.replace("\r", "").split("\n")
+    for i, line in enumerate(lines[1:], start=2):
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        where = f"{path}: PLY header line {i} ({line.strip()[:60]!r})"
+        key = words[0]
+        if key == "format":
+            if len(words) != 3 or words[1] not in _FORMATS:
+                raise ScanFormatError(
+                    f"{where}: expected 'format ascii|binary_little_endian|binary_big_endian 1.0'"
+                )
+            encoding = words[1]
+        elif key == "element":
+            if len(words) != 3 or not words[2].isdigit():
+                raise ScanFormatError(f"{where}: expected 'element <name> <count>'")
+            elements.append(PlyElement(words[1], int(words[2]), i))
+        elif key == "property":
+            if not elements:
+                raise ScanFormatError(f"{where}: property before any element")
+            props = elements[-1].properties
+            if len(words) == 3 and words[1] in PLY_TYPES:
+                prop = PlyProperty(words[2], PLY_TYPES[words[1]])
+            elif (
+                len(words) == 5
+                and words[1] == "list"
+                and words[2] in PLY_TYPES
+                and words[3] in PLY_TYPES
+            ):
+                prop = PlyProperty(words[4], PLY_TYPES[words[3]], PLY_TYPES[words[2]])
+            else:
+                raise ScanFormatError(
+                    f"{where}: expected 'property <type> <name>' or 'property list <type> <type> "
+                    f"<name>' with types among {sorted(set(PLY_TYPES))}"
+                )
+            if any(p.name == prop.name for p in props):
+                raise ScanFormatError(f"{where}: property {prop.name!r} is declared twice")
+            props.append(prop)
+        else:
+            raise ScanFormatError(f"{where}: unknown header keyword {key!r}")
+    if encoding is None:
+        raise ScanFormatError(f"{path}: PLY header has no 'format' line")
+    header = PlyHeader(encoding, elements, nl + 1, len(lines))
+    vertex = vertex_element(header, path)
+    names = [p.name for p in vertex.properties]
+    missing = [a for a in "xyz" if pick_name(names, (a,)) is None]
+    if missing:
+        raise ScanFormatError(
+            f"{path}: PLY vertex element has no {'/'.join(missing)} property "
+            f"(properties: {' '.join(names) or 'none'})"
+        )
+    if not vertex.fixed_size:
+        raise ScanFormatError(f"{path}: PLY vertex element has list properties; not supported")
+    return header
+
+
+def vertex_element(header: PlyHeader, path: Path) -> PlyElement:
+    """Return the ``vertex`` element or raise a ScanFormatError naming the elements present."""
+    for element in header.elements:
+        if element.name == "vertex":
+            return element
+    found = ", ".join(e.name for e in header.elements) or "none"
+    raise ScanFormatError(f"{path}: PLY file has no 'vertex' element (elements: {found})")
+
+
+def _read_binary(path: Path, header: PlyHeader) -> np.ndarray:
+    order = _FORMATS[header.encoding]
+    offset = header.body_offset
+    vertex = vertex_element(header, path)
+    for element in header.elements:
+        if element is vertex:
+            break
+        if not element.fixed_size:
+            return _read_with_plyfile(path)
+        offset += element.count * element.dtype(order).itemsize
+    dtype = vertex.dtype(order)
+    _check_binary_size(path, header, os.path.getsize(path), offset)
+    with open(path, "rb") as fh:
+        fh.seek(offset)
+        data = np.fromfile(fh, dtype=dtype, count=vertex.count)
+    if data.shape[0] != vertex.count:  # the file shrank between the size check and the read
+        raise ScanFormatError(
+            f"{path}: truncated PLY: read {data.shape[0]:,} of {vertex.count:,} vertices"
+        )
+    return data
+
+
+def _check_binary_size(path: Path, header: PlyHeader, size: int, vertex_offset: int) -> None:
+    """Compare the file size with the header's counts (truncated or extra body)."""
+    order = _FORMATS[header.encoding]
+    vertex = vertex_element(header, path)
+    itemsize = vertex.dtype(order).itemsize
+    have = size - vertex_offset
+    need = vertex.count * itemsize
+    if have < need:
+        raise ScanFormatError(
+            f"{path}: truncated PLY: the header declares {vertex.count:,} vertices "
+            f"({need:,} bytes) but only {max(have, 0):,} bytes follow "
+            f"({max(have, 0) // itemsize:,} complete vertices)"
+        )
+    if all(e.fixed_size for e in header.elements):
+        expected = header.body_offset + sum(
+            e.count * e.dtype(order).itemsize for e in header.elements
+        )
+        extra = size - expected
+        if extra < 0:
+            raise ScanFormatError(
+                f"{path}: truncated PLY: the header's elements need {expected:,} bytes but the "
+                f"file has {size:,}"
+            )
+        if extra >= itemsize:
+            raise ScanFormatError(
+                f"{path}: the PLY body is {extra:,} bytes longer than the header declares "
+                f"({vertex.count:,} vertices); the header's vertex count is wrong "
+                f"(about {extra // itemsize:,} more vertices in the file)"
+            )
+
+
+def _read_with_plyfile(path: Path) -> np.ndarray:
+    """Fallback for binary files with list elements before the vertices (rare)."""
+    import plyfile
+
+    try:
+        ply = plyfile.PlyData.read(str(path))
+        return np.asarray(ply["vertex"].data)
+    except (plyfile.PlyParseError, ValueError, KeyError, OSError) as exc:
+        raise ScanFormatError(f"{path}: could not read PLY body: {exc}") from exc
+
+
+def _ascii_body(path: Path, header: PlyHeader) -> tuple[bytes, np.ndarray]:
+    """Read an ASCII body and check its line count against the header's element counts."""
+    vertex = vertex_element(header, path)
+    before = sum(e.count for e in header.elements[: header.elements.index(vertex)])
+    body = path.read_bytes()[header.body_offset :].rstrip()  # trailing blank lines are fine
+    newlines = np.flatnonzero(np.frombuffer(body, dtype=np.uint8) == 10)
+    n_lines = newlines.size + 1 if body else 0
+    declared = sum(e.count for e in header.elements)
+    first_line = header.n_lines + 1
+    if n_lines < before + vertex.count:
+        raise ScanFormatError(
+            f"{path}: the PLY header declares {vertex.count:,} vertices but the file has only "
+            f"{max(0, n_lines - before):,} vertex lines (truncated, or the count is wrong)"
+        )
+    if n_lines > declared:
+        raise ScanFormatError(
+            f"{path}: the PLY file has {n_lines - declared:,} more lines than the header "
+            f"declares ("
+            f"{', '.join(f'{e.count:,} {e.name}' for e in header.elements)}); "
+            f"the header's counts are wrong (first extra line: {first_line + declared})"
+        )
+    return body, newlines
+
+
+def _read_ascii(
+    path: Path, header: PlyHeader, progress: ProgressFn | None
+) -> tuple[np.ndarray, int]:
+    vertex = vertex_element(header, path)
+    before = sum(e.count for e in header.elements[: header.elements.index(vertex)])
+    first_line = header.n_lines + 1
+    body, newlines = _ascii_body(path, header)
+    start = int(newlines[before - 1]) + 1 if before else 0
+    last = before + vertex.count - 1
+    stop = int(newlines[last]) + 1 if last < newlines.size else len(body)
+    values, _ = parse_table(
+        body,
+        path=path,
+        start=start,
+        stop=stop,
+        first_line=first_line + before,
+        ncols=len(vertex.properties),
+        progress=progress,
+    )
+    if values.shape[0] != vertex.count:
+        raise ScanFormatError(
+            f"{path}: the PLY header declares {vertex.count:,} vertices but "
+            f"{values.shape[0]:,} non-blank vertex lines were found"
+        )
+    out = np.empty(vertex.count, dtype=vertex.dtype("="))
+    for i, prop in enumerate(vertex.properties):
+        col = values[:, i]
+        if prop.dtype[0] in "iu":
+            info = np.iinfo(prop.dtype)
+            bad = (col != np.rint(col)) | (col < info.min) | (col > info.max)
+            if bad.any():
+                j = int(np.flatnonzero(bad)[0])
+                raise ScanFormatError(
+                    f"{path}: line {first_line + before + j}: value {col[j]} of property "
+                    f"{prop.name!r} is not a valid {prop.dtype} integer"
+                )
+        out[prop.name] = col
+    return out, first_line + before
+
+
+def _probe_header(path: Path) -> PlyHeader:
+    with open(path, "rb") as fh:
+        head = fh.read(_MAX_HEADER_BYTES)
+    return parse_header(head, path)
+
+
+def _split_vertex(
+    data: np.ndarray, path: Path
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, dict[str, np.ndarray]]:
+    names = list(data.dtype.names or ())
+    axes = [pick_name(names, (a,)) for a in "xyz"]
+    xyz = np.empty((data.shape[0], 3), dtype=np.float64)
+    for i, axis in enumerate(axes):
+        xyz[:, i] = data[axis]
+    used = set(axes)
+    rgb = None
+    colour = pick_colour_names(names)
+    if colour is not None:
+        used.update(colour)
+        rgb = to_rgb8(
+            np.stack([data[c] for c in colour], axis=1),
+            path=path,
+            what="colour " + "/".join(colour),
+        )
+    labels = None
+    fields: dict[str, np.ndarray] = {}
+    label_name = pick_name(names, LABEL_NAMES)
+    if label_name is not None:
+        used.add(label_name)
+        labels, fields = normalise_labels(data[label_name], path=path, source=label_name)
+    for name in names:
+        if name not in used:
+            col = data[name]
+            fields[name] = col.astype(col.dtype.newbyteorder("="))
+    return xyz, rgb, labels, fields
+
+
+def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+    """Read the vertices of a PLY file.
+
+    Parameters
+    ----------
+    path : Path
+    max_points : int
+        Refuse files whose header declares more vertices (checked before the body is read).
+    progress : ProgressFn, optional
+        Receives ``("read", fraction)``.
+
+    Returns
+    -------
+    Scan
+
+    Raises
+    ------
+    ScanFormatError
+        On a bad header, a body shorter or longer than declared, unparsable ASCII lines,
+        non-finite coordinates or too many vertices.
+    """
+    header = _probe_header(path)
+    vertex = vertex_element(header, path)
+    check_max_points(vertex.count, max_points, path)
+    report(progress, "read", 0.0)
+    first_line = 0
+    if header.encoding == "ascii":
+        data, first_line = _read_ascii(path, header, progress)
+    else:
+        data = _read_binary(path, header)
+    xyz, rgb, labels, fields = _split_vertex(data, path)
+    report(progress, "read", 1.0)
+    if first_line:
+        return build_scan(
+            path, "ply", xyz, rgb, labels, fields, locate=lambda i: f"line {first_line + i}"
+        )
+    return build_scan(path, "ply", xyz, rgb, labels, fields)
+
+
+def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
+    """Check a PLY header and body size and report what it declares.
+
+    Parameters
+    ----------
+    path : Path
+    max_points : int
+
+    Returns
+    -------
+    ScanInfo
+
+    Raises
+    ------
+    ScanFormatError
+        On a bad header, too many vertices, or (binary) a body shorter or longer than declared.
+    """
+    header = _probe_header(path)
+    vertex = vertex_element(header, path)
+    check_max_points(vertex.count, max_points, path)
+    idx = header.elements.index(vertex)
+    if header.encoding == "ascii":
+        _ascii_body(path, header)
+    elif all(e.fixed_size for e in header.elements[:idx]):
+        order = _FORMATS[header.encoding]
+        offset = header.body_offset + sum(
+            e.count * e.dtype(order).itemsize for e in header.elements[:idx]
+        )
+        _check_binary_size(path, header, os.path.getsize(path), offset)
+    names = [p.name for p in vertex.properties]
+    colour = pick_colour_names(names)
+    label = pick_name(names, LABEL_NAMES)
+    used = {pick_name(names, (a,)) for a in "xyz"} | set(colour or ()) | {label}
+    return ScanInfo(
+        path=str(path),
+        format="ply",
+        n_points=vertex.count,
+        has_rgb=colour is not None,
+        has_labels=label is not None,
+        fields=tuple(n for n in names if n not in used),
+    )
+
+
+def write_ply(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> None:
+    """Write a binary little-endian PLY keeping colour, labels and every field.
+
+    Parameters
+    ----------
+    scan : Scan
+    path : Path
+        Target file (written atomically).
+    progress : ProgressFn, optional
+        Receives ``("write", fraction)``.
+
+    Raises
+    ------
+    ScanFormatError
+        On a field that PLY cannot store (name or dtype).
+    """
+    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
+    if scan.rgb is not None:
+        columns.update(red=scan.rgb[:, 0], green=scan.rgb[:, 1], blue=scan.rgb[:, 2])
+    if scan.labels is not None:
+        columns["label"] = scan.labels
+    for name, values in flatten_fields(scan.fields, path=path).items():
+        if name in columns:
+            raise ScanFormatError(f"{path}: field {name!r} clashes with a PLY vertex property")
+        columns[name] = narrow_dtype(values, name=name, path=path)
+    dtype = np.dtype([(name, "<" + col.dtype.str[1:]) for name, col in columns.items()])
+    record = np.empty(len(scan), dtype=dtype)
+    for name, col in columns.items():
+        record[name] = col
+    lines = [
+        "ply",
+        "format binary_little_endian 1.0",
+        "comment written by jointseg",
+        f"element vertex {len(scan)}",
+    ]
+    lines += [f"property {_WRITE_TYPES[col.dtype.str[1:]]} {name}" for name, col in columns.items()]
+    lines.append("end_header\n")
+    report(progress, "write", 0.0)
+    with atomic_open(path) as fh:
+        fh.write("\n".join(lines).encode("ascii"))
+        fh.write(record.tobytes())
+    report(progress, "write", 1.0)
