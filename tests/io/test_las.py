@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import laspy
 import numpy as np
 import pytest
@@ -105,7 +107,7 @@ def test_raw_classification_survives_a_round_trip(tmp_path):
 
 def test_all_ceiling_labels_written_by_us_are_kept(tmp_path, make_scan):
     scan = make_scan(20, fields=False)
-    scan = scan.replace(labels=np.zeros(20, dtype=np.int32))
+    scan = dataclasses.replace(scan, labels=np.zeros(20, dtype=np.int32))
     back = read_scan(write_scan(scan, tmp_path / "ceiling.las"))
     np.testing.assert_array_equal(back.labels, 0)
 
