@@ -12,7 +12,7 @@ import sys
 import typer
 from rich.markup import escape
 
-from jointseg.cli import scan_commands
+from jointseg.cli import geometry_command, scan_commands
 from jointseg.cli.progress_bar import stderr_console
 from jointseg.exceptions import JointsegError
 
@@ -24,6 +24,7 @@ app = typer.Typer(
     add_completion=False,
 )
 scan_commands.register(app)
+geometry_command.register(app)
 
 
 @app.callback()

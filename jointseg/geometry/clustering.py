@@ -1,0 +1,185 @@
+"""Euclidean cluster extraction (§2.2.2) and colour region growing (§2.2.3) on one shared
+neighbour graph.
+
+Both are connected components of a thresholded k-nearest-neighbour graph, which is what PCL's
+EuclideanClusterExtraction and RegionGrowingRGB compute with their seed queues: a point joins
+when it is within the distance threshold of a member (and, for region growing, its colour is
+within the point colour threshold of that member). Building the graph once with a KD-tree and
+labelling components with scipy replaces the per-point queue with array operations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+@dataclass(frozen=True)
+class NeighbourGraph:
+    """Directed edges ``src -> dst`` to each point's k nearest neighbours within a radius.
+
+    ``local`` is each point's distance to its nearest distinct neighbour (its local spacing),
+    which lets thresholds follow density where a scanner's density falls with range.
+    """
+
+    n: int
+    src: np.ndarray
+    dst: np.ndarray
+    dist: np.ndarray
+    local: np.ndarray
+
+    def within(self, distance: float, *, adaptive: float = 0.0) -> np.ndarray:
+        """Mask of edges shorter than ``distance`` or, when ``adaptive`` > 0, shorter than
+        ``adaptive`` times the larger local spacing of their two ends."""
+        if adaptive <= 0:
+            return self.dist < distance
+        scale = np.maximum(self.local[self.src], self.local[self.dst])
+        return self.dist < np.maximum(distance, adaptive * scale)
+
+
+def neighbour_graph(tree: cKDTree, xyz: np.ndarray, *, k: int, radius: float) -> NeighbourGraph:
+    """Query each point's ``k`` nearest neighbours within ``radius`` (metres) once."""
+    dist, idx = tree.query(xyz, k=k + 1, distance_upper_bound=radius, workers=-1)
+    n = len(xyz)
+    src = np.repeat(np.arange(n, dtype=np.int64), k + 1).reshape(n, k + 1)
+    valid = (idx < n) & (idx != src)
+    positive = np.where(valid & (dist > 0), dist, np.inf)
+    local = positive.min(axis=1)
+    local[~np.isfinite(local)] = radius
+    return NeighbourGraph(n, src[valid], idx[valid].astype(np.int64), dist[valid], local)
+
+
+def components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Connected-component label (0..C-1) of each of ``n`` nodes given undirected edges."""
+    graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n)).tocsr()
+    _, labels = connected_components(graph, directed=False)
+    return labels.astype(np.int64)
+
+
+def euclidean_clusters(
+    graph: NeighbourGraph, member: np.ndarray, *, tolerance: float, adaptive: float = 0.0
+) -> np.ndarray:
+    """Cluster the points where ``member`` is true; others get -1.
+
+    Parameters
+    ----------
+    member : ndarray of shape (N,), bool
+        Points to cluster (the scan minus its main planes).
+    tolerance : float
+        d_th, metres: neighbours closer than this belong to the same cluster.
+    adaptive : float
+        When > 0, sparse regions use ``adaptive`` x local spacing where that is larger.
+    """
+    keep = member[graph.src] & member[graph.dst] & graph.within(tolerance, adaptive=adaptive)
+    labels = components(graph.n, graph.src[keep], graph.dst[keep])
+    _, dense = np.unique(labels[member], return_inverse=True)
+    out = np.full(graph.n, -1, dtype=np.int64)
+    out[member] = dense
+    return out
+
+
+def mean_colours(rgb: np.ndarray, regions: np.ndarray, count: int) -> np.ndarray:
+    """Mean RGB of each region, shape (count, 3)."""
+    size = np.maximum(np.bincount(regions, minlength=count), 1)
+    return np.column_stack(
+        [np.bincount(regions, weights=rgb[:, c], minlength=count) / size for c in range(3)]
+    )
+
+
+def region_grow_rgb(
+    graph: NeighbourGraph,
+    rgb: np.ndarray | None,
+    groups: np.ndarray,
+    *,
+    distance: float,
+    point_threshold: float | None,
+    region_threshold: float | None,
+    adaptive: float = 0.0,
+) -> np.ndarray:
+    """Colour region growing inside each group (a main plane or a Euclidean cluster).
+
+    Neighbours within ``distance`` whose colours differ by less than ``point_threshold`` join
+    the same region; then neighbouring regions of one group whose mean colours differ by less
+    than ``region_threshold`` are merged. Without colour the groups are returned as regions.
+
+    Returns
+    -------
+    ndarray of shape (N,), int64
+        Region id (0..R-1) of every point.
+    """
+    same = (groups[graph.src] == groups[graph.dst]) & graph.within(distance, adaptive=adaptive)
+    src, dst = graph.src[same], graph.dst[same]
+    if rgb is None or point_threshold is None:
+        return np.unique(groups, return_inverse=True)[1]
+    colour = rgb.astype(np.float32)
+    close = np.linalg.norm(colour[src] - colour[dst], axis=1) < point_threshold
+    regions = components(graph.n, src[close], dst[close])
+    if region_threshold is None:
+        return regions
+    count = int(regions.max()) + 1
+    means = mean_colours(colour, regions, count)
+    a, b = regions[src], regions[dst]
+    cross = a != b
+    pairs = np.unique(np.column_stack([a[cross], b[cross]]), axis=0)
+    if len(pairs) == 0:
+        return regions
+    similar = np.linalg.norm(means[pairs[:, 0]] - means[pairs[:, 1]], axis=1) < region_threshold
+    merged = components(count, pairs[similar, 0], pairs[similar, 1])
+    return merged[regions]
+
+
+def merge_small_regions(
+    graph: NeighbourGraph,
+    xyz: np.ndarray,
+    regions: np.ndarray,
+    groups: np.ndarray,
+    *,
+    min_points: int,
+    rounds: int = 4,
+) -> np.ndarray:
+    """Merge regions smaller than ``min_points`` into their nearest region.
+
+    A small region joins the neighbouring region it shares most graph edges with, preferring
+    one of its own group (main plane or cluster) and a large one; chains of small regions are
+    resolved over a few rounds. Small regions with no graph neighbour take the region of the
+    nearest point of a large region, again preferring their own group. No point is dropped.
+    """
+    regions = np.unique(regions, return_inverse=True)[1]
+    for _ in range(rounds):
+        sizes = np.bincount(regions)
+        small = sizes < min_points
+        if not small.any():
+            break
+        a, b = regions[graph.src], regions[graph.dst]
+        cand = small[a] & (a != b)
+        if not cand.any():
+            break
+        count = len(sizes)
+        same_group = groups[graph.src[cand]] == groups[graph.dst[cand]]
+        keys = (a[cand] * count + b[cand]) * 2 + same_group
+        pair_keys, pair_counts = np.unique(keys, return_counts=True)
+        same, pair_keys = pair_keys % 2, pair_keys // 2
+        pa, pb = pair_keys // count, pair_keys % count
+        score = pair_counts + (same.astype(np.int64) << 40) + np.where(small[pb], 0, 1 << 30)
+        order = np.lexsort((-score, pa))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = pa[order][1:] != pa[order][:-1]
+        merged = components(count, pa[order][first], pb[order][first])
+        regions = np.unique(merged[regions], return_inverse=True)[1]
+    sizes = np.bincount(regions)
+    small_pts = sizes[regions] < min_points
+    if small_pts.any() and (~small_pts).any():
+        big_idx = np.flatnonzero(~small_pts)
+        k = min(8, len(big_idx))
+        _, nearest = cKDTree(xyz[big_idx]).query(xyz[small_pts], k=k, workers=-1)
+        nearest = big_idx[np.asarray(nearest).reshape(-1, k)]
+        same = groups[nearest] == groups[small_pts][:, None]
+        pick = np.where(same.any(axis=1), same.argmax(axis=1), 0)
+        regions = regions.copy()
+        regions[small_pts] = regions[nearest[np.arange(len(pick)), pick]]
+        regions = np.unique(regions, return_inverse=True)[1]
+    return regions

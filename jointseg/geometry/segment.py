@@ -1,0 +1,210 @@
+"""The geometric segmentation of §2.2 end to end: align, planes, clusters, colour regions."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from jointseg.exceptions import ConfigError
+from jointseg.geometry import alignment, clustering, planes
+from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams, resolve
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.scan import Scan
+
+log = logging.getLogger(__name__)
+STAGE = "geometry"
+
+
+@dataclass(frozen=True)
+class PlaneInfo:
+    """A main plane in the scan's own frame: n . p + offset = 0, its kind and point count."""
+
+    normal: tuple[float, float, float]
+    offset: float
+    kind: str
+    name: str
+    points: int
+
+
+@dataclass(frozen=True)
+class GeometryResult:
+    """Segment id for every point, which points lie on main planes, and how long each step took.
+
+    Attributes
+    ----------
+    segments : ndarray of shape (N,), int32
+        Segment id 0..S-1 of every point.
+    plane_id : ndarray of shape (N,), int32
+        Index into ``planes`` of the main plane a point belongs to, -1 for the rest.
+    """
+
+    segments: np.ndarray
+    plane_id: np.ndarray
+    planes: list[PlaneInfo]
+    params: ResolvedGeometryParams
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def main_plane(self) -> np.ndarray:
+        """Boolean mask of main-plane points."""
+        return self.plane_id >= 0
+
+    @property
+    def n_segments(self) -> int:
+        """Number of segments."""
+        return int(self.segments.max()) + 1 if len(self.segments) else 0
+
+
+def colour_noise(graph: clustering.NeighbourGraph, rgb: np.ndarray, sample: int = 200_000) -> float:
+    """Median colour distance (RGB units) between neighbouring points: the scan's colour noise."""
+    nearest = np.flatnonzero(np.r_[True, graph.src[1:] != graph.src[:-1]])
+    if len(nearest) > sample:
+        nearest = nearest[:: len(nearest) // sample]
+    a, b = graph.src[nearest], graph.dst[nearest]
+    diff = np.linalg.norm(rgb[a].astype(np.float32) - rgb[b].astype(np.float32), axis=1)
+    return float(np.median(diff)) if len(diff) else 0.0
+
+
+def segment(
+    scan: Scan,
+    params: GeometryParams | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+    *,
+    seed: int = 0,
+) -> GeometryResult:
+    """Split a scan into geometric segments without semantics (§2.2 of the paper).
+
+    Parameters
+    ----------
+    scan : Scan
+        Points (metres) with optional colour; z must point up.
+    params : GeometryParams, optional
+        Thresholds; unset ones are derived from the scan's spacing and colour noise.
+    progress : callable, optional
+        ``progress("geometry", fraction)``.
+    cancel : object with ``is_set()``, optional
+        Checked between steps.
+    seed : int
+        RANSAC randomness; the result is deterministic for a seed.
+
+    Returns
+    -------
+    GeometryResult
+
+    Raises
+    ------
+    ConfigError
+        When the scan has too few points to segment.
+    """
+    params = params or GeometryParams()
+    n = len(scan)
+    if n < 10:
+        raise ConfigError(f"geometry needs at least 10 points, the scan has {n}")
+    rng = np.random.default_rng(seed)
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name: str, fraction: float) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = now - clock
+        clock = now
+        report(progress, STAGE, fraction)
+        check_cancel(cancel)
+
+    centre = scan.xyz.mean(axis=0)
+    xyz = scan.xyz - centre
+    tree = cKDTree(xyz)
+    probe, _ = tree.query(xyz[rng.choice(n, size=min(n, 20_000), replace=False)], k=2, workers=-1)
+    spacing = float(np.median(probe[:, 1][probe[:, 1] > 0])) if (probe[:, 1] > 0).any() else 1e-3
+    lap("spacing", 0.05)
+
+    normals = alignment.point_normals(xyz, spacing)
+    yaw = alignment.dominant_yaw(normals) if params.align else 0.0
+    rot = alignment.rotation_z(-yaw)
+    aligned = xyz @ rot.T
+    normals = normals @ rot.T
+    lap("alignment", 0.15)
+
+    provisional = resolve(params, n_points=n, spacing=spacing, colour_noise=None, yaw_deg=yaw)
+    graph = clustering.neighbour_graph(
+        tree, xyz, k=params.neighbours, radius=provisional.cluster_distance * 4
+    )
+    noise = colour_noise(graph, scan.rgb) if scan.rgb is not None else None
+    p = resolve(params, n_points=n, spacing=spacing, colour_noise=noise, yaw_deg=yaw)
+    lap("neighbours", 0.4)
+
+    found = planes.box_face_planes(
+        aligned, face_distance=p.face_distance, plane_distance=p.plane_distance,
+        iterations=p.ransac_iterations, sample=p.ransac_sample,
+        max_tilt_deg=p.max_plane_tilt_deg, min_points=p.min_face_points, rng=rng,
+    )
+    plane_id = _assign_planes(aligned, found, n)
+    lap("box_planes", 0.5)
+
+    if p.extra_planes:
+        lo, hi = planes.robust_bounds(aligned)
+        extra = planes.further_planes(
+            aligned, normals, np.flatnonzero(plane_id < 0), plane_distance=p.plane_distance,
+            spacing=spacing, room_height=float(hi[2] - lo[2]), min_wall_area=p.min_wall_area,
+            min_wall_height_ratio=p.min_wall_height_ratio, min_floor_area=p.min_floor_area,
+            min_fill=p.min_plane_fill,
+        )
+        for plane, idx in extra:
+            plane_id[idx] = len(found)
+            found.append((plane, idx))
+    lap("further_planes", 0.6)
+
+    clusters = clustering.euclidean_clusters(
+        graph, plane_id < 0, tolerance=p.cluster_distance, adaptive=p.adaptive_radius
+    )
+    # groups: main planes first, then clusters, so region growing never crosses them
+    groups = np.where(plane_id >= 0, plane_id, len(found) + clusters)
+    lap("clustering", 0.7)
+
+    regions = clustering.region_grow_rgb(
+        graph, scan.rgb, groups, distance=p.cluster_distance,
+        point_threshold=p.point_colour_threshold, region_threshold=p.region_colour_threshold,
+        adaptive=p.adaptive_radius,
+    )
+    regions = clustering.merge_small_regions(
+        graph, xyz, regions, groups, min_points=p.min_region_points
+    )
+    lap("region_growing", 1.0)
+
+    inverse_rot = rot.T
+    infos = []
+    for i, (plane, _) in enumerate(found):
+        normal = inverse_rot @ plane.normal
+        offset = plane.offset - float(normal @ centre)
+        infos.append(
+            PlaneInfo(tuple(float(v) for v in normal), offset, plane.kind, plane.name,  # type: ignore[arg-type]
+                      int(np.sum(plane_id == i)))
+        )
+    log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
+    return GeometryResult(
+        segments=regions.astype(np.int32),
+        plane_id=plane_id.astype(np.int32),
+        planes=infos,
+        params=p,
+        timings=timings,
+    )
+
+
+def _assign_planes(
+    xyz: np.ndarray, found: list[tuple[planes.Plane, np.ndarray]], n: int
+) -> np.ndarray:
+    """Plane index per point; a point in several face sets goes to the nearest plane."""
+    plane_id = np.full(n, -1, dtype=np.int64)
+    best = np.full(n, np.inf)
+    for i, (plane, idx) in enumerate(found):
+        d = np.abs(xyz[idx] @ plane.normal + plane.offset)
+        closer = d < best[idx]
+        plane_id[idx[closer]] = i
+        best[idx[closer]] = d[closer]
+    return plane_id
