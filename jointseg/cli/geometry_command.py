@@ -5,18 +5,21 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import typer
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from jointseg.cli.progress_bar import progress_bar
 from jointseg.exceptions import ConfigError
 from jointseg.io import DEFAULT_MAX_POINTS, read_scan, write_scan
 from jointseg.io.atomic import atomic_open
 
+M = TypeVar("M", bound=BaseModel)
 
-def load_params_file(path: Path | None, model: type) -> object:
+
+def load_params_file(path: Path | None, model: type[M]) -> M:
     """Validate a JSON parameter file against a pydantic ``model``; errors name the field."""
     if path is None:
         return model()
@@ -53,7 +56,7 @@ def geometry(
     with progress_bar() as progress:
         scan = read_scan(source, max_points=max_points, progress=progress)
         read_s = time.perf_counter() - started
-        result = segment(scan, geometry_params, progress=progress, seed=seed)  # type: ignore[arg-type]
+        result = segment(scan, geometry_params, progress=progress, seed=seed)
         out = scan.with_fields(
             segment=result.segments, main_plane=result.main_plane.astype(np.uint8)
         )

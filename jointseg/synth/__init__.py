@@ -1,0 +1,12 @@
+"""Synthetic indoor scans with S3DIS ground truth: test data and training data for jointseg.
+
+Rooms and whole floors are built as triangle meshes (walls with door and window openings,
+beams, columns, boards, furniture, clutter), coloured with class-plausible materials and
+lighting, and scanned by ray casting from tripod positions, so occlusion, range noise and the
+fall of density with range look like a real terrestrial scan.
+"""
+
+from jointseg.synth.floor import make_floor
+from jointseg.synth.room import make_room
+
+__all__ = ["make_floor", "make_room"]
