@@ -53,9 +53,7 @@ def summarise(scan: Scan) -> ScanSummary:
     histogram = None
     if scan.labels is not None:
         values, counts = np.unique(scan.labels, return_counts=True)
-        histogram = {
-            _safe_name(int(v)): int(c) for v, c in zip(values, counts, strict=True)
-        }
+        histogram = {_safe_name(int(v)): int(c) for v, c in zip(values, counts, strict=True)}
     return ScanSummary(
         points=len(scan),
         source_format=scan.source_format,

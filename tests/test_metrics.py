@@ -77,9 +77,7 @@ def test_segment_purity_one_segment_per_point_is_perfect_and_one_segment_is_majo
     rng = np.random.default_rng(0)
     labels = rng.choice([0, 1, 2], size=500, p=[0.6, 0.3, 0.1])
     assert segment_purity(labels, np.arange(500)) == 1.0
-    assert segment_purity(labels, np.zeros(500, dtype=int)) == pytest.approx(
-        np.mean(labels == 0)
-    )
+    assert segment_purity(labels, np.zeros(500, dtype=int)) == pytest.approx(np.mean(labels == 0))
 
 
 def test_segment_purity_needs_labels() -> None:

@@ -42,9 +42,7 @@ def synth(
         if floor:
             scan = make_floor(seed, rooms=floor, points=points, yaw=yaw, progress=progress)
         else:
-            scan = make_room(
-                seed, points=points, shape=shape.value, yaw=yaw, progress=progress
-            )
+            scan = make_room(seed, points=points, shape=shape.value, yaw=yaw, progress=progress)
         write_scan(scan, output, progress=progress)
     typer.echo(
         f"wrote {len(scan):,} points to {output} in {time.perf_counter() - started:.1f} s",

@@ -17,55 +17,92 @@ class GeometryParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     # -- alignment (beyond the paper: any yaw) -------------------------------------------
-    align: bool = Field(True, description="Rotate about z to the room's dominant wall directions "
-                        "before the bounding-box step.")
+    align: bool = Field(
+        True,
+        description="Rotate about z to the room's dominant wall directions "
+        "before the bounding-box step.",
+    )
     # -- multi-level plane extraction (§2.2.1) ---------------------------------------------
     face_distance: PositiveFloat | None = Field(
-        None, description="T: points within T of a bounding-box face form that face's set "
-        "(eq. 3-4). Default: 12 x spacing, at least 0.08 m.")
-    ransac_iterations: PositiveInt = Field(
-        1000, description="Z: RANSAC iterations per face set.")
+        None,
+        description="T: points within T of a bounding-box face form that face's set "
+        "(eq. 3-4). Default: 12 x spacing, at least 0.08 m.",
+    )
+    ransac_iterations: PositiveInt = Field(1000, description="Z: RANSAC iterations per face set.")
     plane_distance: PositiveFloat | None = Field(
-        None, description="sigma: RANSAC inlier distance to a plane. Default: 2.5 x spacing, "
-        "at least 0.015 m.")
+        None,
+        description="sigma: RANSAC inlier distance to a plane. Default: 2.5 x spacing, "
+        "at least 0.015 m.",
+    )
     max_plane_tilt_deg: float = Field(
-        15.0, ge=0, le=90, description="A face's plane may tilt at most this from the face.")
+        15.0, ge=0, le=90, description="A face's plane may tilt at most this from the face."
+    )
     ransac_sample: PositiveInt = Field(
-        4000, description="Points a RANSAC hypothesis is scored on before refinement.")
+        4000, description="Points a RANSAC hypothesis is scored on before refinement."
+    )
     min_face_points: PositiveInt = Field(
-        200, description="A face set with fewer points yields no main plane.")
+        200, description="A face set with fewer points yields no main plane."
+    )
     # -- further planes (beyond the paper: L-shaped rooms, whole floors) -------------------
-    extra_planes: bool = Field(True, description="Extract further large vertical and "
-                               "horizontal planes after the six box faces.")
+    extra_planes: bool = Field(
+        True,
+        description="Extract further large vertical and horizontal planes after the six box faces.",
+    )
     min_wall_area: PositiveFloat = Field(
-        2.0, description="Least area (m^2) of a further vertical plane.")
+        2.0, description="Least area (m^2) of a further vertical plane."
+    )
     min_wall_height_ratio: float = Field(
-        0.6, gt=0, le=1, description="A further vertical plane must span this share of the "
-        "floor-to-ceiling height (walls do, furniture does not).")
+        0.6,
+        gt=0,
+        le=1,
+        description="A further vertical plane must span this share of the "
+        "floor-to-ceiling height (walls do, furniture does not).",
+    )
     min_floor_area: PositiveFloat = Field(
-        4.0, description="Least area (m^2) of a further horizontal plane.")
+        4.0, description="Least area (m^2) of a further horizontal plane."
+    )
     min_plane_fill: float = Field(
-        0.5, gt=0, le=1, description="Least share of a further plane's footprint cells that "
-        "hold points (inlier density).")
+        0.5,
+        gt=0,
+        le=1,
+        description="Least share of a further plane's footprint cells that "
+        "hold points (inlier density).",
+    )
     # -- Euclidean clustering (§2.2.2) -------------------------------------------------------
     cluster_distance: PositiveFloat | None = Field(
-        None, description="d_th: Euclidean cluster tolerance. Default: 3 x spacing.")
+        None, description="d_th: Euclidean cluster tolerance. Default: 3 x spacing."
+    )
     adaptive_radius: float = Field(
-        2.5, ge=0, description="Where points are sparser than d_th assumes (density falls with "
+        2.5,
+        ge=0,
+        description="Where points are sparser than d_th assumes (density falls with "
         "range), neighbours within this multiple of the local spacing also connect; 0 keeps "
-        "PCL's fixed tolerance.")
+        "PCL's fixed tolerance.",
+    )
     neighbours: PositiveInt = Field(
-        12, description="K: neighbours searched per point (clustering and region growing).")
+        12, description="K: neighbours searched per point (clustering and region growing)."
+    )
     # -- colour region growing (§2.2.3) ----------------------------------------------------
+    colour_smoothing: bool = Field(
+        True,
+        description="Average each point's colour over its neighbours before region "
+        "growing (beyond the paper: texture noise otherwise swamps surface contrast).",
+    )
     point_colour_threshold: PositiveFloat | None = Field(
-        None, description="Neighbouring points join a region when their colours differ by "
-        "less. Default: 2.5 x colour noise.")
+        None,
+        description="Neighbouring points join a region when their colours differ by "
+        "less. Default: 2.5 x colour noise.",
+    )
     region_colour_threshold: PositiveFloat | None = Field(
-        None, description="Neighbouring regions merge when their mean colours differ by less. "
-        "Default: 4 x colour noise.")
+        None,
+        description="Neighbouring regions merge when their mean colours differ by less. "
+        "Default: 4 x colour noise.",
+    )
     min_region_points: PositiveInt | None = Field(
-        None, description="Regions (and clusters) smaller than this are merged into their "
-        "nearest region. Default: max(30, N / 20000).")
+        None,
+        description="Regions (and clusters) smaller than this are merged into their "
+        "nearest region. Default: max(30, N / 20000).",
+    )
 
 
 class ResolvedGeometryParams(GeometryParams):
@@ -83,7 +120,11 @@ class ResolvedGeometryParams(GeometryParams):
 
 
 def resolve(
-    params: GeometryParams, *, n_points: int, spacing: float, colour_noise: float | None,
+    params: GeometryParams,
+    *,
+    n_points: int,
+    spacing: float,
+    colour_noise: float | None,
     yaw_deg: float,
 ) -> ResolvedGeometryParams:
     """Fill unset thresholds from the scan's spacing (m) and colour noise (RGB units)."""

@@ -133,16 +133,24 @@ def box_face_planes(
         axis_i = f // 2
         value = lo[axis_i] if f % 2 == 0 else hi[axis_i]
         value = _densest_layer(
-            xyz[:, axis_i], value, inward=1.0 if f % 2 == 0 else -1.0,
-            depth=max(0.5, 4 * face_distance), bin_width=plane_distance,
+            xyz[:, axis_i],
+            value,
+            inward=1.0 if f % 2 == 0 else -1.0,
+            depth=max(0.5, 4 * face_distance),
+            bin_width=plane_distance,
         )
         face_set = np.flatnonzero(np.abs(xyz[:, axis_i] - value) < face_distance)
         if len(face_set) < min_points:
             continue
         axis = np.eye(3)[axis_i]
         fit = ransac_plane(
-            xyz[face_set], iterations=iterations, threshold=plane_distance, sample=sample,
-            rng=rng, axis=axis, max_tilt_deg=max_tilt_deg,
+            xyz[face_set],
+            iterations=iterations,
+            threshold=plane_distance,
+            sample=sample,
+            rng=rng,
+            axis=axis,
+            max_tilt_deg=max_tilt_deg,
         )
         if fit is None or fit[2].sum() < min_points:
             continue
@@ -167,9 +175,7 @@ def _peaks(values: np.ndarray, *, bin_width: float, min_count: int) -> list[floa
     return [float(0.5 * (edges[i] + edges[i + 1])) for i in order]
 
 
-def _patches(
-    uv: np.ndarray, cell: float
-) -> list[tuple[np.ndarray, float, float, float]]:
+def _patches(uv: np.ndarray, cell: float) -> list[tuple[np.ndarray, float, float, float]]:
     """Split in-plane coordinates into 8-connected patches of occupied ``cell``-sized cells.
 
     Returns (point indices, area m^2, fill ratio, extent along v) per patch.

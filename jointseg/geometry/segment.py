@@ -65,7 +65,7 @@ def colour_noise(graph: clustering.NeighbourGraph, rgb: np.ndarray, sample: int 
     if len(nearest) > sample:
         nearest = nearest[:: len(nearest) // sample]
     a, b = graph.src[nearest], graph.dst[nearest]
-    diff = np.linalg.norm(rgb[a].astype(np.float32) - rgb[b].astype(np.float32), axis=1)
+    diff = np.linalg.norm(rgb[a] - rgb[b], axis=1)
     return float(np.median(diff)) if len(diff) else 0.0
 
 
@@ -135,14 +135,28 @@ def segment(
     graph = clustering.neighbour_graph(
         tree, xyz, k=params.neighbours, radius=provisional.cluster_distance * 4
     )
-    noise = colour_noise(graph, scan.rgb) if scan.rgb is not None else None
+    colours: np.ndarray | None = None
+    if scan.rgb is not None:
+        colours = scan.rgb.astype(np.float32)
+        if params.colour_smoothing:
+            colours = clustering.smooth_colours(
+                graph,
+                colours,
+                graph.within(provisional.cluster_distance, adaptive=params.adaptive_radius),
+            )
+    noise = colour_noise(graph, colours) if colours is not None else None
     p = resolve(params, n_points=n, spacing=spacing, colour_noise=noise, yaw_deg=yaw)
     lap("neighbours", 0.4)
 
     found = planes.box_face_planes(
-        aligned, face_distance=p.face_distance, plane_distance=p.plane_distance,
-        iterations=p.ransac_iterations, sample=p.ransac_sample,
-        max_tilt_deg=p.max_plane_tilt_deg, min_points=p.min_face_points, rng=rng,
+        aligned,
+        face_distance=p.face_distance,
+        plane_distance=p.plane_distance,
+        iterations=p.ransac_iterations,
+        sample=p.ransac_sample,
+        max_tilt_deg=p.max_plane_tilt_deg,
+        min_points=p.min_face_points,
+        rng=rng,
     )
     plane_id = _assign_planes(aligned, found, n)
     lap("box_planes", 0.5)
@@ -150,9 +164,15 @@ def segment(
     if p.extra_planes:
         lo, hi = planes.robust_bounds(aligned)
         extra = planes.further_planes(
-            aligned, normals, np.flatnonzero(plane_id < 0), plane_distance=p.plane_distance,
-            spacing=spacing, room_height=float(hi[2] - lo[2]), min_wall_area=p.min_wall_area,
-            min_wall_height_ratio=p.min_wall_height_ratio, min_floor_area=p.min_floor_area,
+            aligned,
+            normals,
+            np.flatnonzero(plane_id < 0),
+            plane_distance=p.plane_distance,
+            spacing=spacing,
+            room_height=float(hi[2] - lo[2]),
+            min_wall_area=p.min_wall_area,
+            min_wall_height_ratio=p.min_wall_height_ratio,
+            min_floor_area=p.min_floor_area,
             min_fill=p.min_plane_fill,
         )
         for plane, idx in extra:
@@ -168,8 +188,12 @@ def segment(
     lap("clustering", 0.7)
 
     regions = clustering.region_grow_rgb(
-        graph, scan.rgb, groups, distance=p.cluster_distance,
-        point_threshold=p.point_colour_threshold, region_threshold=p.region_colour_threshold,
+        graph,
+        colours,
+        groups,
+        distance=p.cluster_distance,
+        point_threshold=p.point_colour_threshold,
+        region_threshold=p.region_colour_threshold,
         adaptive=p.adaptive_radius,
     )
     regions = clustering.merge_small_regions(
@@ -183,8 +207,13 @@ def segment(
         normal = inverse_rot @ plane.normal
         offset = plane.offset - float(normal @ centre)
         infos.append(
-            PlaneInfo(tuple(float(v) for v in normal), offset, plane.kind, plane.name,  # type: ignore[arg-type]
-                      int(np.sum(plane_id == i)))
+            PlaneInfo(
+                (float(normal[0]), float(normal[1]), float(normal[2])),
+                offset,
+                plane.kind,
+                plane.name,
+                int(np.sum(plane_id == i)),
+            )
         )
     log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
     return GeometryResult(
