@@ -53,6 +53,13 @@ def neighbour_graph(tree: cKDTree, xyz: np.ndarray, *, k: int, radius: float) ->
     return NeighbourGraph(n, src[valid], idx[valid].astype(np.int64), dist[valid], local)
 
 
+def compact(labels: np.ndarray) -> np.ndarray:
+    """Renumber non-negative labels to 0..L-1 keeping their order, in O(N) without sorting."""
+    present = np.zeros(int(labels.max()) + 1 if len(labels) else 0, dtype=bool)
+    present[labels] = True
+    return (np.cumsum(present) - 1)[labels]
+
+
 def components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Connected-component label (0..C-1) of each of ``n`` nodes given undirected edges."""
     graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n)).tocsr()
@@ -76,9 +83,8 @@ def euclidean_clusters(
     """
     keep = member[graph.src] & member[graph.dst] & graph.within(tolerance, adaptive=adaptive)
     labels = components(graph.n, graph.src[keep], graph.dst[keep])
-    _, dense = np.unique(labels[member], return_inverse=True)
     out = np.full(graph.n, -1, dtype=np.int64)
-    out[member] = dense
+    out[member] = compact(labels[member])
     return out
 
 
@@ -130,7 +136,7 @@ def region_grow_rgb(
     same = (groups[graph.src] == groups[graph.dst]) & graph.within(distance, adaptive=adaptive)
     src, dst = graph.src[same], graph.dst[same]
     if rgb is None or point_threshold is None:
-        return np.unique(groups, return_inverse=True)[1]
+        return compact(groups)
     colour = rgb.astype(np.float32)  # may already be smoothed
     close = np.linalg.norm(colour[src] - colour[dst], axis=1) < point_threshold
     regions = components(graph.n, src[close], dst[close])
@@ -140,11 +146,12 @@ def region_grow_rgb(
     means = mean_colours(colour, regions, count)
     a, b = regions[src], regions[dst]
     cross = a != b
-    pairs = np.unique(np.column_stack([a[cross], b[cross]]), axis=0)
-    if len(pairs) == 0:
+    keys = np.unique(a[cross] * count + b[cross])
+    if len(keys) == 0:
         return regions
-    similar = np.linalg.norm(means[pairs[:, 0]] - means[pairs[:, 1]], axis=1) < region_threshold
-    merged = components(count, pairs[similar, 0], pairs[similar, 1])
+    pa, pb = keys // count, keys % count
+    similar = np.linalg.norm(means[pa] - means[pb], axis=1) < region_threshold
+    merged = components(count, pa[similar], pb[similar])
     return merged[regions]
 
 
@@ -153,6 +160,7 @@ def merge_small_regions(
     xyz: np.ndarray,
     regions: np.ndarray,
     groups: np.ndarray,
+    weights: np.ndarray | None = None,
     *,
     min_points: int,
     rounds: int = 4,
@@ -163,10 +171,11 @@ def merge_small_regions(
     one of its own group (main plane or cluster) and a large one; chains of small regions are
     resolved over a few rounds. Small regions with no graph neighbour take the region of the
     nearest point of a large region, again preferring their own group. No point is dropped.
+    ``weights`` counts how many scan points each graph node stands for (voxel sizes).
     """
-    regions = np.unique(regions, return_inverse=True)[1]
+    regions = compact(regions)
     for _ in range(rounds):
-        sizes = np.bincount(regions)
+        sizes = np.bincount(regions, weights=weights)
         small = sizes < min_points
         if not small.any():
             break
@@ -185,8 +194,8 @@ def merge_small_regions(
         first = np.ones(len(order), dtype=bool)
         first[1:] = pa[order][1:] != pa[order][:-1]
         merged = components(count, pa[order][first], pb[order][first])
-        regions = np.unique(merged[regions], return_inverse=True)[1]
-    sizes = np.bincount(regions)
+        regions = compact(merged[regions])
+    sizes = np.bincount(regions, weights=weights)
     small_pts = sizes[regions] < min_points
     if small_pts.any() and (~small_pts).any():
         big_idx = np.flatnonzero(~small_pts)
@@ -197,5 +206,5 @@ def merge_small_regions(
         pick = np.where(same.any(axis=1), same.argmax(axis=1), 0)
         regions = regions.copy()
         regions[small_pts] = regions[nearest[np.arange(len(pick)), pick]]
-        regions = np.unique(regions, return_inverse=True)[1]
+        regions = compact(regions)
     return regions

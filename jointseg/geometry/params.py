@@ -22,6 +22,12 @@ class GeometryParams(BaseModel):
         description="Rotate about z to the room's dominant wall directions "
         "before the bounding-box step.",
     )
+    voxel_factor: float = Field(
+        2.0,
+        ge=0,
+        description="Segment voxel centroids of this many point spacings, then give every "
+        "point its voxel's segment (beyond the paper: speed); 0 works on every point.",
+    )
     # -- multi-level plane extraction (§2.2.1) ---------------------------------------------
     face_distance: PositiveFloat | None = Field(
         None,
@@ -80,7 +86,7 @@ class GeometryParams(BaseModel):
         "PCL's fixed tolerance.",
     )
     neighbours: PositiveInt = Field(
-        12, description="K: neighbours searched per point (clustering and region growing)."
+        8, description="K: neighbours searched per point (clustering and region growing)."
     )
     # -- colour region growing (§2.2.3) ----------------------------------------------------
     colour_smoothing: bool = Field(
