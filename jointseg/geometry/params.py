@@ -68,7 +68,7 @@ class GeometryParams(BaseModel):
         4.0, description="Least area (m^2) of a further horizontal plane."
     )
     min_plane_fill: float = Field(
-        0.5,
+        0.3,
         gt=0,
         le=1,
         description="Least share of a further plane's footprint cells that "

@@ -166,9 +166,11 @@ def _peaks(values: np.ndarray, *, bin_width: float, min_count: int) -> list[floa
     lo, hi = values.min(), values.max()
     bins = max(1, int(np.ceil((hi - lo) / bin_width)) + 1)
     hist, edges = np.histogram(values, bins=bins, range=(lo, lo + bins * bin_width))
+    # maxima of the raw histogram (smoothing would fuse the two faces of a thin wall), counted
+    # with their neighbours so a plane split across two bins still qualifies
     window = hist + np.concatenate([[0], hist[:-1]]) + np.concatenate([hist[1:], [0]])
-    is_peak = (window >= np.concatenate([[0], window[:-1]])) & (
-        window > np.concatenate([window[1:], [0]])
+    is_peak = (hist >= np.concatenate([[0], hist[:-1]])) & (
+        hist > np.concatenate([hist[1:], [0]])
     )
     idx = np.flatnonzero(is_peak & (window >= min_count))
     order = idx[np.argsort(-window[idx])]
@@ -211,6 +213,7 @@ def further_planes(
     min_wall_height_ratio: float,
     min_floor_area: float,
     min_fill: float,
+    rng: np.random.Generator,
 ) -> list[tuple[Plane, np.ndarray]]:
     """Large axis-aligned planes among ``candidates`` beyond the box faces (L rooms, floors).
 
@@ -221,31 +224,60 @@ def further_planes(
     found: list[tuple[Plane, np.ndarray]] = []
     taken = np.zeros(len(xyz), dtype=bool)
     cos20 = np.cos(np.radians(20.0))
-    cell = max(4.0 * spacing, 0.1)
+    cell = max(8.0 * spacing, 0.2)
     for axis_i in (0, 1, 2):
         vertical = axis_i < 2
         min_area = min_wall_area if vertical else min_floor_area
         aligned = candidates[np.abs(normals[candidates, axis_i]) > cos20]
         min_count = int(min_area * min_fill / max(spacing, 1e-3) ** 2 * 0.25)
+        other = [a for a in range(3) if a != axis_i]
+        kind = "wall" if vertical else "horizontal"
         for c in _peaks(xyz[aligned, axis_i], bin_width=plane_distance, min_count=min_count):
-            band = aligned[(np.abs(xyz[aligned, axis_i] - c) < plane_distance) & ~taken[aligned]]
-            if len(band) < 3:
-                continue
-            other = [a for a in range(3) if a != axis_i]
-            for members, area, fill, v_extent in _patches(xyz[band][:, other], cell):
-                if area < min_area or fill < min_fill:
-                    continue
-                if vertical and v_extent < min_wall_height_ratio * room_height:
-                    continue
-                pts = band[members]
-                normal, offset = fit_plane(xyz[pts])
-                # the whole patch region, not only the normal-voting points, belongs to it
-                near = candidates[~taken[candidates]]
-                near = near[np.abs(xyz[near] @ normal + offset) < plane_distance]
-                lo, hi = xyz[pts].min(axis=0) - cell, xyz[pts].max(axis=0) + cell
-                inside = np.all((xyz[near] >= lo) & (xyz[near] <= hi), axis=1)
-                pts = near[inside]
-                taken[pts] = True
-                kind = "wall" if vertical else "horizontal"
-                found.append((Plane(normal, offset, kind, f"{kind}_{len(found)}"), pts))
+            # A long wall under a small residual yaw spans more than one bin, and the two faces
+            # of a thin wall can share a peak: fit planes in a wider band, a few in turn.
+            wide = aligned[
+                (np.abs(xyz[aligned, axis_i] - c) < 3 * plane_distance) & ~taken[aligned]
+            ]
+            for _ in range(3):
+                if len(wide) < min_count:
+                    break
+                fit = ransac_plane(
+                    xyz[wide],
+                    iterations=200,
+                    threshold=plane_distance,
+                    sample=2000,
+                    rng=rng,
+                    axis=np.eye(3)[axis_i],
+                    max_tilt_deg=5.0,
+                )
+                if fit is None or fit[2].sum() < 3:
+                    break
+                band = wide[fit[2]]
+                wide = wide[~fit[2]]
+                for members, area, fill, v_extent in _patches(xyz[band][:, other], cell):
+                    if area < min_area or fill < min_fill:
+                        continue
+                    if vertical and v_extent < min_wall_height_ratio * room_height:
+                        continue
+                    pts = _plane_region(
+                        xyz,
+                        candidates[~taken[candidates]],
+                        band[members],
+                        plane_distance=plane_distance,
+                        margin=cell,
+                    )
+                    taken[pts] = True
+                    plane = Plane(*fit_plane(xyz[pts]), kind, f"{kind}_{len(found)}")
+                    found.append((plane, pts))
     return found
+
+
+def _plane_region(
+    xyz: np.ndarray, free: np.ndarray, seeds: np.ndarray, *, plane_distance: float, margin: float
+) -> np.ndarray:
+    """All free points near the plane through ``seeds`` and inside their box plus ``margin``:
+    the whole patch, not only the points whose normals voted for it."""
+    normal, offset = fit_plane(xyz[seeds])
+    near = free[np.abs(xyz[free] @ normal + offset) < plane_distance]
+    lo, hi = xyz[seeds].min(axis=0) - margin, xyz[seeds].max(axis=0) + margin
+    return near[np.all((xyz[near] >= lo) & (xyz[near] <= hi), axis=1)]

@@ -183,6 +183,7 @@ def segment(
             min_wall_height_ratio=p.min_wall_height_ratio,
             min_floor_area=p.min_floor_area,
             min_fill=p.min_plane_fill,
+            rng=rng,
         )
         for plane, idx in extra:
             plane_id[idx] = len(found)
