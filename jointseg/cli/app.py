@@ -42,5 +42,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         app(args=argv, standalone_mode=True)
     except JointsegError as exc:
-        stderr_console.print(f"[red]error:[/red] {escape(str(exc))}", highlight=False)
+        stderr_console.print(
+            f"[red]error:[/red] {escape(str(exc))}", highlight=False, soft_wrap=True
+        )
         sys.exit(2)

@@ -169,9 +169,7 @@ def _peaks(values: np.ndarray, *, bin_width: float, min_count: int) -> list[floa
     # maxima of the raw histogram (smoothing would fuse the two faces of a thin wall), counted
     # with their neighbours so a plane split across two bins still qualifies
     window = hist + np.concatenate([[0], hist[:-1]]) + np.concatenate([hist[1:], [0]])
-    is_peak = (hist >= np.concatenate([[0], hist[:-1]])) & (
-        hist > np.concatenate([hist[1:], [0]])
-    )
+    is_peak = (hist >= np.concatenate([[0], hist[:-1]])) & (hist > np.concatenate([hist[1:], [0]]))
     idx = np.flatnonzero(is_peak & (window >= min_count))
     order = idx[np.argsort(-window[idx])]
     return [float(0.5 * (edges[i] + edges[i + 1])) for i in order]
