@@ -23,7 +23,7 @@ class GeometryParams(BaseModel):
         "before the bounding-box step.",
     )
     voxel_factor: float = Field(
-        2.0,
+        2.5,
         ge=0,
         description="Segment voxel centroids of this many point spacings, then give every "
         "point its voxel's segment (beyond the paper: speed); 0 works on every point.",
@@ -86,7 +86,7 @@ class GeometryParams(BaseModel):
         "PCL's fixed tolerance.",
     )
     neighbours: PositiveInt = Field(
-        8, description="K: neighbours searched per point (clustering and region growing)."
+        6, description="K: neighbours searched per point (clustering and region growing)."
     )
     # -- colour region growing (§2.2.3) ----------------------------------------------------
     colour_smoothing: bool = Field(
