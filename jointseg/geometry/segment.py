@@ -54,6 +54,12 @@ class GeometryResult:
         return self.plane_id >= 0
 
     @property
+    def plane_segments(self) -> np.ndarray:
+        """Boolean array over segment ids: true where most of the segment lies on a main plane."""
+        on_plane = np.bincount(self.segments, weights=self.main_plane, minlength=self.n_segments)
+        return on_plane > 0.5 * np.bincount(self.segments, minlength=self.n_segments)
+
+    @property
     def n_segments(self) -> int:
         """Number of segments."""
         return int(self.segments.max()) + 1 if len(self.segments) else 0

@@ -33,6 +33,9 @@ def test_every_point_gets_a_segment_and_ids_are_contiguous(scan) -> None:
     off_plane = np.bincount(result.segments) - on_plane
     assert np.minimum(on_plane, off_plane).sum() < 0.02 * len(scan)
     assert set(result.timings) >= {"box_planes", "clustering", "region_growing"}
+    plane_segments = result.plane_segments
+    assert plane_segments.shape == (result.n_segments,)
+    assert result.main_plane[plane_segments[result.segments]].mean() > 0.95
 
 
 def test_plane_equations_are_in_the_scan_frame(scan) -> None:
