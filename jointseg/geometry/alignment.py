@@ -9,26 +9,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-
-def voxel_index(xyz: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Group points by voxel.
-
-    Returns
-    -------
-    inverse : ndarray of shape (N,), int64
-        Voxel of each point.
-    centroids : ndarray of shape (V, 3)
-        Mean position of each voxel's points.
-    """
-    keys = np.floor((xyz - xyz.min(axis=0)) / voxel).astype(np.int64)
-    dims = keys.max(axis=0) + 1
-    flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-    _, inverse = np.unique(flat, return_inverse=True)
-    counts = np.bincount(inverse)
-    centroids = np.column_stack(
-        [np.bincount(inverse, weights=xyz[:, d]) / counts for d in range(3)]
-    )
-    return inverse, centroids
+from jointseg.voxels import voxel_index
 
 
 def estimate_normals(xyz: np.ndarray, *, k: int = 16) -> np.ndarray:

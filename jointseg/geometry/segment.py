@@ -14,6 +14,7 @@ from jointseg.geometry import alignment, clustering, planes
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams, resolve
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
+from jointseg.voxels import voxel_index
 
 log = logging.getLogger(__name__)
 STAGE = "geometry"
@@ -132,7 +133,7 @@ def segment(
     # later step then costs a fraction of the per-point version. Labels map back per voxel.
     voxel = params.voxel_factor * spacing
     if voxel > 0:
-        inverse, work = alignment.voxel_index(xyz, voxel)
+        inverse, work = voxel_index(xyz, voxel)
         weights = np.bincount(inverse).astype(np.float64)
         work_rgb = (
             None

@@ -1,0 +1,149 @@
+"""Whole-scan inference: crops chosen by the 'possibility' scheme until every sub-sampled point
+is covered, softmax outputs averaged over the crops that saw a point, then back to every input
+point through its nearest sub-sampled point."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from jointseg.exceptions import ConfigError
+from jointseg.network.crops import build_batch, crop_indices, grid_subsample, pad_to
+from jointseg.network.randlanet import RandLANet
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.scan import Scan
+
+log = logging.getLogger(__name__)
+STAGE = "network"
+
+
+@dataclass(frozen=True)
+class NetworkResult:
+    """Labels and class probabilities for every input point.
+
+    Attributes
+    ----------
+    labels : ndarray of shape (N,), int32
+    probs : ndarray of shape (N, 13), float32
+        Averaged softmax outputs; rows sum to 1.
+    """
+
+    labels: np.ndarray
+    probs: np.ndarray
+    crops: int
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def confidence(self) -> np.ndarray:
+        """Probability of the predicted class per point."""
+        return self.probs.max(axis=1)
+
+
+def pick_device(device: str | None = None) -> torch.device:
+    """CUDA when present (or asked for), else CPU."""
+    if device:
+        return torch.device(device)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+class RandLANetPredictor:
+    """A loaded RandLA-Net and the whole-scan inference around it."""
+
+    name = "randlanet"
+
+    def __init__(
+        self,
+        model: RandLANet,
+        card: dict[str, Any] | None = None,
+        *,
+        device: str | None = None,
+        batch_size: int = 4,
+        num_points: int | None = None,
+        min_possibility: float = 0.5,
+    ) -> None:
+        self.device = pick_device(device)
+        self.model = model.to(self.device).eval()
+        self.card = card or {}
+        self.batch_size = batch_size
+        self.num_points = num_points or model.config.num_points
+        self.min_possibility = min_possibility
+
+    def predict(
+        self,
+        scan: Scan,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> NetworkResult:
+        """Label every point of ``scan``.
+
+        Memory is bounded by the crop size and the batch: the scan itself is only held as its
+        grid sub-sample plus the output arrays.
+
+        Raises
+        ------
+        ConfigError
+            When the scan is empty.
+        """
+        if len(scan) == 0:
+            raise ConfigError("cannot run the network on an empty scan")
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        rng = np.random.default_rng(seed)
+        torch.manual_seed(seed)
+        cfg = self.model.config
+        cloud = grid_subsample(scan.xyz, scan.rgb, None, cfg.grid_size)
+        m = len(cloud.xyz)
+        crop_size = min(self.num_points, max(m, 1024))
+        possibility = rng.random(m) * 1e-3
+        prob_sum = np.zeros((m, cfg.num_classes), dtype=np.float32)
+        seen = np.zeros(m, dtype=np.int32)
+        timings["subsample"] = time.perf_counter() - t
+        t = time.perf_counter()
+        crops = 0
+        with torch.inference_mode():
+            while possibility.min() < self.min_possibility:
+                check_cancel(cancel)
+                batch_crops = []
+                for _ in range(self.batch_size):
+                    centre_idx = int(np.argmin(possibility))
+                    idx = crop_indices(cloud, cloud.xyz[centre_idx], crop_size)
+                    dist = np.sum((cloud.xyz[idx] - cloud.xyz[centre_idx]) ** 2, axis=1)
+                    possibility[idx] += np.square(1 - dist / max(float(dist.max()), 1e-12))
+                    idx = rng.permutation(pad_to(idx, crop_size, rng))
+                    batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
+                    if possibility.min() >= self.min_possibility:
+                        break
+                batch = build_batch(batch_crops, cfg).to(self.device)
+                logits = self.model(
+                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+                )
+                probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
+                flat_idx = batch.indices.reshape(-1)
+                np.add.at(prob_sum, flat_idx, probs.reshape(-1, cfg.num_classes))
+                np.add.at(seen, flat_idx, 1)
+                crops += len(batch_crops)
+                covered = float(np.mean(np.minimum(possibility / self.min_possibility, 1.0)))
+                report(progress, STAGE, 0.95 * covered)
+        timings["crops"] = time.perf_counter() - t
+        t = time.perf_counter()
+        sub_probs = prob_sum / np.maximum(seen, 1)[:, None]
+        query = (scan.xyz - _grid_origin(scan.xyz)).astype(np.float32)
+        _, nearest = cloud.tree.query(query, k=1, workers=-1)
+        probs_full = sub_probs[nearest]
+        labels = probs_full.argmax(axis=1).astype(np.int32)
+        timings["project"] = time.perf_counter() - t
+        report(progress, STAGE, 1.0)
+        log.info("network: %d points, %d sub-sampled, %d crops", len(scan), m, crops)
+        return NetworkResult(labels, probs_full.astype(np.float32), crops, timings)
+
+
+def _grid_origin(xyz: np.ndarray) -> np.ndarray:
+    """The offset grid_subsample removed (x, y min and z min), to project points back."""
+    return np.array([xyz[:, 0].min(), xyz[:, 1].min(), xyz[:, 2].min()])
