@@ -6,6 +6,7 @@ stacked into tensors once.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,8 +91,11 @@ def pad_to(indices: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarr
     return np.concatenate([indices, extra])
 
 
+Crop = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]
+
+
 def build_batch(
-    crops: list[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]],
+    crops: Sequence[Crop],
     config: RandLANetConfig,
 ) -> Batch:
     """Per-layer neighbours, pooling and upsampling indices for crops of equal size.
@@ -115,8 +119,9 @@ def build_batch(
         for slot in per_layer
     ]
     label_tensor = None
-    if all(lab is not None for lab in labels):
-        label_tensor = torch.from_numpy(np.stack(labels).astype(np.int64))
+    known = [lab for lab in labels if lab is not None]
+    if len(known) == len(labels):
+        label_tensor = torch.from_numpy(np.stack(known).astype(np.int64))
     return Batch(
         torch.from_numpy(np.stack(feats)),
         stacked[0],

@@ -62,7 +62,8 @@ def load_clouds(cfg: TrainConfig, grid: float) -> tuple[list[GridCloud], list[Gr
     if cfg.data == "synth":
         from jointseg.synth import make_floor, make_room
 
-        train, val = [], []
+        train: list[GridCloud] = []
+        val: list[GridCloud] = []
         for i in range(cfg.synth_rooms):
             scan = make_room(1000 + i, points=cfg.synth_points, shape="L" if i % 3 == 2 else "box")
             train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
@@ -81,7 +82,9 @@ def load_clouds(cfg: TrainConfig, grid: float) -> tuple[list[GridCloud], list[Gr
     return _load_s3dis(Path(cfg.data), cfg.test_area, grid)
 
 
-def _load_s3dis(root: Path, test_area: int, grid: float) -> tuple[list, list, str]:
+def _load_s3dis(
+    root: Path, test_area: int, grid: float
+) -> tuple[list[GridCloud], list[GridCloud], str]:
     from jointseg.io import read_scan
 
     rooms = sorted(root.glob("Area_*/*/Annotations"))
@@ -90,7 +93,8 @@ def _load_s3dis(root: Path, test_area: int, grid: float) -> tuple[list, list, st
             f"{root}: no Area_N/<room>/Annotations folders (expected the "
             "Stanford3dDataset_v1.2_Aligned_Version layout)"
         )
-    train, val = [], []
+    train: list[GridCloud] = []
+    val: list[GridCloud] = []
     for ann in rooms:
         scan = read_scan(ann.parent)
         cloud = grid_subsample(scan.xyz, scan.rgb, scan.labels, grid)
@@ -145,7 +149,7 @@ def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> flo
 def train(
     cfg: TrainConfig, progress: ProgressFn | None = None, cancel: CancelToken | None = None
 ) -> Path:
-    """Train and write ``cfg.out`` after every epoch (plus ``.last`` for resuming).
+    """Train, writing ``cfg.out`` after every epoch (with optimiser state, for ``resume``).
 
     Returns
     -------
@@ -197,7 +201,7 @@ def train(
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
-            losses.append(float(loss))
+            losses.append(float(loss.detach()))
             report(progress, STAGE, (epoch * cfg.steps_per_epoch + step + 1) / total_steps)
         scheduler.step()
         miou = validate(model, val_clouds, cfg)

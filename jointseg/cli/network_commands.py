@@ -1,0 +1,129 @@
+"""`jointseg predict`, `jointseg train` and `jointseg models`: the network stage."""
+
+from __future__ import annotations
+
+import time
+from enum import StrEnum
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from jointseg.cli.progress_bar import progress_bar
+from jointseg.io import DEFAULT_MAX_POINTS, read_scan, write_scan
+
+models_app = typer.Typer(help="Network backends and weights.", no_args_is_help=True)
+
+
+class Network(StrEnum):
+    randlanet = "randlanet"
+
+
+class ImportSource(StrEnum):
+    open3d_ml = "open3d-ml"
+
+
+def predict(
+    source: Path = typer.Argument(..., help="Input scan."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output scan with network fields."),
+    network: Network = typer.Option(Network.randlanet, help="Network backend."),
+    weights: Path | None = typer.Option(None, help="Checkpoint (default: bundled weights)."),
+    device: str | None = typer.Option(None, help="cpu or cuda (default: cuda when present)."),
+    batch_size: int = typer.Option(4, min=1, help="Crops per forward pass."),
+    seed: int = typer.Option(0, help="Crop randomness; the same seed gives the same labels."),
+    max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
+) -> None:
+    """Label every point with the network; writes network_label and network_confidence."""
+    from jointseg.network import load
+
+    predictor = load(network.value, weights, device=device, batch_size=batch_size)
+    started = time.perf_counter()
+    with progress_bar() as progress:
+        scan = read_scan(source, max_points=max_points, progress=progress)
+        result = predictor.predict(scan, progress=progress, seed=seed)
+        out = scan.with_fields(
+            network_label=result.labels.astype(np.int32),
+            network_confidence=result.confidence.astype(np.float32),
+        )
+        write_scan(out, output, progress=progress)
+    seconds = time.perf_counter() - started
+    typer.echo(
+        f"{len(scan):,} points labelled with {network.value} in {seconds:.1f} s "
+        f"({result.crops} crops) -> {output}",
+        err=True,
+    )
+
+
+def train(
+    data: str = typer.Option("synth", help="'synth' or a Stanford3dDataset_v1.2 folder."),
+    out: Path = typer.Option(..., "--out", help="Checkpoint to write (after every epoch)."),
+    epochs: int = typer.Option(20, min=1),
+    steps: int = typer.Option(100, min=1, help="Steps per epoch."),
+    batch_size: int = typer.Option(2, min=1),
+    num_points: int = typer.Option(16_384, min=1024, help="Points per training crop."),
+    lr: float = typer.Option(0.01, min=0.0),
+    test_area: int = typer.Option(5, min=1, max=6, help="S3DIS area held out."),
+    synth_rooms: int = typer.Option(40, min=1, help="Synthetic training rooms."),
+    seed: int = typer.Option(0),
+    resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
+) -> None:
+    """Train RandLA-Net on synthetic rooms or on S3DIS."""
+    from jointseg.network.training import TrainConfig
+    from jointseg.network.training import train as run_training
+
+    cfg = TrainConfig(
+        data=data,
+        out=out,
+        epochs=epochs,
+        steps_per_epoch=steps,
+        batch_size=batch_size,
+        num_points=num_points,
+        lr=lr,
+        test_area=test_area,
+        synth_rooms=synth_rooms,
+        seed=seed,
+        resume=resume,
+    )
+    with progress_bar() as progress:
+        path = run_training(cfg, progress=progress)
+    typer.echo(f"wrote {path}", err=True)
+
+
+@models_app.command("list")
+def list_models() -> None:
+    """Show the network backends and their weights."""
+    from jointseg.network import available_backends
+
+    table = Table("backend", "weights", "installed", "trained on")
+    for info in available_backends():
+        table.add_row(
+            info.name, str(info.weights), "yes" if info.available else "no", info.trained_on
+        )
+    Console().print(table)
+
+
+@models_app.command("import")
+def import_weights(
+    source: ImportSource = typer.Argument(..., help="Where the checkpoint comes from."),
+    file: Path = typer.Argument(..., help="The checkpoint file."),
+    output: Path = typer.Option(
+        Path("randlanet_s3dis.pt"), "-o", "--output", help="jointseg checkpoint to write."
+    ),
+    allow_pickle: bool = typer.Option(
+        False, help="Also read files holding Python objects (can run code stored in the file)."
+    ),
+) -> None:
+    """Convert a checkpoint from another framework (Open3D-ML's RandLA-Net)."""
+    from jointseg.network.convert import import_open3d_ml
+
+    path = import_open3d_ml(file, output, allow_pickle=allow_pickle)
+    typer.echo(f"wrote {path}; use it with --weights {path}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add this module's commands to ``app``."""
+    app.command()(predict)
+    app.command()(train)
+    app.add_typer(models_app, name="models")
