@@ -18,6 +18,7 @@ import hashlib
 import logging
 import pickle
 import re
+import zipfile
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -285,6 +286,11 @@ def import_open3d_ml(src: Path, dst: Path, *, allow_pickle: bool = False) -> Pat
 
 
 def _load(src: Path, digest: str, *, allow_pickle: bool) -> Any:
+    # torch files are zip archives (or, before torch 1.6, pickles starting with 0x80)
+    with open(src, "rb") as fh:
+        head = fh.read(4)
+    if not (zipfile.is_zipfile(src) or head[:1] == b"\x80"):
+        raise ConfigError(f"{src}: not a readable PyTorch checkpoint (neither a zip nor a pickle)")
     try:
         return torch.load(src, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
