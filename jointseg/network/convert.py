@@ -369,3 +369,29 @@ def _sha256(path: Path) -> str:
         for chunk in iter(lambda: fh.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def to_open3d_ml_state(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The inverse of :func:`convert_open3d_ml_state`: our weights in Open3D-ML's layout.
+
+    Used to run the very same network inside Open3D-ML (benchmarks, cross-checks).
+
+    Parameters
+    ----------
+    state : mapping of str to Tensor
+        ``RandLANet().state_dict()``.
+
+    Returns
+    -------
+    dict of str to Tensor
+        Loadable by ``open3d.ml.torch.models.RandLANet`` with the S3DIS configuration.
+    """
+    out: dict[str, torch.Tensor] = {}
+    for key, value in state.items():
+        tensor = value.detach().clone().float() if value.is_floating_point() else value.clone()
+        if _TRANSPOSED.match(key):
+            tensor = tensor.transpose(0, 1).contiguous()
+        if key == "stem.weight":
+            tensor[:, _COLOUR] /= 255.0
+        out[open3d_ml_name(key)] = tensor
+    return out

@@ -275,3 +275,14 @@ def test_pickled_objects_need_consent(theirs: torch.nn.Module, tmp_path: Path) -
     with pytest.raises(ConfigError, match="with_args.pth.*Python objects"):
         import_open3d_ml(src, tmp_path / "refused.pt", allow_pickle=False)
     assert import_open3d_ml(src, tmp_path / "allowed.pt", allow_pickle=True).is_file()
+
+
+def test_export_is_the_inverse_of_import(theirs: torch.nn.Module) -> None:
+    from jointseg.network.convert import convert_open3d_ml_state, to_open3d_ml_state
+
+    original = {k: v.clone() for k, v in theirs.state_dict().items()}
+    back = to_open3d_ml_state(convert_open3d_ml_state(original))
+    assert set(back) == set(original)
+    for key, value in original.items():
+        if value.is_floating_point():
+            assert torch.allclose(back[key], value, atol=1e-6), key

@@ -1,0 +1,120 @@
+"""Network stage benchmark: our whole-scan RandLA-Net inference vs Open3D-ML's.
+
+Runs, in one process on the same synthetic room and the same weights (ours converted to
+Open3D-ML's layout), our `predict` and Open3D-ML's `SemanticSegmentation.run_inference`, and
+prints points per second, the speed ratio and the share of points on which the two agree.
+`--big N` also measures our peak memory on an N-point scan in a fresh process.
+
+    .venv/bin/python bench/network.py [--points 1000000] [--weights PATH] [--big 10000000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from jointseg.metrics import evaluate
+from jointseg.network import load
+from jointseg.network.convert import to_open3d_ml_state
+from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.synth import make_room
+
+S3DIS_CFG = dict(
+    num_neighbors=16,
+    num_layers=5,
+    num_points=40960,
+    num_classes=13,
+    ignored_label_inds=[],
+    sub_sampling_ratio=[4, 4, 4, 4, 2],
+    in_channels=6,
+    dim_features=8,
+    dim_output=[16, 64, 128, 256, 512],
+    grid_size=0.04,
+)
+
+
+def run_open3d_ml(predictor, xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, float]:
+    import open3d.ml.torch as ml3d
+
+    model = ml3d.models.RandLANet(**S3DIS_CFG)
+    model.load_state_dict(to_open3d_ml_state(predictor.model.state_dict()))
+    pipeline = ml3d.pipelines.SemanticSegmentation(model, device="cpu")
+    pts = xyz.astype(np.float32).copy()
+    pts[:, 2] -= pts[:, 2].min()  # the input convention both models were given
+    data = {"point": pts, "feat": rgb.astype(np.float32), "label": np.zeros(len(pts), np.int32)}
+    t = time.perf_counter()
+    result = pipeline.run_inference(data)
+    return np.asarray(result["predict_labels"]), time.perf_counter() - t
+
+
+def big_run(points: int, weights: str) -> None:
+    """Child process: predict an N-point room and print peak RSS (MB) as JSON."""
+    scan = make_room(7, points=points)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t = time.perf_counter()
+    load("randlanet", weights, device="cpu").predict(scan)
+    seconds = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(json.dumps({"points": points, "seconds": seconds, "peak_mb": peak, "before_mb": before}))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", type=int, default=1_000_000)
+    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument("--big", type=int, default=0, help="also measure memory at N points")
+    parser.add_argument("--child-big", type=int, default=0, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child_big:
+        big_run(args.child_big, args.weights)
+        return
+    logging.basicConfig(level=logging.WARNING)
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    scan = make_room(0, points=args.points)
+    predictor = load("randlanet", args.weights, device="cpu")
+    print(f"# network benchmark, {len(scan):,} points (make_room seed 0), weights {args.weights}")
+    print(f"torch threads {torch.get_num_threads()}, device cpu, {time.strftime('%F')}")
+    t = time.perf_counter()
+    ours = predictor.predict(scan)
+    ours_s = time.perf_counter() - t
+    theirs, theirs_s = run_open3d_ml(predictor, scan.xyz, scan.rgb)
+    agree = float(np.mean(ours.labels == theirs))
+    print()
+    print("| implementation | seconds | points/s | crops | mIoU vs ground truth |")
+    print("|---|---|---|---|---|")
+    m_ours = evaluate(scan.labels, ours.labels).miou or 0.0
+    m_theirs = evaluate(scan.labels, theirs).miou or 0.0
+    print(f"| jointseg | {ours_s:.1f} | {len(scan) / ours_s:,.0f} | {ours.crops} | {m_ours:.3f} |")
+    print(
+        f"| Open3D-ML run_inference | {theirs_s:.1f} | {len(scan) / theirs_s:,.0f} | - | "
+        f"{m_theirs:.3f} |"
+    )
+    print()
+    print(f"**speed-up {theirs_s / ours_s:.2f}x**, agreement {agree:.4f} of points")
+    print(f"our timings: { {k: round(v, 2) for k, v in ours.timings.items()} }")
+    if args.big:
+        out = subprocess.run(
+            [sys.executable, __file__, "--child-big", str(args.big), "--weights", args.weights],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        big = json.loads(out.stdout.strip().splitlines()[-1])
+        print()
+        print(
+            f"{big['points']:,} points: {big['seconds']:.1f} s, peak RSS {big['peak_mb']:.0f} MB "
+            f"(of which {big['before_mb']:.0f} MB held before inference: the scan itself)"
+        )
+
+
+if __name__ == "__main__":
+    main()
