@@ -9,10 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-ml3d = pytest.importorskip(
-    "open3d.ml.torch",
-    reason="Open3D-ML's PyTorch models are not installed (pip install 'jointseg[ml3d]')",
-)
+try:  # open3d.ml.torch imports lazily and raises ImportError on first use without its extras
+    import open3d.ml.torch as ml3d
+
+    ml3d.models.RandLANet  # noqa: B018
+except ImportError as exc:
+    pytest.skip(
+        f"Open3D-ML's PyTorch models cannot be imported ({exc}); pip install 'jointseg[ml3d]'",
+        allow_module_level=True,
+    )
 
 from jointseg.exceptions import ConfigError  # noqa: E402
 from jointseg.network.checkpoint import load_checkpoint  # noqa: E402
