@@ -17,6 +17,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from jointseg.voxels import cell_means
+
 
 @dataclass(frozen=True)
 class NeighbourGraph:
@@ -88,14 +90,6 @@ def euclidean_clusters(
     return out
 
 
-def mean_colours(rgb: np.ndarray, regions: np.ndarray, count: int) -> np.ndarray:
-    """Mean RGB of each region, shape (count, 3)."""
-    size = np.maximum(np.bincount(regions, minlength=count), 1)
-    return np.column_stack(
-        [np.bincount(regions, weights=rgb[:, c], minlength=count) / size for c in range(3)]
-    )
-
-
 def smooth_colours(graph: NeighbourGraph, rgb: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """Average each point's colour with its neighbours along ``edges`` (a mask over the graph).
 
@@ -143,7 +137,7 @@ def region_grow_rgb(
     if region_threshold is None:
         return regions
     count = int(regions.max()) + 1
-    means = mean_colours(colour, regions, count)
+    means = cell_means(colour, regions, count)
     a, b = regions[src], regions[dst]
     cross = a != b
     keys = np.unique(a[cross] * count + b[cross])

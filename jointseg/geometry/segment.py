@@ -14,7 +14,8 @@ from jointseg.geometry import alignment, clustering, planes
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams, resolve
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
-from jointseg.voxels import voxel_index
+from jointseg.spacing import estimate_spacing
+from jointseg.voxels import cell_means, voxel_index
 
 log = logging.getLogger(__name__)
 STAGE = "geometry"
@@ -126,7 +127,7 @@ def segment(
 
     centre = scan.xyz.mean(axis=0)
     xyz = scan.xyz - centre
-    spacing = _spacing(xyz, rng)
+    spacing = estimate_spacing(xyz, rng=rng) or 1e-3
     lap("spacing", 0.05)
 
     # Work on voxel centroids: a few points per voxel carry no extra geometry, and every
@@ -138,7 +139,7 @@ def segment(
         work_rgb = (
             None
             if scan.rgb is None
-            else clustering.mean_colours(scan.rgb.astype(np.float32), inverse, len(work))
+            else cell_means(scan.rgb.astype(np.float32), inverse, len(work)).astype(np.float32)
         )
     else:
         inverse, work, weights = np.arange(n), xyz, np.ones(n)
@@ -243,28 +244,6 @@ def segment(
         params=p,
         timings=timings,
     )
-
-
-def _spacing(xyz: np.ndarray, rng: np.random.Generator, sample: int = 20_000) -> float:
-    """Median nearest-neighbour distance, from a KD-tree over a few random spatial cells.
-
-    A tree over whole cells keeps each sampled point's true neighbours while the build costs
-    a small share of a tree over the whole scan.
-    """
-    n = len(xyz)
-    cell = 0.25
-    keys = np.floor(xyz / cell).astype(np.int64)
-    hashed = (keys[:, 0] * 73856093) ^ (keys[:, 1] * 19349663) ^ (keys[:, 2] * 83492791)
-    share = min(1.0, 20 * sample / n)
-    buckets = max(1, int(round(1 / share)))
-    chosen = np.flatnonzero(hashed % buckets == rng.integers(buckets))
-    if len(chosen) < 100:
-        chosen = np.arange(n)
-    pts = xyz[chosen]
-    query = pts[rng.choice(len(pts), size=min(sample, len(pts)), replace=False)]
-    dist, _ = cKDTree(pts).query(query, k=2, workers=-1)
-    positive = dist[:, 1][dist[:, 1] > 0]
-    return float(np.median(positive)) if len(positive) else 1e-3
 
 
 def _assign_planes(
