@@ -28,6 +28,7 @@ class GridCloud:
     labels: np.ndarray | None  # (M,) int32, majority per cell
     inverse: np.ndarray  # (N,) int64: cell of each input point
     tree: cKDTree
+    origin: np.ndarray  # (3,) subtracted from the input coordinates (x, y min and z min)
 
 
 def grid_subsample(
@@ -42,10 +43,9 @@ def grid_subsample(
         else cell_means(rgb.astype(np.float64), inverse, cells) / 255.0
     )
     sub_labels = None if labels is None else cell_majority(labels, inverse, cells)
-    centroids[:, 2] -= xyz[:, 2].min()
-    centroids[:, :2] -= xyz[:, :2].min(axis=0)
-    pts = centroids.astype(np.float32)
-    return GridCloud(pts, colour.astype(np.float32), sub_labels, inverse, cKDTree(pts))
+    origin = xyz.min(axis=0)
+    pts = (centroids - origin).astype(np.float32)
+    return GridCloud(pts, colour.astype(np.float32), sub_labels, inverse, cKDTree(pts), origin)
 
 
 def crop_indices(cloud: GridCloud, centre: np.ndarray, num_points: int) -> np.ndarray:
@@ -71,10 +71,9 @@ class Batch:
 
     def to(self, device: torch.device) -> Batch:
         """Move every tensor to ``device``."""
-        move = [t.to(device) for t in self.coords]
         return Batch(
             self.features.to(device),
-            move,
+            [t.to(device) for t in self.coords],
             [t.to(device) for t in self.neighbours],
             [t.to(device) for t in self.pools],
             [t.to(device) for t in self.upsamples],

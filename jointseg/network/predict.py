@@ -134,7 +134,7 @@ class RandLANetPredictor:
         timings["crops"] = time.perf_counter() - t
         t = time.perf_counter()
         sub_probs = prob_sum / np.maximum(seen, 1)[:, None]
-        query = (scan.xyz - _grid_origin(scan.xyz)).astype(np.float32)
+        query = (scan.xyz - cloud.origin).astype(np.float32)
         _, nearest = cloud.tree.query(query, k=1, workers=-1)
         probs_full = sub_probs[nearest]
         labels = probs_full.argmax(axis=1).astype(np.int32)
@@ -142,8 +142,3 @@ class RandLANetPredictor:
         report(progress, STAGE, 1.0)
         log.info("network: %d points, %d sub-sampled, %d crops", len(scan), m, crops)
         return NetworkResult(labels, probs_full.astype(np.float32), crops, timings)
-
-
-def _grid_origin(xyz: np.ndarray) -> np.ndarray:
-    """The offset grid_subsample removed (x, y min and z min), to project points back."""
-    return np.array([xyz[:, 0].min(), xyz[:, 1].min(), xyz[:, 2].min()])
