@@ -159,21 +159,21 @@ def train(
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
-    model_cfg = RandLANetConfig(num_points=cfg.num_points)
-    model = RandLANet(model_cfg)
-    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
     history: list[dict] = []
     start_epoch = 0
+    body: dict | None = None
     if cfg.resume is not None:
-        model, _, body = load_checkpoint(cfg.resume)
-        model.train()
-        optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-        scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
+        model, card, body = load_checkpoint(cfg.resume)
+        start_epoch = int(body["epoch"])
+        history = list(card.get("history", []))
+    else:
+        model = RandLANet(RandLANetConfig(num_points=cfg.num_points))
+    model_cfg = model.config
+    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
+    if body is not None:
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
-        start_epoch = int(body["epoch"])
-        history = list(body["card"].get("history", []))
     report(progress, STAGE, 0.0)
     train_clouds, val_clouds, data_text = load_clouds(cfg, model_cfg.grid_size)
     weights = class_weights([c.labels for c in train_clouds if c.labels is not None])
