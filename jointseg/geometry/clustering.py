@@ -10,7 +10,7 @@ labelling components with scipy replaces the per-point queue with array operatio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -33,14 +33,27 @@ class NeighbourGraph:
     dst: np.ndarray
     dist: np.ndarray
     local: np.ndarray
+    _masks: dict[tuple[float, float], np.ndarray] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     def within(self, distance: float, *, adaptive: float = 0.0) -> np.ndarray:
         """Mask of edges shorter than ``distance`` or, when ``adaptive`` > 0, shorter than
-        ``adaptive`` times the larger local spacing of their two ends."""
-        if adaptive <= 0:
-            return self.dist < distance
-        scale = np.maximum(self.local[self.src], self.local[self.dst])
-        return self.dist < np.maximum(distance, adaptive * scale)
+        ``adaptive`` times the larger local spacing of their two ends.
+
+        Masks are kept per threshold: smoothing, clustering and region growing ask for the
+        same one on every edge of the scan. Treat the returned array as read-only.
+        """
+        key = (float(distance), float(adaptive))
+        if key not in self._masks:
+            if adaptive <= 0:
+                mask = self.dist < distance
+            else:
+                scale = np.maximum(self.local[self.src], self.local[self.dst])
+                mask = self.dist < np.maximum(distance, adaptive * scale)
+            mask.setflags(write=False)
+            self._masks[key] = mask
+        return self._masks[key]
 
 
 def neighbour_graph(tree: cKDTree, xyz: np.ndarray, *, k: int, radius: float) -> NeighbourGraph:
