@@ -66,6 +66,7 @@ def train(
     lr: float = typer.Option(0.01, min=0.0),
     test_area: int = typer.Option(5, min=1, max=6, help="S3DIS area held out."),
     synth_rooms: int = typer.Option(40, min=1, help="Synthetic training rooms."),
+    synth_floors: int = typer.Option(4, min=0, help="Synthetic training floors."),
     seed: int = typer.Option(0),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
 ) -> None:
@@ -83,6 +84,7 @@ def train(
         lr=lr,
         test_area=test_area,
         synth_rooms=synth_rooms,
+        synth_floors=synth_floors,
         seed=seed,
         resume=resume,
     )
@@ -120,6 +122,19 @@ def import_weights(
 
     path = import_open3d_ml(file, output, allow_pickle=allow_pickle)
     typer.echo(f"wrote {path}; use it with --weights {path}", err=True)
+
+
+@models_app.command("pack")
+def pack_weights(
+    source: Path = typer.Argument(..., help="A training checkpoint (jointseg train --out)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Checkpoint to ship."),
+    half: bool = typer.Option(True, help="Store float16 weights (half the size)."),
+) -> None:
+    """Strip optimiser state from a training checkpoint and store its weights compactly."""
+    from jointseg.network.checkpoint import pack_checkpoint
+
+    path = pack_checkpoint(source, output, half=half)
+    typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -6,7 +6,13 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 from torch import nn
 
-from jointseg.network.layers import DilatedResidualBlock, SharedMLP, nearest_upsample, random_pool
+from jointseg.network.layers import (
+    BN_MOMENTUM,
+    DilatedResidualBlock,
+    SharedMLP,
+    nearest_upsample,
+    random_pool,
+)
 
 
 class RandLANetConfig(BaseModel):
@@ -40,7 +46,7 @@ class RandLANet(nn.Module):
         if len(cfg.d_out) != len(cfg.ratios):
             raise ValueError("d_out and ratios must have one entry per layer")
         self.stem = nn.Linear(cfg.in_channels, cfg.d_stem)
-        self.stem_bn = nn.BatchNorm2d(cfg.d_stem, eps=1e-6, momentum=0.01)
+        self.stem_bn = nn.BatchNorm2d(cfg.d_stem, eps=1e-6, momentum=BN_MOMENTUM)
         blocks, skip_dims, d = [], [], cfg.d_stem
         for i, d_out in enumerate(cfg.d_out):
             blocks.append(DilatedResidualBlock(d, d_out))

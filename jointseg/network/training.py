@@ -181,7 +181,7 @@ def train(
     model.train()
     total_steps = cfg.epochs * cfg.steps_per_epoch
     for epoch in range(start_epoch, cfg.epochs):
-        started, losses = time.perf_counter(), []
+        started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
             crops = [
@@ -202,6 +202,9 @@ def train(
             loss.backward()
             optimiser.step()
             losses.append(float(loss.detach()))
+            known = batch.labels >= 0
+            hits += int((logits.detach().argmax(-1) == batch.labels)[known].sum())
+            seen += int(known.sum())
             report(progress, STAGE, (epoch * cfg.steps_per_epoch + step + 1) / total_steps)
         scheduler.step()
         miou = validate(model, val_clouds, cfg)
@@ -209,11 +212,18 @@ def train(
             {
                 "epoch": epoch + 1,
                 "loss": float(np.mean(losses)),
+                "train_accuracy": hits / max(seen, 1),
                 "val_miou": miou,
                 "seconds": time.perf_counter() - started,
             }
         )
-        log.info("epoch %d loss %.3f val mIoU %s", epoch + 1, np.mean(losses), miou)
+        log.info(
+            "epoch %d loss %.3f train accuracy %.3f val mIoU %s",
+            epoch + 1,
+            np.mean(losses),
+            hits / max(seen, 1),
+            miou,
+        )
         card = {
             "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
             "classes": list(CLASS_NAMES),

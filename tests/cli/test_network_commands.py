@@ -60,3 +60,41 @@ def test_models_list_shows_randlanet() -> None:
     result = run_cli("models", "list")
     assert result.returncode == 0, result.stderr
     assert "randlanet" in result.stdout
+
+
+def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path) -> None:
+    from jointseg.network.checkpoint import load_checkpoint
+    from jointseg.network.training import TrainConfig, train
+
+    cfg = TrainConfig(
+        out=tmp_path / "train.pt",
+        epochs=1,
+        steps_per_epoch=1,
+        batch_size=1,
+        num_points=2048,
+        synth_rooms=1,
+        synth_floors=0,
+        val_rooms=1,
+        synth_points=20_000,
+        threads=1,
+    )
+    source = train(cfg)
+    packed = tmp_path / "ship.pt"
+    result = run_cli("models", "pack", str(source), "-o", str(packed))
+    assert result.returncode == 0, result.stderr
+    assert packed.stat().st_size < 0.4 * source.stat().st_size  # no Adam moments, float16
+    full, card_full, _ = load_checkpoint(source)
+    half, card, body = load_checkpoint(packed)
+    assert "optimizer" not in body and card["weights_dtype"] == "float16"
+    assert card["history"] == card_full["history"] and card["input_conventions"]
+    for (name, a), b in zip(full.state_dict().items(), half.state_dict().values(), strict=True):
+        if a.is_floating_point():
+            assert torch.allclose(a, b, rtol=2e-3, atol=1e-4), name
+
+
+def test_models_pack_refuses_a_foreign_file(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    result = run_cli("models", "pack", str(bad), "-o", str(tmp_path / "out.pt"))
+    assert result.returncode == 2 and "not a readable PyTorch checkpoint" in result.stderr
+    assert not (tmp_path / "out.pt").exists()

@@ -1,0 +1,111 @@
+"""Network accuracy on scans the training never saw: held-out synthetic rooms and floors (random
+yaw, box and L shapes) and, when present, the real S3DIS fragment in ../shared/data.
+
+Prints one row per scan (mIoU, mAcc, OA), the mean over the synthetic scans, and per-class IoU
+summed over all synthetic scans.
+
+    .venv/bin/python bench/network_accuracy.py [--weights PATH] [--rooms 10] [--floors 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from jointseg.classes import CLASS_NAMES, NUM_CLASSES
+from jointseg.io import read_scan
+from jointseg.metrics import confusion_matrix, evaluate
+from jointseg.network import load
+from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.scan import Scan
+from jointseg.synth import make_floor, make_room
+
+FRAGMENT = Path(__file__).resolve().parents[2] / "shared" / "data" / "s3dis_fragment.ply"
+# Seeds far from the training (1000+, 3000+) and validation (2000+) seeds.
+ROOM_SEEDS = 5000
+FLOOR_SEEDS = 6000
+
+
+def held_out(rooms: int, floors: int, points: int) -> list[tuple[str, Scan]]:
+    """Synthetic scans with seeds no training run uses; yaw drawn from the seed."""
+    scans = []
+    for i in range(rooms):
+        shape = "L" if i % 2 else "box"
+        scans.append(
+            (
+                f"room {ROOM_SEEDS + i} ({shape})",
+                make_room(ROOM_SEEDS + i, points=points, shape=shape),
+            )
+        )
+    for i in range(floors):
+        scans.append((f"floor {FLOOR_SEEDS + i}", make_floor(FLOOR_SEEDS + i, points=points * 3)))
+    return scans
+
+
+def fmt(value: float | None) -> str:
+    return "/" if value is None else f"{value:.3f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument("--rooms", type=int, default=10)
+    parser.add_argument("--floors", type=int, default=2)
+    parser.add_argument("--points", type=int, default=500_000, help="points per room")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    predictor = load("randlanet", args.weights)
+    print(f"# network accuracy, weights {args.weights}")
+    print(f"trained on: {predictor.card.get('data', '?')}")
+    print(
+        f"torch threads {torch.get_num_threads()}, device {predictor.device}, {time.strftime('%F')}"
+    )
+    print()
+    print("| scan | points | mIoU | mAcc | OA | seconds |")
+    print("|---|---|---|---|---|---|")
+    total = np.zeros((NUM_CLASSES, NUM_CLASSES), dtype=np.int64)
+    mious = []
+    for name, scan in held_out(args.rooms, args.floors, args.points):
+        t = time.perf_counter()
+        pred = predictor.predict(scan).labels
+        seconds = time.perf_counter() - t
+        m = evaluate(scan.labels, pred)
+        total += confusion_matrix(scan.labels, pred)
+        mious.append(m.miou or 0.0)
+        print(
+            f"| {name} | {len(scan):,} | {fmt(m.miou)} | {fmt(m.macc)} | {fmt(m.oa)} | "
+            f"{seconds:.1f} |"
+        )
+    print(f"| **mean of {len(mious)} synthetic scans** | | **{np.mean(mious):.3f}** | | | |")
+    if FRAGMENT.is_file():
+        scan = read_scan(FRAGMENT)
+        t = time.perf_counter()
+        pred = predictor.predict(scan).labels
+        m = evaluate(scan.labels, pred)
+        print(
+            f"| S3DIS fragment (real) | {len(scan):,} | {fmt(m.miou)} | {fmt(m.macc)} | "
+            f"{fmt(m.oa)} | {time.perf_counter() - t:.1f} |"
+        )
+        print()
+        print(
+            "S3DIS fragment per-class IoU: "
+            + ", ".join(f"{c} {fmt(v)}" for c, v in m.per_class_iou.items())
+        )
+    else:
+        print(f"\n(S3DIS fragment not found at {FRAGMENT}: skipped)")
+    inter = np.diag(total).astype(float)
+    union = total.sum(0) + total.sum(1) - np.diag(total)
+    print()
+    print("| class | IoU over all synthetic scans |")
+    print("|---|---|")
+    for c, name in enumerate(CLASS_NAMES):
+        print(f"| {name} | {fmt(inter[c] / union[c] if union[c] else None)} |")
+
+
+if __name__ == "__main__":
+    main()
