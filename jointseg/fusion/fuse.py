@@ -1,0 +1,269 @@
+"""Label fusion (§2.3): inside every geometric segment, minority network labels give way to the
+segment's majority label.
+
+Everything is a handful of ``np.bincount`` calls over (segment, class) keys: linear in the
+number of points, no Python loop over points or segments.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from jointseg.classes import NUM_CLASSES
+from jointseg.exceptions import ConfigError
+from jointseg.fusion import guard
+from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
+from jointseg.fusion.transfer import transfer_labels
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FusionResult:
+    """Fused labels and confidence for every point, and what each segment's vote decided.
+
+    Attributes
+    ----------
+    labels : ndarray of shape (N,), int32
+        Fused class per point.
+    confidence : ndarray of shape (N,), float32
+        Mean of the network's probability for the fused label at the point (1/0 for agreeing /
+        disagreeing hard labels when no probabilities were given) and the fused label's vote
+        share in the point's voting unit: 1 only when the point and its whole segment agree.
+    network_labels : ndarray of shape (N,), int32
+        The network labels the vote started from (after the nearest-neighbour transfer).
+    segment_ids : ndarray of shape (S,), int64
+        The segment id each per-segment row describes (sorted).
+    segment_label : ndarray of shape (S,), int32
+        L_max, the majority label of each segment (eq. 7).
+    segment_share : ndarray of shape (S,), float32
+        Its share of the segment's votes (eq. 6).
+    segment_kept : ndarray of shape (S,), bool
+        The guard kept the network labels of the whole segment (impure, no cells to split into).
+    segment_split : ndarray of shape (S,), bool
+        The guard split the segment (impure) into cells that voted on their own.
+    """
+
+    labels: np.ndarray
+    confidence: np.ndarray
+    network_labels: np.ndarray
+    segment_ids: np.ndarray
+    segment_label: np.ndarray
+    segment_share: np.ndarray
+    segment_kept: np.ndarray
+    segment_split: np.ndarray
+    params: FusionParams
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def n_segments(self) -> int:
+        """Number of segments."""
+        return len(self.segment_ids)
+
+    @property
+    def changed(self) -> np.ndarray:
+        """Boolean mask of points whose label the fusion changed."""
+        return self.labels != self.network_labels
+
+
+def fuse(
+    xyz: np.ndarray,
+    segments: np.ndarray,
+    network_labels: np.ndarray,
+    network_probs: np.ndarray | None = None,
+    params: FusionParams | None = None,
+    *,
+    network_xyz: np.ndarray | None = None,
+) -> FusionResult:
+    """Combine network labels with geometric segments (eq. 6-7 and the modes beyond them).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), metres
+        The segmented points.
+    segments : ndarray of shape (N,), int
+        Segment id per point (non-negative; need not be contiguous).
+    network_labels : ndarray of shape (M,), int
+        Network class per point, 0..12; M = N unless ``network_xyz`` is given.
+    network_probs : ndarray of shape (M, 13), optional
+        Network class probabilities, voted with in the soft modes and used for the confidence.
+        Without them the soft modes count hard labels (one-hot probabilities), as the paper.
+    params : FusionParams, optional
+    network_xyz : ndarray of shape (M, 3), metres, optional
+        The points the network labelled when they are not ``xyz`` (e.g. a sub-sample); labels
+        reach ``xyz`` through a K-nearest-neighbour majority (``params.neighbours``).
+
+    Returns
+    -------
+    FusionResult
+
+    Raises
+    ------
+    ConfigError
+        On mismatched shapes, labels outside 0..12, negative or non-integer segment ids, or
+        negative or non-finite probabilities.
+    """
+    params = params or FusionParams()
+    xyz, segments, network_labels, network_probs, network_xyz = _validated(
+        xyz, segments, network_labels, network_probs, network_xyz, params
+    )
+    n = len(xyz)
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    if network_xyz is not None:
+        labels, probs = transfer_labels(
+            xyz, network_xyz, network_labels, network_probs, neighbours=params.neighbours
+        )
+    else:
+        labels, probs = network_labels.astype(np.int64), network_probs
+    timings["transfer"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    segment_ids, seg = _compact(segments)
+    n_seg = len(segment_ids)
+    soft = params.mode in SOFT_MODES
+    vote_probs = probs if soft else None
+    seg_votes = _votes(seg, n_seg, labels, vote_probs)
+    seg_shares, seg_first, seg_second = guard.top_two_shares(seg_votes)
+    split = np.zeros(n_seg, dtype=bool)
+    unit, n_units = seg, n_seg
+    shares, first, second = seg_shares, seg_first, seg_second
+    guarded = params.mode in GUARDED_MODES
+    if guarded:
+        impure = guard.impure(
+            np.bincount(seg, minlength=n_seg), seg_first, seg_second, n_points=n, params=params
+        )
+        if params.guard_cell_size > 0 and impure.any():
+            split = impure
+            unit, n_units = guard.split_into_cells(xyz, seg, split, params.guard_cell_size)
+            shares, first, second = guard.top_two_shares(_votes(unit, n_units, labels, vote_probs))
+    timings["vote"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    majority = shares.argmax(axis=1)
+    # eq. 7: a label with less than the ratio threshold of its unit's votes becomes L_max
+    replace = shares[unit, labels] < params.ratio_threshold
+    kept_units = np.zeros(n_units, dtype=bool)
+    if guarded:
+        # cells (or segments) without a clear winner keep the network labels; with no cells to
+        # split into, so do all impure segments
+        kept_units = (first - second) < params.guard_min_margin
+        if params.guard_cell_size == 0:
+            kept_units |= impure
+        replace &= ~kept_units[unit]
+    fused = np.where(replace, majority[unit], labels)
+    confidence = _confidence(fused, labels, probs, shares[unit, fused])
+    timings["relabel"] = time.perf_counter() - t
+
+    seg_kept = kept_units[:n_seg] & ~split
+    log.info(
+        "fusion (%s): %d points, %d segments, %d relabelled, %d segments kept, %d split",
+        params.mode,
+        n,
+        n_seg,
+        int(np.count_nonzero(replace & (fused != labels))),
+        int(seg_kept.sum()),
+        int(split.sum()),
+    )
+    return FusionResult(
+        labels=fused.astype(np.int32),
+        confidence=confidence,
+        network_labels=labels.astype(np.int32),
+        segment_ids=segment_ids,
+        segment_label=seg_shares.argmax(axis=1).astype(np.int32),
+        segment_share=seg_first.astype(np.float32),
+        segment_kept=seg_kept,
+        segment_split=split,
+        params=params,
+        timings=timings,
+    )
+
+
+def _votes(
+    unit: np.ndarray, n_units: int, labels: np.ndarray, probs: np.ndarray | None
+) -> np.ndarray:
+    """Label histogram (eq. 6) per unit: point counts, or summed probabilities when given."""
+    if probs is None:
+        keys = unit * NUM_CLASSES + labels
+        counts = np.bincount(keys, minlength=n_units * NUM_CLASSES)
+        return counts.reshape(n_units, NUM_CLASSES).astype(np.float64)
+    return np.column_stack(
+        [np.bincount(unit, weights=probs[:, c], minlength=n_units) for c in range(NUM_CLASSES)]
+    ).reshape(n_units, NUM_CLASSES)
+
+
+def _confidence(
+    fused: np.ndarray, labels: np.ndarray, probs: np.ndarray | None, unit_share: np.ndarray
+) -> np.ndarray:
+    """Mean of the point's own support for its fused label and its unit's vote share."""
+    if probs is None:
+        own = (fused == labels).astype(np.float64)
+    else:
+        own = np.take_along_axis(probs, fused[:, None], axis=1)[:, 0]
+    return (0.5 * (own + unit_share)).astype(np.float32)
+
+
+def _compact(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Renumber segment ids to 0..S-1 (linear time unless the ids are very sparse)."""
+    if len(segments) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    top = int(segments.max())
+    if top > 16 * len(segments):
+        ids, seg = np.unique(segments, return_inverse=True)
+        return ids.astype(np.int64), seg.astype(np.int64)
+    present = np.bincount(segments, minlength=top + 1) > 0
+    ids = np.flatnonzero(present)
+    lookup = np.cumsum(present) - 1
+    return ids.astype(np.int64), lookup[segments].astype(np.int64)
+
+
+def _validated(
+    xyz: np.ndarray,
+    segments: np.ndarray,
+    network_labels: np.ndarray,
+    network_probs: np.ndarray | None,
+    network_xyz: np.ndarray | None,
+    params: FusionParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Check shapes, dtypes and ranges once, naming the argument and the value."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if xyz.ndim != 2 or xyz.shape[1] != 3:
+        raise ConfigError(f"xyz must have shape (N, 3), got {xyz.shape}")
+    n = len(xyz)
+    segments = np.asarray(segments)
+    if segments.shape != (n,):
+        raise ConfigError(f"segments must have shape ({n},) like xyz, got {segments.shape}")
+    if n and not np.issubdtype(segments.dtype, np.integer):
+        raise ConfigError(f"segments must be integer ids, got dtype {segments.dtype}")
+    if n and segments.min() < 0:
+        raise ConfigError(f"segment ids must be non-negative, got {int(segments.min())}")
+    segments = segments.astype(np.int64, copy=False)
+    if network_xyz is not None:
+        network_xyz = np.asarray(network_xyz, dtype=np.float64)
+        if network_xyz.ndim != 2 or network_xyz.shape[1] != 3 or len(network_xyz) == 0:
+            raise ConfigError(f"network_xyz must have shape (M, 3), M > 0, got {network_xyz.shape}")
+    m = n if network_xyz is None else len(network_xyz)
+    where = "network_xyz" if network_xyz is not None else "xyz"
+    network_labels = np.asarray(network_labels)
+    if network_labels.shape != (m,):
+        raise ConfigError(
+            f"network_labels must have shape ({m},) like {where}, got {network_labels.shape}"
+        )
+    if m and not np.issubdtype(network_labels.dtype, np.integer):
+        raise ConfigError(f"network_labels must be integers, got dtype {network_labels.dtype}")
+    if m and (network_labels.min() < 0 or network_labels.max() >= NUM_CLASSES):
+        bad = network_labels[(network_labels < 0) | (network_labels >= NUM_CLASSES)][0]
+        raise ConfigError(f"network_labels must be class indices 0..{NUM_CLASSES - 1}, got {bad}")
+    if network_probs is not None:
+        network_probs = np.asarray(network_probs, dtype=np.float32)
+        if network_probs.shape != (m, NUM_CLASSES):
+            raise ConfigError(
+                f"network_probs must have shape ({m}, {NUM_CLASSES}), got {network_probs.shape}"
+            )
+        if m and not (np.isfinite(network_probs).all() and network_probs.min() >= 0):
+            raise ConfigError("network_probs must be finite and non-negative")
+    return xyz, segments, network_labels, network_probs, network_xyz

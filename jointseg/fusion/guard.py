@@ -1,0 +1,106 @@
+"""The impure-segment guard (beyond the paper).
+
+A majority vote helps where a segment holds one object and the network erred on a minority of
+it; over a segment that mixes objects it overwrites the network's correct minority labels. Two
+signs of such a segment are cheap to see in its vote histogram: no clear winner (the two largest
+shares are close), and a huge segment (a wall plane holding a door and a board) whose majority
+is not overwhelming. Such a segment is split into cubic cells that vote on their own, so the
+vote stays local; a cell that still has no clear winner keeps the network's labels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jointseg.fusion.params import FusionParams
+
+
+def top_two_shares(votes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vote shares, and the largest and second-largest share per row.
+
+    Parameters
+    ----------
+    votes : ndarray of shape (S, C)
+        Non-negative votes per segment and class.
+
+    Returns
+    -------
+    shares : ndarray of shape (S, C), float64
+        Rows sum to 1 (rows without votes are 0).
+    first, second : ndarray of shape (S,), float64
+    """
+    total = votes.sum(axis=1, keepdims=True)
+    shares = votes / np.maximum(total, 1e-12)
+    if shares.shape[1] < 2:
+        return shares, shares.max(axis=1, initial=0.0), np.zeros(len(shares))
+    top = np.partition(shares, -2, axis=1)[:, -2:]
+    return shares, top[:, 1], top[:, 0]
+
+
+def impure(
+    sizes: np.ndarray,
+    first_share: np.ndarray,
+    second_share: np.ndarray,
+    *,
+    n_points: int,
+    params: FusionParams,
+) -> np.ndarray:
+    """Which segments the guard treats as mixing objects.
+
+    Parameters
+    ----------
+    sizes : ndarray of shape (S,), int
+        Points per segment.
+    first_share, second_share : ndarray of shape (S,)
+        Largest and second-largest vote share per segment.
+    n_points : int
+        Points in the scan.
+    params : FusionParams
+        ``guard_min_margin`` (no clear winner), ``guard_huge_fraction`` and
+        ``guard_huge_min_share`` (huge and mixed).
+
+    Returns
+    -------
+    ndarray of shape (S,), bool
+    """
+    no_winner = (first_share - second_share) < params.guard_min_margin
+    huge = sizes > params.guard_huge_fraction * n_points
+    return no_winner | (huge & (first_share < params.guard_huge_min_share))
+
+
+def split_into_cells(
+    xyz: np.ndarray, seg: np.ndarray, split: np.ndarray, cell_size: float
+) -> tuple[np.ndarray, int]:
+    """Voting units: each segment, except that split segments become one unit per cubic cell.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, 3), metres
+    seg : ndarray of shape (N,), int
+        Segment 0..S-1 of every point.
+    split : ndarray of shape (S,), bool
+        Segments to split.
+    cell_size : float
+        Cell side in metres.
+
+    Returns
+    -------
+    unit : ndarray of shape (N,), int64
+        Unit of every point: unsplit segments keep their id, parts of split segments get ids
+        from S on.
+    n_units : int
+    """
+    n_seg = len(split)
+    unit = seg.astype(np.int64, copy=True)
+    members = np.flatnonzero(split[seg])
+    if len(members) == 0:
+        return unit, n_seg
+    pts = xyz[members]
+    cells = np.floor((pts - pts.min(axis=0)) / cell_size).astype(np.int64)
+    dims = cells.max(axis=0) + 1
+    flat = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+    # sorting only the split points: one (segment, cell) pair per part
+    key = seg[members].astype(np.int64) * int(dims.prod()) + flat
+    _, part = np.unique(key, return_inverse=True)
+    unit[members] = n_seg + part
+    return unit, n_seg + int(part.max()) + 1
