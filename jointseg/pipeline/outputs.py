@@ -1,0 +1,91 @@
+"""What a pipeline run leaves behind: the annotated scan and a JSON-ready report.
+
+Shared by the command line and the job service, so both write the same fields and the same
+report.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from jointseg.pipeline.run import PipelineResult
+from jointseg.scan import Scan
+
+#: Per-point fields the pipeline adds to a scan, in the order they are written.
+OUTPUT_FIELDS: tuple[str, ...] = (
+    "network_label",
+    "network_confidence",
+    "segment",
+    "fused_label",
+    "fused_confidence",
+)
+
+
+def annotate(scan: Scan, result: PipelineResult) -> Scan:
+    """The input scan (xyz, colour, ground truth, its own fields) plus the pipeline's fields.
+
+    Parameters
+    ----------
+    scan : Scan
+        The scan ``result`` was computed on.
+    result : PipelineResult
+
+    Returns
+    -------
+    Scan
+        With fields ``network_label`` (int32), ``network_confidence`` (float32), ``segment``
+        (int32), ``fused_label`` (int32) and ``fused_confidence`` (float32).
+    """
+    return scan.with_fields(
+        network_label=result.network_labels.astype(np.int32),
+        network_confidence=result.network.confidence.astype(np.float32),
+        segment=result.segments.astype(np.int32),
+        fused_label=result.fused_labels.astype(np.int32),
+        fused_confidence=result.fused_confidence.astype(np.float32),
+    )
+
+
+def report_body(
+    scan: Scan, result: PipelineResult, *, extra_timings: dict[str, float] | None = None
+) -> dict[str, Any]:
+    """The report of one run as plain JSON types.
+
+    Parameters
+    ----------
+    scan : Scan
+    result : PipelineResult
+    extra_timings : dict of str to float, optional
+        Seconds spent around the pipeline (reading, writing); added to the stage timings and
+        to ``total``.
+
+    Returns
+    -------
+    dict
+        ``points``, ``segments``, ``labels_changed``, ``timings_s`` (per stage and ``total``),
+        ``steps_s`` (per step inside each stage), ``params`` (resolved) and ``metrics``
+        (``network``, ``fused``, ``oracle``; per-class IoU and accuracy with null for absent
+        classes, ``miou``, ``macc``, ``oa``), or ``metrics: null`` without ground truth.
+    """
+    extra = extra_timings or {}
+    timings = {k: v for k, v in result.timings.items() if k != "total"}
+    timings.update(extra)
+    timings["total"] = result.timings["total"] + sum(extra.values())
+    return {
+        "points": len(scan),
+        "segments": result.geometry.n_segments,
+        "labels_changed": int(np.count_nonzero(result.fusion.changed)),
+        "segments_split": int(result.fusion.segment_split.sum()),
+        "segments_kept": int(result.fusion.segment_kept.sum()),
+        "timings_s": timings,
+        "steps_s": {
+            "network": result.network.timings,
+            "geometry": result.geometry.timings,
+            "fusion": result.fusion.timings,
+        },
+        "params": result.params,
+        "metrics": None
+        if result.metrics is None
+        else {name: m.model_dump() for name, m in result.metrics.items()},
+    }

@@ -1,0 +1,282 @@
+"""The whole method on one scan: network and geometry (side by side), then fusion, then metrics.
+
+The two first stages do not depend on each other, so they run in two threads: torch and
+scipy's KD-tree release the GIL in their heavy parts. One shared cancel token reaches both, and
+when either fails the other is stopped before the error propagates, so no stage keeps burning
+CPU after ``run`` has returned.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any, Protocol, TypeVar
+
+import numpy as np
+
+from jointseg.exceptions import Cancelled, ConfigError
+from jointseg.fusion import FusionResult, fuse
+from jointseg.geometry import GeometryResult, segment
+from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
+from jointseg.network import NetworkResult, load
+from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.pipeline.config import NetworkConfig, PipelineConfig
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.scan import Scan
+
+log = logging.getLogger(__name__)
+T = TypeVar("T")
+
+
+class Predictor(Protocol):
+    """What the pipeline needs of a network: ``predict`` and a model card."""
+
+    card: dict[str, Any]
+
+    def predict(
+        self,
+        scan: Scan,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> NetworkResult: ...
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """Every stage's result, the timings, the parameters used and, with ground truth, metrics.
+
+    Attributes
+    ----------
+    timings : dict of str to float, seconds
+        ``load_network``, ``network``, ``geometry``, ``fusion``, ``metrics`` and ``total``
+        (network and geometry overlap when run concurrently).
+    metrics : dict of str to SegmentationMetrics, optional
+        ``network``, ``fused`` and ``oracle`` (the segments' ground-truth majority, the best
+        any per-segment vote can do); None when the scan has no ground truth.
+    params : dict
+        The parameters used, adaptive geometry defaults resolved.
+    """
+
+    network: NetworkResult
+    geometry: GeometryResult
+    fusion: FusionResult
+    config: PipelineConfig
+    params: dict[str, Any]
+    timings: dict[str, float] = field(default_factory=dict)
+    metrics: dict[str, SegmentationMetrics] | None = None
+
+    @property
+    def network_labels(self) -> np.ndarray:
+        """Network class per point, (N,) int32."""
+        return self.network.labels
+
+    @property
+    def network_probs(self) -> np.ndarray:
+        """Network class probabilities, (N, 13) float32."""
+        return self.network.probs
+
+    @property
+    def segments(self) -> np.ndarray:
+        """Geometric segment per point, (N,) int32."""
+        return self.geometry.segments
+
+    @property
+    def fused_labels(self) -> np.ndarray:
+        """Fused class per point, (N,) int32."""
+        return self.fusion.labels
+
+    @property
+    def fused_confidence(self) -> np.ndarray:
+        """Fused confidence per point, (N,) float32 in [0, 1]."""
+        return self.fusion.confidence
+
+
+class _AnyOf:
+    """A cancel token set when the caller's token or the pipeline's own stop event is."""
+
+    def __init__(self, outer: CancelToken | None, stop: threading.Event) -> None:
+        self.outer = outer
+        self.stop = stop
+
+    def is_set(self) -> bool:
+        return self.stop.is_set() or (self.outer is not None and self.outer.is_set())
+
+
+def load_predictor(config: NetworkConfig) -> Predictor:
+    """Load the configured network once (reuse it across scans with ``run(predictor=...)``).
+
+    Raises
+    ------
+    ConfigError
+        For an unknown backend or missing or unreadable weights.
+    """
+    return load(config.name, config.weights, device=config.device, batch_size=config.batch_size)
+
+
+def run(
+    scan: Scan,
+    config: PipelineConfig | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+    *,
+    predictor: Predictor | None = None,
+) -> PipelineResult:
+    """Label a scan with the network, segment it geometrically, fuse both, score with ground truth.
+
+    Parameters
+    ----------
+    scan : Scan
+        Points in metres, z up; colour used when present; ``labels`` (ground truth) only for
+        the metrics.
+    config : PipelineConfig, optional
+    progress : callable, optional
+        ``progress(stage, fraction)`` for the stages ``network``, ``geometry`` and ``fusion``;
+        calls are serialised, so the callback need not be thread-safe.
+    cancel : object with ``is_set()``, optional
+        Stops both running stages at their next check (between crop batches and geometry
+        steps) and raises :class:`Cancelled`.
+    predictor : optional
+        An already loaded network (e.g. one per worker process); default: loaded from
+        ``config.network``.
+
+    Returns
+    -------
+    PipelineResult
+
+    Raises
+    ------
+    ConfigError
+        For an empty scan or a network that cannot be loaded.
+    Cancelled
+        When ``cancel`` was set.
+    """
+    config = config or PipelineConfig()
+    if len(scan) == 0:
+        raise ConfigError("the scan has no points")
+    started = time.perf_counter()
+    timings: dict[str, float] = {}
+    check_cancel(cancel)
+    if predictor is None:
+        predictor = load_predictor(config.network)
+    timings["load_network"] = time.perf_counter() - started
+
+    lock = threading.Lock()
+
+    def serialised(stage: str, fraction: float) -> None:
+        if progress is not None:
+            with lock:
+                progress(stage, fraction)
+
+    stop = threading.Event()
+    token = _AnyOf(cancel, stop)
+    seed = config.seed
+
+    def network_stage() -> NetworkResult:
+        return predictor.predict(scan, serialised, token, seed=seed)
+
+    def geometry_stage() -> GeometryResult:
+        return segment(scan, config.geometry, serialised, token, seed=seed)
+
+    if config.concurrent:
+        net, geo = _both(network_stage, geometry_stage, stop, cancel, timings)
+    else:
+        net = _timed(network_stage, timings, "network")
+        geo = _timed(geometry_stage, timings, "geometry")
+
+    t = time.perf_counter()
+    check_cancel(cancel)
+    fused = fuse(scan.xyz, geo.segments, net.labels, net.probs, config.fusion)
+    report(serialised, "fusion", 1.0)
+    timings["fusion"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    metrics = None
+    if scan.labels is not None and (scan.labels >= 0).any():
+        metrics = {
+            "network": evaluate(scan.labels, net.labels),
+            "fused": evaluate(scan.labels, fused.labels),
+            "oracle": evaluate(scan.labels, segment_majority(scan.labels, geo.segments)),
+        }
+    timings["metrics"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - started
+    log.info(
+        "pipeline: %d points, %d segments, %d labels changed, %.1f s",
+        len(scan),
+        geo.n_segments,
+        int(np.count_nonzero(fused.changed)),
+        timings["total"],
+    )
+    return PipelineResult(
+        network=net,
+        geometry=geo,
+        fusion=fused,
+        config=config,
+        params=_resolved_params(config, predictor, geo),
+        timings=timings,
+        metrics=metrics,
+    )
+
+
+def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
+    t = time.perf_counter()
+    out = fn()
+    timings[name] = time.perf_counter() - t
+    return out
+
+
+def _both(
+    network_stage: Callable[[], NetworkResult],
+    geometry_stage: Callable[[], GeometryResult],
+    stop: threading.Event,
+    cancel: CancelToken | None,
+    timings: dict[str, float],
+) -> tuple[NetworkResult, GeometryResult]:
+    """Run both stages in two threads; the first failure stops the other, then is raised."""
+    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="jointseg-stage") as pool:
+        net_f: Future[NetworkResult] = pool.submit(_timed, network_stage, timings, "network")
+        geo_f: Future[GeometryResult] = pool.submit(_timed, geometry_stage, timings, "geometry")
+        both: list[Future[Any]] = [net_f, geo_f]
+        try:
+            wait(both, return_when=FIRST_EXCEPTION)
+        except BaseException:
+            stop.set()  # e.g. Ctrl-C: stop both stages rather than wait for them to finish
+            raise
+        if any(f.done() and f.exception() is not None for f in both):
+            stop.set()
+        # leaving the block waits for the other stage, which stops at its next check
+    errors = [e for e in (net_f.exception(), geo_f.exception()) if e is not None]
+    if errors:
+        stop.set()
+        if cancel is not None and cancel.is_set():
+            raise Cancelled("cancelled by request")
+        # the stage that failed first, not the one it stopped
+        real = [e for e in errors if not isinstance(e, Cancelled)]
+        raise (real or errors)[0]
+    return net_f.result(), geo_f.result()
+
+
+def _resolved_params(
+    config: PipelineConfig, predictor: Predictor, geometry: GeometryResult
+) -> dict[str, Any]:
+    """The parameters a run used, as JSON-ready values (geometry's adaptive ones resolved)."""
+    weights = config.network.weights or DEFAULT_WEIGHTS.get(config.network.name)
+    device = getattr(predictor, "device", config.network.device)
+    return {
+        "network": {
+            "name": config.network.name,
+            "weights": None if weights is None else str(weights),
+            "device": None if device is None else str(device),
+            "batch_size": config.network.batch_size,
+            "trained_on": predictor.card.get("data"),
+        },
+        "geometry": geometry.params.model_dump(),
+        "fusion": config.fusion.model_dump(),
+        "seed": config.seed,
+        "concurrent": config.concurrent,
+    }
