@@ -12,7 +12,7 @@ import sys
 import typer
 from rich.markup import escape
 
-from jointseg.cli import geometry_command, network_commands, scan_commands
+from jointseg.cli import geometry_command, network_commands, pipeline_commands, scan_commands
 from jointseg.cli.progress_bar import stderr_console
 from jointseg.exceptions import JointsegError
 
@@ -26,6 +26,7 @@ app = typer.Typer(
 scan_commands.register(app)
 geometry_command.register(app)
 network_commands.register(app)
+pipeline_commands.register(app)
 
 
 @app.callback()

@@ -54,8 +54,8 @@ class PipelineResult:
     Attributes
     ----------
     timings : dict of str to float, seconds
-        ``load_network``, ``network``, ``geometry``, ``fusion``, ``metrics`` and ``total``
-        (network and geometry overlap when run concurrently).
+        ``load_network`` (when ``run`` loaded it), ``network``, ``geometry``, ``fusion``,
+        ``metrics`` and ``total`` (network and geometry overlap when run concurrently).
     metrics : dict of str to SegmentationMetrics, optional
         ``network``, ``fused`` and ``oracle`` (the segments' ground-truth majority, the best
         any per-segment vote can do); None when the scan has no ground truth.
@@ -164,7 +164,7 @@ def run(
     check_cancel(cancel)
     if predictor is None:
         predictor = load_predictor(config.network)
-    timings["load_network"] = time.perf_counter() - started
+        timings["load_network"] = time.perf_counter() - started
 
     lock = threading.Lock()
 

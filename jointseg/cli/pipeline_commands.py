@@ -1,0 +1,182 @@
+"""`jointseg segment` (the whole method on one scan) and `jointseg eval` (the paper's tables).
+
+Everything that can be checked before the work starts is checked first (configuration, network
+weights, output paths, ground truth for eval), so a mistake costs no computing time and leaves
+no output behind; outputs are written atomically at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from jointseg.cli.geometry_command import load_params_file
+from jointseg.cli.progress_bar import progress_bar
+from jointseg.exceptions import ConfigError, ScanFormatError
+from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan, write_scan
+from jointseg.io.atomic import atomic_open
+from jointseg.pipeline.config import PipelineConfig
+
+#: Output formats that keep per-point fields (text formats would drop them).
+FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
+
+CONFIG_HELP = "PipelineConfig as JSON: network, geometry, fusion, seed (unknown keys rejected)."
+NETWORK_HELP = "Network backend (overrides the config file)."
+WEIGHTS_HELP = "Network checkpoint (overrides the config file; default: bundled weights)."
+
+
+def _config(config: Path | None, network: str | None, weights: Path | None) -> PipelineConfig:
+    return load_params_file(config, PipelineConfig).with_network(name=network, weights=weights)
+
+
+def _check_writable(path: Path, what: str) -> None:
+    if not path.parent.is_dir():
+        raise ConfigError(f"{what} {path}: folder {path.parent} does not exist")
+    if path.is_dir():
+        raise ConfigError(f"{what} {path}: is a directory; give a file name")
+
+
+def _write_text(path: Path, text: str) -> None:
+    with atomic_open(path) as fh:
+        fh.write(text.encode())
+
+
+def segment_scan(
+    source: Path = typer.Argument(..., help="Input scan."),
+    output: Path = typer.Option(
+        ..., "-o", "--output", help="Output scan (.ply, .las or .laz) with the pipeline's fields."
+    ),
+    report: Path | None = typer.Option(None, "--report", help="Write a JSON report here."),
+    network: str | None = typer.Option(None, "--network", help=NETWORK_HELP),
+    weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
+    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
+) -> None:
+    """Segment a scan semantically: network labels refined by geometric segments (the paper)."""
+    from jointseg.pipeline import annotate, load_predictor, report_body, run
+
+    cfg = _config(config, network, weights)
+    if output.suffix.lower() not in FIELD_EXTENSIONS:
+        raise ConfigError(
+            f"{output}: cannot store the output fields in {output.suffix or 'no extension'!r}; "
+            f"use one of {', '.join(FIELD_EXTENSIONS)}"
+        )
+    _check_writable(output, "output")
+    if report is not None:
+        _check_writable(report, "report")
+    started = time.perf_counter()
+    predictor = load_predictor(cfg.network)
+    load_s = time.perf_counter() - started
+    with progress_bar() as progress:
+        scan = read_scan(source, max_points=max_points, progress=progress)
+        read_s = time.perf_counter() - started - load_s
+        result = run(scan, cfg, progress, predictor=predictor)
+        t = time.perf_counter()
+        write_scan(annotate(scan, result), output, progress=progress)
+        write_s = time.perf_counter() - t
+    body: dict[str, Any] = {"input": str(source), "output": str(output)}
+    extra = {"load_network": load_s, "read": read_s, "write": write_s}
+    body.update(report_body(scan, result, extra_timings=extra))
+    if report is not None:
+        _write_text(report, json.dumps(body, indent=2))
+    line = (
+        f"{len(scan):,} points -> {result.geometry.n_segments:,} segments, "
+        f"{body['labels_changed']:,} labels changed by fusion, "
+        f"{body['timings_s']['total']:.1f} s -> {output}"
+    )
+    if result.metrics is not None:
+        m = result.metrics
+        line += (
+            f"\nmIoU network {_fmt(m['network'].miou)} -> fused {_fmt(m['fused'].miou)} "
+            f"(oracle {_fmt(m['oracle'].miou)})"
+        )
+    typer.echo(line, err=True)
+
+
+def _fmt(value: float | None) -> str:
+    return "/" if value is None else f"{value:.3f}"
+
+
+def _scan_paths(paths: list[Path]) -> list[Path]:
+    """Files (and S3DIS room folders) named, or found directly inside named folders."""
+    found: list[Path] = []
+    for path in paths:
+        if not path.exists():
+            raise ScanFormatError(f"{path}: file not found")
+        if path.is_dir() and not (path / "Annotations").is_dir():
+            inside = sorted(
+                p for p in path.iterdir() if p.is_file() and p.suffix.lower() in READ_EXTENSIONS
+            )
+            inside += sorted(p for p in path.iterdir() if (p / "Annotations").is_dir())
+            if not inside:
+                raise ScanFormatError(f"{path}: no scan files ({', '.join(READ_EXTENSIONS)})")
+            found.extend(inside)
+        else:
+            found.append(path)
+    return found
+
+
+def evaluate_scans(
+    paths: list[Path] = typer.Argument(..., help="Labelled scans, or folders of them."),
+    network: str | None = typer.Option(None, "--network", help=NETWORK_HELP),
+    weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
+    config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    out: Path | None = typer.Option(
+        None, "--out", help="Folder for table1.csv, table2.csv and eval.json (created)."
+    ),
+    max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
+) -> None:
+    """Run the pipeline on labelled scans and print the paper's Table 1 and Table 2."""
+    from jointseg.pipeline import load_predictor, report_body, run
+    from jointseg.pipeline.tables import RoomScores, format_table, table1, table2, to_csv
+
+    cfg = _config(config, network, weights)
+    scans = _scan_paths(paths)
+    for path in scans:  # refuse unlabelled input before any work
+        if not probe_scan(path, max_points=max_points).has_labels:
+            raise ConfigError(f"{path}: has no ground-truth labels; eval needs labelled scans")
+    if out is not None and out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a folder")
+    predictor = load_predictor(cfg.network)
+    rooms: list[RoomScores] = []
+    details: list[dict[str, Any]] = []
+    with progress_bar() as progress:
+        for i, path in enumerate(scans):
+            prefix = f"{i + 1}/{len(scans)} "
+
+            def room_progress(stage: str, fraction: float, prefix: str = prefix) -> None:
+                progress(prefix + stage, fraction)
+
+            scan = read_scan(path, max_points=max_points, progress=room_progress)
+            result = run(scan, cfg, room_progress, predictor=predictor)
+            if result.metrics is None:  # labels present in the header but all -1
+                raise ConfigError(f"{path}: has no ground-truth labels; eval needs labelled scans")
+            name = path.stem if path.is_file() else path.name
+            rooms.append(RoomScores(name, result.metrics))
+            details.append({"name": name, "path": str(path), **report_body(scan, result)})
+    t1, t2 = table1(rooms), table2(rooms)
+    typer.echo("Table 1. IoU per class (network and fused labels)\n")
+    typer.echo(format_table(*t1))
+    typer.echo("\nTable 2. mIoU and mAcc\n")
+    typer.echo(format_table(*t2))
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        _write_text(out / "table1.csv", to_csv(*t1))
+        _write_text(out / "table2.csv", to_csv(*t2))
+        body = {
+            "table1": {"header": t1[0], "rows": t1[1]},
+            "table2": {"header": t2[0], "rows": t2[1]},
+            "rooms": details,
+        }
+        _write_text(out / "eval.json", json.dumps(body, indent=2))
+        typer.echo(f"\nwrote {out / 'table1.csv'}, {out / 'table2.csv'}, {out / 'eval.json'}")
+
+
+def register(app: typer.Typer) -> None:
+    """Add this module's commands to ``app``."""
+    app.command("segment")(segment_scan)
+    app.command("eval")(evaluate_scans)
