@@ -1,0 +1,158 @@
+"""Fusion variants compared on held-out scans: which mode should be the default?
+
+For every held-out synthetic scan (rooms 5000.. box and L with random yaw, floors 6000..; the
+seeds bench/network_accuracy.py uses) and, when present, the real S3DIS fragment, the network
+and the geometry run once; then every fusion variant (the paper's rule at several ratio
+thresholds, soft votes, the guard) fuses their outputs. Prints per-scan mIoU of the network,
+each variant and the oracle (segment majority of the ground truth), then a summary per variant:
+mean mIoU, mean and worst gain over the network, scans where fusion lost. The winner is the
+variant with the best mean gain among those that lose on no scan.
+
+    .venv/bin/python bench/fusion.py [--weights PATH] [--rooms 10] [--floors 2] [--points 300000]
+    .venv/bin/python bench/fusion.py --stand-in    # no weights: ground truth with patchy noise
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from jointseg.fusion import DEFAULT_MODE, FusionParams, fuse
+from jointseg.geometry import segment
+from jointseg.io import read_scan
+from jointseg.metrics import evaluate, segment_majority
+from jointseg.network import load
+from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.scan import Scan
+from jointseg.synth.label_noise import corrupt_labels
+
+sys.path.insert(0, str(Path(__file__).parent))
+from network_accuracy import FRAGMENT, fmt, held_out  # noqa: E402
+
+VARIANTS: dict[str, FusionParams] = {
+    "paper r=0.1": FusionParams(mode="paper", ratio_threshold=0.1),
+    "paper r=0.3": FusionParams(mode="paper", ratio_threshold=0.3),
+    "paper r=0.5": FusionParams(mode="paper", ratio_threshold=0.5),
+    "paper r=1": FusionParams(mode="paper", ratio_threshold=1.0),
+    "guarded": FusionParams(mode="guarded"),
+    "guarded, keep": FusionParams(mode="guarded", guard_cell_size=0.0),
+    "soft r=0.3": FusionParams(mode="soft", ratio_threshold=0.3),
+    "soft": FusionParams(mode="soft"),
+    "soft_guarded": FusionParams(mode="soft_guarded"),
+    "soft_guarded 1 m": FusionParams(mode="soft_guarded", guard_cell_size=1.0),
+    "soft_guarded m=0.1": FusionParams(mode="soft_guarded", guard_min_margin=0.1),
+    "soft_guarded mild": FusionParams(
+        mode="soft_guarded", guard_min_margin=0.05, guard_huge_min_share=0.6, guard_cell_size=1.0
+    ),
+}
+
+
+@dataclass
+class ScanRow:
+    name: str
+    points: int
+    synthetic: bool
+    network: float
+    oracle: float
+    fused: dict[str, float]
+
+
+def measure(name: str, scan: Scan, labels_probs, seed: int, synthetic: bool) -> ScanRow:
+    """Geometry once, then every variant on the same network output."""
+    labels, probs = labels_probs
+    segments = segment(scan, seed=seed).segments
+    fused = {}
+    for variant, params in VARIANTS.items():
+        result = fuse(scan.xyz, segments, labels, probs, params)
+        fused[variant] = evaluate(scan.labels, result.labels).miou or 0.0
+    return ScanRow(
+        name,
+        len(scan),
+        synthetic,
+        evaluate(scan.labels, labels).miou or 0.0,
+        evaluate(scan.labels, segment_majority(scan.labels, segments)).miou or 0.0,
+        fused,
+    )
+
+
+def summary(rows: list[ScanRow]) -> str:
+    """Per-variant mean, mean gain, worst gain and losses over the synthetic scans."""
+    synth = [r for r in rows if r.synthetic]
+    real = [r for r in rows if not r.synthetic]
+    lines = [
+        "| variant | mean mIoU | mean gain | worst gain | scans lost |"
+        + (" S3DIS fragment gain |" if real else ""),
+        "|---|---|---|---|---|" + ("---|" if real else ""),
+    ]
+    best, best_key = None, (-1, -np.inf)
+    for variant in VARIANTS:
+        gains = np.array([r.fused[variant] - r.network for r in synth])
+        mean = np.mean([r.fused[variant] for r in synth])
+        lost = int(np.sum(gains < 0))
+        line = f"| {variant} | {mean:.3f} | {gains.mean():+.3f} | {gains.min():+.3f} | {lost} |"
+        if real:
+            line += f" {real[0].fused[variant] - real[0].network:+.3f} |"
+        lines.append(line)
+        key = (int(lost == 0), float(gains.mean()))
+        if key > best_key:
+            best, best_key = variant, key
+    lines.append("")
+    lines.append(f"winner: **{best}** (best mean gain among variants that lose on no scan)")
+    lines.append(f"current default: mode={DEFAULT_MODE!r}, {FusionParams().model_dump()}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument(
+        "--stand-in",
+        action="store_true",
+        help="no network: ground truth with spatially coherent noise (jointseg.synth.label_noise)",
+    )
+    parser.add_argument("--rooms", type=int, default=10)
+    parser.add_argument("--floors", type=int, default=2)
+    parser.add_argument("--points", type=int, default=300_000, help="points per room")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    if args.stand_in:
+        source = "stand-in network: ground truth with patchy label noise"
+
+        def label(scan: Scan, seed: int):
+            return corrupt_labels(scan.xyz, scan.labels, rng=np.random.default_rng(seed))
+    else:
+        predictor = load("randlanet", args.weights)
+        source = f"RandLA-Net {args.weights} (trained on {predictor.card.get('data', '?')})"
+
+        def label(scan: Scan, seed: int):
+            result = predictor.predict(scan, seed=seed)
+            return result.labels, result.probs
+
+    print(f"# fusion variants, {source}, {time.strftime('%F')}\n")
+    rows = []
+    scans = [(name, scan, True) for name, scan in held_out(args.rooms, args.floors, args.points)]
+    if FRAGMENT.is_file():
+        scans.append(("S3DIS fragment (real)", read_scan(FRAGMENT), False))
+    for i, (name, scan, synthetic) in enumerate(scans):
+        t = time.perf_counter()
+        rows.append(measure(name, scan, label(scan, i), i, synthetic))
+        print(f"{name}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
+
+    print("mIoU per scan (network, each fusion variant, oracle = segment majority of truth)\n")
+    print("| scan | points | network | " + " | ".join(VARIANTS) + " | oracle |")
+    print("|---|---|---|" + "---|" * len(VARIANTS) + "---|")
+    for r in rows:
+        cells = " | ".join(fmt(r.fused[v]) for v in VARIANTS)
+        print(f"| {r.name} | {r.points:,} | {fmt(r.network)} | {cells} | {fmt(r.oracle)} |")
+    print()
+    print(summary(rows))
+
+
+if __name__ == "__main__":
+    main()
