@@ -24,7 +24,7 @@ run: setup
 	mkdir -p $(DEMO)
 	$(BIN)/jointseg synth --seed 0 --points 1000000 -o $(DEMO)/room.ply
 	$(BIN)/jointseg info $(DEMO)/room.ply
-	$(BIN)/jointseg geometry $(DEMO)/room.ply -o $(DEMO)/room_segments.ply --report $(DEMO)/geometry.json
+	$(BIN)/jointseg segment $(DEMO)/room.ply -o $(DEMO)/room_segmented.ply --report $(DEMO)/report.json
 
 lint: setup
 	$(BIN)/ruff check jointseg server web tests bench

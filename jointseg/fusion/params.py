@@ -21,8 +21,9 @@ GUARDED_MODES: frozenset[str] = frozenset({"guarded", "soft_guarded"})
 
 #: PROVISIONAL default: the best mode of bench/fusion.py on held-out synthetic scans with a
 #: stand-in network (ground truth with spatially coherent label noise, jointseg.synth.label_noise)
-#: while the RandLA-Net weights were still training. Re-check with `bench/fusion.py` (default
-#: weights) once they land, and change it here if another mode wins.
+#: while the RandLA-Net weights were still training (it also led, with 'paper' at ratio 0.5 a
+#: close second, with an epoch-6 checkpoint of that training). Re-check with `bench/fusion.py`
+#: (default weights) once they land, and change it here if another mode wins.
 DEFAULT_MODE: FusionMode = "soft"
 
 
