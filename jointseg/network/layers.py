@@ -85,7 +85,10 @@ class AttentivePooling(nn.Module):
         self.mlp = SharedMLP(in_channels, out_channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        scores = torch.softmax(self.score(x.permute(0, 2, 3, 1)), dim=2).permute(0, 3, 1, 2)
+        # The Linear's weights applied as a 1x1 convolution: same parameters (and checkpoints)
+        # as the reference, without permuting the (B, C, N, K) tensor there and back.
+        weight = self.score.weight[:, :, None, None]
+        scores = torch.softmax(nn.functional.conv2d(x, weight, self.score.bias), dim=3)
         return self.mlp(torch.sum(scores * x, dim=-1, keepdim=True))
 
 
