@@ -93,26 +93,16 @@ def test_labels_reach_the_segmented_points_from_a_subsampled_cloud() -> None:
     np.testing.assert_array_equal(result.labels, truth)
 
 
-def test_transfer_with_k_neighbours_takes_their_majority_and_ties_go_to_the_nearest() -> None:
+@pytest.mark.parametrize(
+    ("k", "expected"),
+    [(1, 5), (2, 5), (3, 6), (4, 6)],  # k=2 ties 5/6: the nearer label wins
+)
+def test_transfer_with_k_neighbours_takes_their_majority(k: int, expected: int) -> None:
     network_xyz = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 5, 5]])
     network_labels = np.array([5, 6, 6, 0])
-    query = np.array([[-0.01, 0, 0]])
-    majority = fuse(
-        query,
-        [0],
-        network_labels,
-        params=FusionParams(mode="paper", neighbours=3),
-        network_xyz=network_xyz,
-    )
-    assert majority.network_labels.tolist() == [6]
-    tie = fuse(
-        query,
-        [0],
-        network_labels,
-        params=FusionParams(mode="paper", neighbours=2),
-        network_xyz=network_xyz,
-    )
-    assert tie.network_labels.tolist() == [5]
+    params = FusionParams(mode="paper", neighbours=k)
+    result = fuse([[-0.01, 0, 0]], [0], network_labels, params=params, network_xyz=network_xyz)
+    assert result.network_labels.tolist() == [expected]
 
 
 def test_probabilities_follow_the_transfer() -> None:
