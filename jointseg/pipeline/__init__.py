@@ -2,14 +2,13 @@
 
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.pipeline.outputs import OUTPUT_FIELDS, annotate, report_body
-from jointseg.pipeline.run import PipelineResult, Predictor, load_predictor, run
+from jointseg.pipeline.run import PipelineResult, load_predictor, run
 
 __all__ = [
     "OUTPUT_FIELDS",
     "NetworkConfig",
     "PipelineConfig",
     "PipelineResult",
-    "Predictor",
     "annotate",
     "load_predictor",
     "report_body",

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
-from jointseg.network import NetworkResult, load
+from jointseg.network import NetworkResult, RandLANetPredictor, load
 from jointseg.network.registry import DEFAULT_WEIGHTS
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
@@ -30,21 +30,6 @@ from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
-
-
-class Predictor(Protocol):
-    """What the pipeline needs of a network: ``predict`` and a model card."""
-
-    card: dict[str, Any]
-
-    def predict(
-        self,
-        scan: Scan,
-        progress: ProgressFn | None = None,
-        cancel: CancelToken | None = None,
-        *,
-        seed: int = 0,
-    ) -> NetworkResult: ...
 
 
 @dataclass(frozen=True)
@@ -108,7 +93,7 @@ class _AnyOf:
         return self.stop.is_set() or (self.outer is not None and self.outer.is_set())
 
 
-def load_predictor(config: NetworkConfig) -> Predictor:
+def load_predictor(config: NetworkConfig) -> RandLANetPredictor:
     """Load the configured network once (reuse it across scans with ``run(predictor=...)``).
 
     Raises
@@ -125,7 +110,7 @@ def run(
     progress: ProgressFn | None = None,
     cancel: CancelToken | None = None,
     *,
-    predictor: Predictor | None = None,
+    predictor: RandLANetPredictor | None = None,
 ) -> PipelineResult:
     """Label a scan with the network, segment it geometrically, fuse both, score with ground truth.
 
@@ -141,7 +126,7 @@ def run(
     cancel : object with ``is_set()``, optional
         Stops both running stages at their next check (between crop batches and geometry
         steps) and raises :class:`Cancelled`.
-    predictor : optional
+    predictor : RandLANetPredictor, optional
         An already loaded network (e.g. one per worker process); default: loaded from
         ``config.network``.
 
@@ -262,7 +247,7 @@ def _both(
 
 
 def _resolved_params(
-    config: PipelineConfig, predictor: Predictor, geometry: GeometryResult
+    config: PipelineConfig, predictor: RandLANetPredictor, geometry: GeometryResult
 ) -> dict[str, Any]:
     """The parameters a run used, as JSON-ready values (geometry's adaptive ones resolved)."""
     weights = config.network.weights or DEFAULT_WEIGHTS.get(config.network.name)
