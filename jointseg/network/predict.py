@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -49,6 +51,26 @@ def pick_device(device: str | None = None) -> torch.device:
     if device:
         return torch.device(device)
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+@contextmanager
+def cancellable(model: torch.nn.Module, cancel: CancelToken | None) -> Iterator[None]:
+    """Check ``cancel`` before every encoder and decoder layer, so a stop request interrupts a
+    forward pass (seconds on CPU for a batch of large crops) instead of waiting for it."""
+    if cancel is None:
+        yield
+        return
+    layers = [m for name, m in model.named_children() if name in {"encoder", "decoder"}]
+    handles = [
+        layer.register_forward_pre_hook(lambda *_: check_cancel(cancel))
+        for group in layers
+        for layer in group.children()
+    ]
+    try:
+        yield
+    finally:
+        for handle in handles:
+            handle.remove()
 
 
 class RandLANetPredictor:
@@ -107,7 +129,7 @@ class RandLANetPredictor:
         timings["subsample"] = time.perf_counter() - t
         t = time.perf_counter()
         crops = 0
-        with torch.inference_mode():
+        with torch.inference_mode(), cancellable(self.model, cancel):
             while possibility.min() < self.min_possibility:
                 check_cancel(cancel)
                 batch_crops = []

@@ -75,6 +75,27 @@ def test_progress_and_cancel(random_weights, small_room) -> None:
         predictor.predict(small_room, cancel=stop)
 
 
+class StopAfter:
+    """A cancel token that turns set after ``n`` checks: reached only inside a forward pass."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.checks = n, 0
+
+    def is_set(self) -> bool:
+        self.checks += 1
+        return self.checks > self.n
+
+
+def test_cancel_interrupts_a_forward_pass(random_weights, small_room) -> None:
+    predictor = load("randlanet", random_weights, device="cpu")
+    token = StopAfter(3)  # the loop's first check, then two layers of the first forward pass
+    with pytest.raises(Cancelled):
+        predictor.predict(small_room, cancel=token)
+    assert token.checks == 4
+    assert not predictor.model._forward_pre_hooks  # hooks removed again
+    assert all(not m._forward_pre_hooks for m in predictor.model.modules())
+
+
 def test_unknown_network_and_missing_weights_are_clear(tmp_path) -> None:
     with pytest.raises(ConfigError, match="unknown network 'pointnet'"):
         load("pointnet")
