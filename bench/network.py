@@ -44,7 +44,11 @@ S3DIS_CFG = dict(
 def run_open3d_ml(predictor, xyz: np.ndarray, rgb: np.ndarray) -> tuple[np.ndarray, float]:
     import open3d.ml.torch as ml3d
 
-    model = ml3d.models.RandLANet(**S3DIS_CFG)
+    # Same crop size and grid as our model's card, so both run the same scheme on the same input.
+    cfg = predictor.model.config
+    model = ml3d.models.RandLANet(
+        **{**S3DIS_CFG, "num_points": cfg.num_points, "grid_size": cfg.grid_size}
+    )
     model.load_state_dict(to_open3d_ml_state(predictor.model.state_dict()))
     pipeline = ml3d.pipelines.SemanticSegmentation(model, device="cpu")
     pts = xyz.astype(np.float32).copy()
