@@ -1,46 +1,116 @@
-"""Network backends by name, and the weights that ship with the package."""
+"""Network backends by name, where their weights come from, and one loader for all of them.
+
+A backend's weights are, in this order: the path the caller gives, the path in the backend's
+environment variable, the weights bundled with the package. DGCNN has no bundled weights (the
+published ones are a separate download), so it needs ``--weights`` or ``JOINTSEG_DGCNN_WEIGHTS``.
+"""
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
+
+import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.predict import RandLANetPredictor
+from jointseg.network.dgcnn_predict import (
+    WEIGHTS_SOURCE,
+    DGCNNParams,
+    DGCNNPredictor,
+    load_dgcnn_state,
+)
+from jointseg.network.predict import NetworkResult, RandLANetPredictor
+from jointseg.progress import CancelToken, ProgressFn
+from jointseg.scan import Scan
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
+BACKENDS = ("randlanet", "dgcnn")
 DEFAULT_WEIGHTS = {"randlanet": WEIGHTS_DIR / "randlanet_synth.pt"}
+WEIGHTS_ENV = {"randlanet": "JOINTSEG_RANDLANET_WEIGHTS", "dgcnn": "JOINTSEG_DGCNN_WEIGHTS"}
 WHERE_TO_GET = {
     "randlanet": (
         "train them with `jointseg train --data synth --out model.pt`, or convert Open3D-ML's "
         "randlanet_s3dis_202201071330utc.pth with `jointseg models import open3d-ml FILE`"
     ),
+    "dgcnn": (
+        f"download the S3DIS weights from {WEIGHTS_SOURCE} and pass one with --weights "
+        f"or set {WEIGHTS_ENV['dgcnn']}"
+    ),
 }
+#: Weight file suffixes that name their backend when a path is given instead of a name.
+SUFFIX_BACKEND = {".pt": "randlanet", ".pth": "randlanet", ".t7": "dgcnn"}
+
+
+class Predictor(Protocol):
+    """What every backend's predictor offers the pipeline."""
+
+    name: str
+    device: torch.device
+    card: dict[str, Any]
+
+    def predict(
+        self,
+        scan: Scan,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> NetworkResult: ...
 
 
 @dataclass(frozen=True)
 class BackendInfo:
-    """What `jointseg models list` shows for one backend."""
+    """What `jointseg models list` shows for one backend.
+
+    ``weights`` is None when the backend has none configured; ``source`` says where the
+    weights come from (bundled, an environment variable) or how to get them.
+    """
 
     name: str
-    weights: Path
+    weights: Path | None
     available: bool
     trained_on: str
+    source: str
+
+
+def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) -> Path | None:
+    """The weights file backend ``name`` would use: ``weights``, else its environment
+    variable, else the bundled file; None when there is none of them."""
+    if weights is not None:
+        return Path(weights)
+    env = os.environ.get(WEIGHTS_ENV.get(name, ""), "")
+    if env:
+        return Path(env)
+    return DEFAULT_WEIGHTS.get(name)
+
+
+def _trained_on(name: str, path: Path) -> str:
+    try:
+        if name == "dgcnn":
+            return str(load_dgcnn_state(path)[1]["data"])
+        return str(load_checkpoint(path)[1].get("data", "-"))
+    except ConfigError as exc:
+        return f"unreadable: {exc}"
 
 
 def available_backends() -> list[BackendInfo]:
-    """Every backend with its default weights and whether they are installed."""
+    """Every backend with the weights it would use and whether they are installed."""
     out = []
-    for name, path in DEFAULT_WEIGHTS.items():
-        trained_on = "-"
-        if path.is_file():
-            try:
-                trained_on = str(load_checkpoint(path)[1].get("data", "-"))
-            except ConfigError as exc:
-                trained_on = f"unreadable: {exc}"
-        out.append(BackendInfo(name, path, path.is_file(), trained_on))
+    for name in BACKENDS:
+        path = resolve_weights(name)
+        env = WEIGHTS_ENV[name]
+        if os.environ.get(env):
+            source = f"${env}"
+        elif path is not None:
+            source = "bundled"
+        else:
+            source = WHERE_TO_GET[name]
+        present = path is not None and path.is_file()
+        trained_on = _trained_on(name, path) if present and path is not None else "-"
+        out.append(BackendInfo(name, path, present, trained_on, source))
     return out
 
 
@@ -50,24 +120,30 @@ def load(
     *,
     device: str | None = None,
     batch_size: int = 4,
-) -> RandLANetPredictor:
-    """A ready predictor for backend ``name`` with ``weights`` (default: the bundled ones).
+    dgcnn: DGCNNParams | None = None,
+) -> Predictor:
+    """A ready predictor for backend ``name`` with ``weights`` (default: see the module).
 
-    ``name`` may also be a checkpoint path, for `load("model.pt")`.
+    ``name`` may also be a weights path, for ``load("model.pt")`` (RandLA-Net) or
+    ``load("model_1.t7")`` (DGCNN). ``batch_size`` is crops (RandLA-Net) or 4 096-point blocks
+    (DGCNN) per forward pass; ``dgcnn`` sets DGCNN's block and normalisation options.
 
     Raises
     ------
     ConfigError
         For an unknown backend or missing/unreadable weights; the message says where to get them.
     """
-    if weights is None and name not in DEFAULT_WEIGHTS and Path(name).suffix in {".pt", ".pth"}:
-        name, weights = "randlanet", name
-    if name not in DEFAULT_WEIGHTS:
-        raise ConfigError(
-            f"unknown network {name!r}; available: {', '.join(sorted(DEFAULT_WEIGHTS))}"
-        )
-    path = Path(weights) if weights is not None else DEFAULT_WEIGHTS[name]
+    if weights is None and name not in BACKENDS and Path(name).suffix in SUFFIX_BACKEND:
+        name, weights = SUFFIX_BACKEND[Path(name).suffix], name
+    if name not in BACKENDS:
+        raise ConfigError(f"unknown network {name!r}; available: {', '.join(BACKENDS)}")
+    path = resolve_weights(name, weights)
+    if path is None:
+        raise ConfigError(f"no weights for {name!r}: {WHERE_TO_GET[name]}")
     if not path.is_file():
         raise ConfigError(f"no weights for {name!r} at {path}: {WHERE_TO_GET[name]}")
+    if name == "dgcnn":
+        net, card = load_dgcnn_state(path)
+        return DGCNNPredictor(net, card, device=device, batch_size=batch_size, params=dgcnn)
     model, card, _ = load_checkpoint(path)
     return RandLANetPredictor(model, card, device=device, batch_size=batch_size)

@@ -1,0 +1,227 @@
+"""Whole-scan DGCNN inference with the public S3DIS weights (antao97/dgcnn.pytorch).
+
+The scan is cut into the reference's 1 m columns (overlapping by default), every column into
+random 4 096-point samples; each sample gets the reference's 9 features and goes through the
+network in batches; every point's softmax outputs are averaged over the samples that contained
+it, and a point no sample contained takes those of its nearest predicted neighbour.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
+from jointseg.exceptions import ConfigError
+from jointseg.network.blocks import block_features, column_blocks, sample_columns
+from jointseg.network.dgcnn import DGCNN
+from jointseg.network.predict import NetworkResult, pick_device
+from jointseg.network.room_frame import RoomFrame, room_frame, scan_frame
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.scan import Scan
+
+log = logging.getLogger(__name__)
+STAGE = "network"
+WEIGHTS_SOURCE = (
+    "https://github.com/antao97/dgcnn.pytorch (pretrained/semseg_s3dis/model_1.t7 ... "
+    "model_6.t7, MIT; model_i was trained with S3DIS Area i left out)"
+)
+
+
+class DGCNNParams(BaseModel):
+    """How a scan is cut into blocks and normalised for DGCNN.
+
+    The block size and points per block are those the published weights were trained with;
+    ``stride``, ``coverage`` and ``frame`` are inference choices.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    block_size: float = Field(1.0, gt=0, description="Column width, metres (training: 1 m).")
+    stride: float = Field(
+        0.5, gt=0, description="Distance between column corners, metres; < block_size overlaps."
+    )
+    num_points: int = Field(4096, ge=32, description="Points per sample (training: 4 096).")
+    min_block_points: int = Field(100, ge=1, description="Smaller columns are skipped.")
+    coverage: float | None = Field(
+        1.0,
+        gt=0,
+        description="Predictions per point, roughly (samples per column grow with its share "
+        "of points); None: every point of every column is predicted.",
+    )
+    frame: Literal["room", "scan"] = Field(
+        "room",
+        description="'scan': the bounding box is the room (the reference); 'room': floor and "
+        "ceiling measured, a typical height when the scan has no ceiling.",
+    )
+    room_height: float | None = Field(
+        None, gt=0, description="Floor-to-ceiling height, metres ('room' frame; default measured)."
+    )
+    room_size: tuple[float, float] | None = Field(
+        None,
+        description="Room x and y size, metres, for scans larger than a room (whole floors): "
+        "every column is then placed in the middle of a room of this size.",
+    )
+
+
+def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any]]:
+    """Load a dgcnn.pytorch S3DIS state dict (``model_i.t7``) into :class:`DGCNN`.
+
+    Only tensors are read (``weights_only``); the ``module.`` prefix that ``nn.DataParallel``
+    adds is stripped.
+
+    Raises
+    ------
+    ConfigError
+        When the file is missing, unreadable, or not a DGCNN S3DIS state dict.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"DGCNN weights file not found: {path}; get them from {WEIGHTS_SOURCE}")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a bad file
+        raise ConfigError(f"{path}: not a readable PyTorch file ({exc})") from exc
+    if isinstance(state, dict) and isinstance(state.get("state_dict"), dict):
+        state = state["state_dict"]
+    if not isinstance(state, dict):
+        raise ConfigError(f"{path}: not a state dict; expected dgcnn.pytorch's model_i.t7")
+    state = {str(k).removeprefix("module."): v for k, v in state.items()}
+    model = DGCNN()
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:
+        raise ConfigError(
+            f"{path}: not a DGCNN S3DIS state dict (dgcnn.pytorch model_i.t7): {exc}"
+        ) from exc
+    model.eval()
+    stem = path.stem
+    area = stem.removeprefix("model_") if stem.startswith("model_") else None
+    data = f"S3DIS, Area {area} held out" if area and area.isdigit() else "S3DIS (dgcnn.pytorch)"
+    card = {"data": data, "source": WEIGHTS_SOURCE, "architecture": "DGCNN semseg, k=20"}
+    return model, card
+
+
+class DGCNNPredictor:
+    """A loaded DGCNN and the whole-scan block inference around it."""
+
+    name = "dgcnn"
+
+    def __init__(
+        self,
+        model: DGCNN,
+        card: dict[str, Any] | None = None,
+        *,
+        device: str | None = None,
+        batch_size: int = 4,
+        params: DGCNNParams | None = None,
+    ) -> None:
+        self.device = pick_device(device)
+        self.model = model.to(self.device).eval()
+        self.card = card or {}
+        self.batch_size = batch_size
+        self.params = params or DGCNNParams()
+
+    def frame(self, scan: Scan) -> RoomFrame:
+        """The room frame the normalised coordinates of ``scan`` are computed in."""
+        p = self.params
+        if p.frame == "scan":
+            return scan_frame(scan.xyz)
+        return room_frame(scan.xyz, height=p.room_height)
+
+    def predict(
+        self,
+        scan: Scan,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> NetworkResult:
+        """Label every point of ``scan`` (metres, z up; colour used when present).
+
+        Memory is bounded by the batch: the scan is held once, plus the per-point sums.
+
+        Raises
+        ------
+        ConfigError
+            When the scan is empty.
+        Cancelled
+            When ``cancel`` is set (checked between batches and inside the forward pass).
+        """
+        if len(scan) == 0:
+            raise ConfigError("cannot run the network on an empty scan")
+        p = self.params
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        rng = np.random.default_rng(seed)
+        frame = self.frame(scan)
+        xyz = scan.xyz - frame.origin
+        rgb = (
+            np.zeros((len(scan), 3), np.float32)
+            if scan.rgb is None
+            else scan.rgb.astype(np.float32) / 255.0
+        )
+        columns = column_blocks(
+            xyz[:, :2] - xyz[:, :2].min(axis=0),
+            size=p.block_size,
+            stride=p.stride,
+            min_points=p.min_block_points,
+        )
+        samples, _ = sample_columns(columns, p.num_points, coverage=p.coverage, rng=rng)
+        timings["blocks"] = time.perf_counter() - t
+        t = time.perf_counter()
+        num_classes = self.model.num_classes
+        prob_sum = torch.zeros((len(scan), num_classes), dtype=torch.float32)
+        seen = torch.zeros(len(scan), dtype=torch.float32)
+        with torch.inference_mode():
+            for start in range(0, len(samples), self.batch_size):
+                check_cancel(cancel)
+                idx = samples[start : start + self.batch_size]
+                feats = self._features(xyz[idx], rgb[idx], frame)
+                logits = self.model(
+                    torch.from_numpy(feats).to(self.device),
+                    between=lambda: check_cancel(cancel),
+                )
+                probs = torch.softmax(logits.float(), dim=-1).cpu().reshape(-1, num_classes)
+                flat = torch.from_numpy(idx.reshape(-1))
+                prob_sum.index_add_(0, flat, probs)
+                seen.index_add_(0, flat, torch.ones(len(flat)))
+                report(progress, STAGE, 0.95 * (start + len(idx)) / len(samples))
+        timings["blocks_forward"] = time.perf_counter() - t
+        t = time.perf_counter()
+        probs_np = (prob_sum / seen.clamp(min=1)[:, None]).numpy()
+        seen_np = seen.numpy() > 0
+        if not seen_np.all():
+            covered = np.flatnonzero(seen_np)
+            missing = np.flatnonzero(~seen_np)
+            _, nearest = cKDTree(scan.xyz[covered]).query(scan.xyz[missing], k=1, workers=-1)
+            probs_np[missing] = probs_np[covered[nearest]]
+        labels = probs_np.argmax(axis=1).astype(np.int32)
+        timings["project"] = time.perf_counter() - t
+        report(progress, STAGE, 1.0)
+        log.info(
+            "dgcnn: %d points, %d columns, %d samples, %.1f%% predicted directly",
+            len(scan),
+            len(columns),
+            len(samples),
+            100.0 * seen_np.mean(),
+        )
+        return NetworkResult(labels, probs_np.astype(np.float32), len(samples), timings)
+
+    def _features(self, xyz: np.ndarray, rgb: np.ndarray, frame: RoomFrame) -> np.ndarray:
+        """9 features of a batch of samples (B, M, 3) in the room frame."""
+        p = self.params
+        if p.frame == "room" and p.room_size is not None:
+            # a scan larger than a room: each block sits in the middle of a room of that size
+            extent = np.array([*p.room_size, frame.extent[2]])
+            centre = xyz[..., :2].min(axis=1, keepdims=True) + p.block_size / 2
+            shift = np.concatenate([centre - extent[:2] / 2, np.zeros_like(centre[..., :1])], -1)
+            return block_features(xyz, rgb, extent, size=p.block_size, shift=shift)
+        return block_features(xyz, rgb, frame.extent, size=p.block_size)
