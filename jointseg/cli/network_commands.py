@@ -19,6 +19,7 @@ models_app = typer.Typer(help="Network backends and weights.", no_args_is_help=T
 
 class Network(StrEnum):
     randlanet = "randlanet"
+    dgcnn = "dgcnn"
 
 
 class ImportSource(StrEnum):
@@ -29,10 +30,15 @@ def predict(
     source: Path = typer.Argument(..., help="Input scan."),
     output: Path = typer.Option(..., "-o", "--output", help="Output scan with network fields."),
     network: Network = typer.Option(Network.randlanet, help="Network backend."),
-    weights: Path | None = typer.Option(None, help="Checkpoint (default: bundled weights)."),
+    weights: Path | None = typer.Option(
+        None,
+        help="Weights file (default: $JOINTSEG_DGCNN_WEIGHTS for dgcnn, bundled for randlanet).",
+    ),
     device: str | None = typer.Option(None, help="cpu or cuda (default: cuda when present)."),
-    batch_size: int = typer.Option(4, min=1, help="Crops per forward pass."),
-    seed: int = typer.Option(0, help="Crop randomness; the same seed gives the same labels."),
+    batch_size: int = typer.Option(
+        4, min=1, help="Crops (randlanet) or 4 096-point blocks (dgcnn) per forward pass."
+    ),
+    seed: int = typer.Option(0, help="Sampling randomness; the same seed gives the same labels."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
 ) -> None:
     """Label every point with the network; writes network_label and network_confidence."""
@@ -98,12 +104,20 @@ def list_models() -> None:
     """Show the network backends and their weights."""
     from jointseg.network import available_backends
 
-    table = Table("backend", "weights", "installed", "trained on")
-    for info in available_backends():
+    table = Table("backend", "weights", "installed", "trained on", "from")
+    backends = available_backends()
+    for info in backends:
         table.add_row(
-            info.name, str(info.weights), "yes" if info.available else "no", info.trained_on
+            info.name,
+            "-" if info.weights is None else str(info.weights),
+            "yes" if info.available else "no",
+            info.trained_on,
+            info.source,
         )
     Console().print(table)
+    for info in backends:
+        if not info.available:  # unwrapped, so links and paths stay whole
+            typer.echo(f"{info.name}: no weights installed; {info.where_to_get}")
 
 
 @models_app.command("import")

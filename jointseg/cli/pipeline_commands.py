@@ -25,8 +25,11 @@ from jointseg.pipeline.config import PipelineConfig
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
 
 CONFIG_HELP = "PipelineConfig as JSON: network, geometry, fusion, seed (unknown keys rejected)."
-NETWORK_HELP = "Network backend (overrides the config file)."
-WEIGHTS_HELP = "Network checkpoint (overrides the config file; default: bundled weights)."
+NETWORK_HELP = "Network backend, randlanet or dgcnn (overrides the config file)."
+WEIGHTS_HELP = (
+    "Network weights (overrides the config file; default: $JOINTSEG_DGCNN_WEIGHTS for dgcnn, "
+    "bundled weights for randlanet)."
+)
 
 
 def _config(config: Path | None, network: str | None, weights: Path | None) -> PipelineConfig:

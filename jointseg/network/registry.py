@@ -65,8 +65,8 @@ class Predictor(Protocol):
 class BackendInfo:
     """What `jointseg models list` shows for one backend.
 
-    ``weights`` is None when the backend has none configured; ``source`` says where the
-    weights come from (bundled, an environment variable) or how to get them.
+    ``weights`` is None when the backend has none configured; ``source`` says where they come
+    from ("bundled", "$VARIABLE" or "none"); ``where_to_get`` how to obtain them.
     """
 
     name: str
@@ -74,6 +74,7 @@ class BackendInfo:
     available: bool
     trained_on: str
     source: str
+    where_to_get: str
 
 
 def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) -> Path | None:
@@ -102,15 +103,10 @@ def available_backends() -> list[BackendInfo]:
     for name in BACKENDS:
         path = resolve_weights(name)
         env = WEIGHTS_ENV[name]
-        if os.environ.get(env):
-            source = f"${env}"
-        elif path is not None:
-            source = "bundled"
-        else:
-            source = WHERE_TO_GET[name]
+        source = f"${env}" if os.environ.get(env) else "bundled" if path is not None else "none"
         present = path is not None and path.is_file()
         trained_on = _trained_on(name, path) if present and path is not None else "-"
-        out.append(BackendInfo(name, path, present, trained_on, source))
+        out.append(BackendInfo(name, path, present, trained_on, source, WHERE_TO_GET[name]))
     return out
 
 

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveInt
 
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
+from jointseg.network.dgcnn_predict import DGCNNParams
 
 
 class NetworkConfig(BaseModel):
@@ -19,13 +20,23 @@ class NetworkConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    name: str = Field("randlanet", description="Network backend (see `jointseg models list`).")
+    name: str = Field(
+        "randlanet", description="Network backend: randlanet or dgcnn (`jointseg models list`)."
+    )
     weights: Path | None = Field(
-        None, description="Checkpoint file; default: the weights bundled for the backend."
+        None,
+        description="Weights file; default: the backend's environment variable "
+        "(JOINTSEG_DGCNN_WEIGHTS, ...), else the weights bundled for it.",
     )
     device: str | None = Field(None, description="'cpu' or 'cuda'; default: cuda when present.")
     batch_size: PositiveInt = Field(
-        4, description="Crops per forward pass (memory, and how often cancellation is checked)."
+        4,
+        description="Crops (RandLA-Net) or 4 096-point blocks (DGCNN) per forward pass: memory, "
+        "and how often cancellation is checked.",
+    )
+    dgcnn: DGCNNParams = Field(
+        default_factory=DGCNNParams,
+        description="DGCNN's blocks and room normalisation (used when name is dgcnn).",
     )
 
 

@@ -22,8 +22,8 @@ from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
-from jointseg.network import NetworkResult, RandLANetPredictor, load
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network import NetworkResult, Predictor, load
+from jointseg.network.registry import resolve_weights
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -93,7 +93,7 @@ class _AnyOf:
         return self.stop.is_set() or (self.outer is not None and self.outer.is_set())
 
 
-def load_predictor(config: NetworkConfig) -> RandLANetPredictor:
+def load_predictor(config: NetworkConfig) -> Predictor:
     """Load the configured network once (reuse it across scans with ``run(predictor=...)``).
 
     Raises
@@ -101,7 +101,13 @@ def load_predictor(config: NetworkConfig) -> RandLANetPredictor:
     ConfigError
         For an unknown backend or missing or unreadable weights.
     """
-    return load(config.name, config.weights, device=config.device, batch_size=config.batch_size)
+    return load(
+        config.name,
+        config.weights,
+        device=config.device,
+        batch_size=config.batch_size,
+        dgcnn=config.dgcnn,
+    )
 
 
 def run(
@@ -110,7 +116,7 @@ def run(
     progress: ProgressFn | None = None,
     cancel: CancelToken | None = None,
     *,
-    predictor: RandLANetPredictor | None = None,
+    predictor: Predictor | None = None,
 ) -> PipelineResult:
     """Label a scan with the network, segment it geometrically, fuse both, score with ground truth.
 
@@ -126,7 +132,7 @@ def run(
     cancel : object with ``is_set()``, optional
         Stops both running stages at their next check (between crop batches and geometry
         steps) and raises :class:`Cancelled`.
-    predictor : RandLANetPredictor, optional
+    predictor : Predictor, optional
         An already loaded network (e.g. one per worker process); default: loaded from
         ``config.network``.
 
@@ -247,10 +253,10 @@ def _both(
 
 
 def _resolved_params(
-    config: PipelineConfig, predictor: RandLANetPredictor, geometry: GeometryResult
+    config: PipelineConfig, predictor: Predictor, geometry: GeometryResult
 ) -> dict[str, Any]:
     """The parameters a run used, as JSON-ready values (geometry's adaptive ones resolved)."""
-    weights = config.network.weights or DEFAULT_WEIGHTS.get(config.network.name)
+    weights = resolve_weights(config.network.name, config.network.weights)
     device = getattr(predictor, "device", config.network.device)
     return {
         "network": {
@@ -259,6 +265,11 @@ def _resolved_params(
             "device": None if device is None else str(device),
             "batch_size": config.network.batch_size,
             "trained_on": predictor.card.get("data"),
+            **(
+                {"dgcnn": config.network.dgcnn.model_dump()}
+                if config.network.name == "dgcnn"
+                else {}
+            ),
         },
         "geometry": geometry.params.model_dump(),
         "fusion": config.fusion.model_dump(),

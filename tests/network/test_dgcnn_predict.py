@@ -93,7 +93,8 @@ def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
     with pytest.raises(ConfigError, match="JOINTSEG_DGCNN_WEIGHTS"):
         load("dgcnn", tmp_path / "model_1.t7")
     info = {b.name: b for b in available_backends()}["dgcnn"]
-    assert not info.available and info.weights is None and "antao97" in info.source
+    assert not info.available and info.weights is None and info.source == "none"
+    assert "antao97/dgcnn.pytorch" in info.where_to_get
 
 
 def test_weights_from_the_environment_and_by_suffix(
