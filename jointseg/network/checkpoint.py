@@ -47,6 +47,24 @@ def save_checkpoint(
         fh.write(buffer.getvalue())
 
 
+def read_torch_file(path: str | os.PathLike[str], *, hint: str = "") -> Any:
+    """Tensors (and plain containers) from a PyTorch file; never runs code stored in it.
+
+    Raises
+    ------
+    ConfigError
+        When the file is missing or not a readable PyTorch file; ``hint`` is appended to the
+        missing-file message (e.g. where to get the weights).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"weights file not found: {path}{hint}")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a bad file
+        raise ConfigError(f"{path}: not a readable PyTorch checkpoint ({exc})") from exc
+
+
 def load_checkpoint(path: str | os.PathLike[str]) -> tuple[RandLANet, dict[str, Any], dict]:
     """Load a checkpoint written by :func:`save_checkpoint`.
 
@@ -60,12 +78,7 @@ def load_checkpoint(path: str | os.PathLike[str]) -> tuple[RandLANet, dict[str, 
         When the file is missing, not a torch file, or not a jointseg RandLA-Net checkpoint.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"weights file not found: {path}")
-    try:
-        body = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a bad file
-        raise ConfigError(f"{path}: not a readable PyTorch checkpoint ({exc})") from exc
+    body = read_torch_file(path)
     if not isinstance(body, dict) or body.get("format") != FORMAT:
         raise ConfigError(
             f"{path}: not a jointseg RandLA-Net checkpoint (format {FORMAT!r}); convert "

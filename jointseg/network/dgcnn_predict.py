@@ -21,8 +21,9 @@ from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.blocks import block_features, column_blocks, sample_columns
+from jointseg.network.checkpoint import read_torch_file
 from jointseg.network.dgcnn import DGCNN
-from jointseg.network.predict import NetworkResult, pick_device
+from jointseg.network.predict import NetworkPredictor, NetworkResult
 from jointseg.network.room_frame import RoomFrame, room_frame, scan_frame
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -83,12 +84,7 @@ def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any
         When the file is missing, unreadable, or not a DGCNN S3DIS state dict.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"DGCNN weights file not found: {path}; get them from {WEIGHTS_SOURCE}")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for a bad file
-        raise ConfigError(f"{path}: not a readable PyTorch file ({exc})") from exc
+    state = read_torch_file(path, hint=f"; get DGCNN's weights from {WEIGHTS_SOURCE}")
     if isinstance(state, dict) and isinstance(state.get("state_dict"), dict):
         state = state["state_dict"]
     if not isinstance(state, dict):
@@ -109,10 +105,11 @@ def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any
     return model, card
 
 
-class DGCNNPredictor:
+class DGCNNPredictor(NetworkPredictor):
     """A loaded DGCNN and the whole-scan block inference around it."""
 
     name = "dgcnn"
+    model: DGCNN
 
     def __init__(
         self,
@@ -123,10 +120,7 @@ class DGCNNPredictor:
         batch_size: int = 4,
         params: DGCNNParams | None = None,
     ) -> None:
-        self.device = pick_device(device)
-        self.model = model.to(self.device).eval()
-        self.card = card or {}
-        self.batch_size = batch_size
+        super().__init__(model, card, device=device, batch_size=batch_size)
         self.params = params or DGCNNParams()
 
     def frame(self, scan: Scan) -> RoomFrame:

@@ -73,10 +73,31 @@ def cancellable(model: torch.nn.Module, cancel: CancelToken | None) -> Iterator[
             handle.remove()
 
 
-class RandLANetPredictor:
+class NetworkPredictor:
+    """What every backend's predictor holds: its network in eval mode on its device, the
+    model card, and how many crops or blocks go through one forward pass."""
+
+    name: str
+
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        card: dict[str, Any] | None,
+        *,
+        device: str | None,
+        batch_size: int,
+    ) -> None:
+        self.device = pick_device(device)
+        self.model = model.to(self.device).eval()
+        self.card = card or {}
+        self.batch_size = batch_size
+
+
+class RandLANetPredictor(NetworkPredictor):
     """A loaded RandLA-Net and the whole-scan inference around it."""
 
     name = "randlanet"
+    model: RandLANet
 
     def __init__(
         self,
@@ -88,10 +109,7 @@ class RandLANetPredictor:
         num_points: int | None = None,
         min_possibility: float = 0.5,
     ) -> None:
-        self.device = pick_device(device)
-        self.model = model.to(self.device).eval()
-        self.card = card or {}
-        self.batch_size = batch_size
+        super().__init__(model, card, device=device, batch_size=batch_size)
         self.num_points = num_points or model.config.num_points
         self.min_possibility = min_possibility
 

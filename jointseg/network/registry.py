@@ -10,9 +10,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
-
-import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import load_checkpoint
@@ -22,9 +19,7 @@ from jointseg.network.dgcnn_predict import (
     DGCNNPredictor,
     load_dgcnn_state,
 )
-from jointseg.network.predict import NetworkResult, RandLANetPredictor
-from jointseg.progress import CancelToken, ProgressFn
-from jointseg.scan import Scan
+from jointseg.network.predict import RandLANetPredictor
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 BACKENDS = ("randlanet", "dgcnn")
@@ -44,21 +39,9 @@ WHERE_TO_GET = {
 SUFFIX_BACKEND = {".pt": "randlanet", ".pth": "randlanet", ".t7": "dgcnn"}
 
 
-class Predictor(Protocol):
-    """What every backend's predictor offers the pipeline."""
-
-    name: str
-    device: torch.device
-    card: dict[str, Any]
-
-    def predict(
-        self,
-        scan: Scan,
-        progress: ProgressFn | None = None,
-        cancel: CancelToken | None = None,
-        *,
-        seed: int = 0,
-    ) -> NetworkResult: ...
+#: A loaded network of any backend: ``predict(scan, progress, cancel, *, seed)`` gives a
+#: :class:`~jointseg.network.predict.NetworkResult`.
+Predictor = RandLANetPredictor | DGCNNPredictor
 
 
 @dataclass(frozen=True)

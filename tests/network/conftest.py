@@ -6,7 +6,30 @@ from pathlib import Path
 
 import pytest
 
+from jointseg.exceptions import Cancelled
 from jointseg.synth import make_room
+
+
+class StopAfter:
+    """A cancel token that turns set after ``n`` checks, to reach checks inside a forward pass;
+    ``check()`` is the same as a callback that raises."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.checks = n, 0
+
+    def is_set(self) -> bool:
+        self.checks += 1
+        return self.checks > self.n
+
+    def check(self) -> None:
+        if self.is_set():
+            raise Cancelled("cancelled by request")
+
+
+@pytest.fixture
+def stop_after() -> type[StopAfter]:
+    """The :class:`StopAfter` token class."""
+    return StopAfter
 
 
 @pytest.fixture(scope="session")

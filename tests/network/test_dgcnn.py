@@ -59,29 +59,14 @@ def test_knn_is_exact_and_includes_the_point_itself(dims: int) -> None:
     assert (got == torch.arange(700)[None, :, None]).any(dim=-1).all()
 
 
-class StopAfter:
-    """A cancel token that turns set after ``n`` checks."""
-
-    def __init__(self, n: int) -> None:
-        self.n, self.checks = n, 0
-
-    def is_set(self) -> bool:
-        self.checks += 1
-        return self.checks > self.n
-
-    def check(self) -> None:
-        if self.is_set():
-            raise Cancelled("stop")
-
-
-def test_forward_checks_between_its_stages() -> None:
+def test_forward_checks_between_its_stages(stop_after) -> None:
     model = DGCNN().eval()
     features = torch.rand(1, 64, 9)
-    token = StopAfter(100)
+    token = stop_after(100)
     with torch.inference_mode():
         model(features, between=token.check)
     assert token.checks == 6
-    token = StopAfter(2)
+    token = stop_after(2)
     with pytest.raises(Cancelled), torch.inference_mode():
         model(features, between=token.check)
     assert token.checks == 3

@@ -4,7 +4,6 @@ weights lookup and errors, and the published weights on the real S3DIS fragment.
 from __future__ import annotations
 
 import dataclasses
-import threading
 
 import numpy as np
 import pytest
@@ -62,28 +61,21 @@ def test_sparse_coverage_projects_to_unseen_points(dgcnn_random_weights, room) -
     assert result.crops * 128 < len(room) / 2  # most points were never in a sample
 
 
-class StopAfter:
-    def __init__(self, n: int) -> None:
-        self.n, self.checks = n, 0
-
-    def is_set(self) -> bool:
-        self.checks += 1
-        return self.checks > self.n
-
-
-def test_progress_and_cancel_inside_the_forward_pass(dgcnn_random_weights, room) -> None:
+def test_progress_and_cancel_inside_the_forward_pass(
+    dgcnn_random_weights, room, stop_after
+) -> None:
     predictor = fast_predictor(dgcnn_random_weights)
-    calls: list[float] = []
-    predictor.predict(room, progress=lambda stage, f: calls.append(f))
-    assert calls[-1] == 1.0 and calls == sorted(calls)
-    stop = threading.Event()
-    stop.set()
-    with pytest.raises(Cancelled):
-        predictor.predict(room, cancel=stop)
-    token = StopAfter(3)  # the batch loop's check, then two stages of the first forward pass
+    calls: list[tuple[str, float]] = []
+    predictor.predict(room, progress=lambda stage, f: calls.append((stage, f)))
+    assert calls[-1] == ("network", 1.0) and calls == sorted(calls)
+    token = stop_after(3)  # the batch loop's check, then two stages of the first forward pass
     with pytest.raises(Cancelled):
         predictor.predict(room, cancel=token)
     assert token.checks == 4
+    token = stop_after(0)  # set from the start: nothing runs
+    with pytest.raises(Cancelled):
+        predictor.predict(room, cancel=token)
+    assert token.checks == 1
 
 
 def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
@@ -117,7 +109,7 @@ def test_foreign_files_are_refused(random_weights, tmp_path) -> None:
         load("dgcnn", other)
     bad = tmp_path / "bad.t7"
     bad.write_bytes(b"not torch")
-    with pytest.raises(ConfigError, match="not a readable PyTorch file"):
+    with pytest.raises(ConfigError, match="not a readable PyTorch checkpoint"):
         load("dgcnn", bad)
 
 

@@ -75,20 +75,9 @@ def test_progress_and_cancel(random_weights, small_room) -> None:
         predictor.predict(small_room, cancel=stop)
 
 
-class StopAfter:
-    """A cancel token that turns set after ``n`` checks: reached only inside a forward pass."""
-
-    def __init__(self, n: int) -> None:
-        self.n, self.checks = n, 0
-
-    def is_set(self) -> bool:
-        self.checks += 1
-        return self.checks > self.n
-
-
-def test_cancel_interrupts_a_forward_pass(random_weights, small_room) -> None:
+def test_cancel_interrupts_a_forward_pass(random_weights, small_room, stop_after) -> None:
     predictor = load("randlanet", random_weights, device="cpu")
-    token = StopAfter(3)  # the loop's first check, then two layers of the first forward pass
+    token = stop_after(3)  # the loop's first check, then two layers of the first forward pass
     with pytest.raises(Cancelled):
         predictor.predict(small_room, cancel=token)
     assert token.checks == 4
