@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
@@ -65,11 +65,20 @@ class DGCNNParams(BaseModel):
     room_height: float | None = Field(
         None, gt=0, description="Floor-to-ceiling height, metres ('room' frame; default measured)."
     )
-    room_size: tuple[float, float] | None = Field(
+    room_size: tuple[PositiveFloat, PositiveFloat] | None = Field(
         None,
         description="Room x and y size, metres, for scans larger than a room (whole floors): "
         "every column is then placed in the middle of a room of this size.",
     )
+
+    @model_validator(mode="after")
+    def _columns_touch(self) -> DGCNNParams:
+        if self.stride > self.block_size:
+            raise ValueError(
+                f"stride {self.stride} m exceeds block_size {self.block_size} m: columns would "
+                "leave gaps between them"
+            )
+        return self
 
 
 def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any]]:
@@ -178,7 +187,7 @@ class DGCNNPredictor(NetworkPredictor):
             for start in range(0, len(samples), self.batch_size):
                 check_cancel(cancel)
                 idx = samples[start : start + self.batch_size]
-                feats = self._features(xyz[idx], rgb[idx], frame)
+                feats = self.sample_features(xyz[idx], rgb[idx], frame)
                 logits = self.model(
                     torch.from_numpy(feats).to(self.device),
                     between=lambda: check_cancel(cancel),
@@ -209,8 +218,21 @@ class DGCNNPredictor(NetworkPredictor):
         )
         return NetworkResult(labels, probs_np.astype(np.float32), len(samples), timings)
 
-    def _features(self, xyz: np.ndarray, rgb: np.ndarray, frame: RoomFrame) -> np.ndarray:
-        """9 features of a batch of samples (B, M, 3) in the room frame."""
+    def sample_features(self, xyz: np.ndarray, rgb: np.ndarray, frame: RoomFrame) -> np.ndarray:
+        """The 9 network inputs of a batch of samples, as :func:`block_features` describes.
+
+        Parameters
+        ----------
+        xyz : ndarray of shape (B, M, 3), metres
+            Sampled points minus ``frame.origin``.
+        rgb : ndarray of shape (B, M, 3)
+            Colour in 0-1.
+        frame : RoomFrame
+
+        Returns
+        -------
+        ndarray of shape (B, M, 9), float32
+        """
         p = self.params
         if p.frame == "room" and p.room_size is not None:
             # a scan larger than a room: each block sits in the middle of a room of that size

@@ -78,6 +78,22 @@ def test_progress_and_cancel_inside_the_forward_pass(
     assert token.checks == 1
 
 
+def test_room_size_places_every_block_in_the_middle_of_a_room(dgcnn_random_weights) -> None:
+    predictor = load("dgcnn", dgcnn_random_weights, dgcnn=DGCNNParams(room_size=(6.0, 5.0)))
+    scan = make_room(2, points=5_000)
+    frame = predictor.frame(scan)
+    rng = np.random.default_rng(0)
+    far = np.array([30.0, 12.0, 0.0])  # a column far along a whole floor
+    xyz = np.stack([rng.uniform(0, 1, (64, 3)), far + rng.uniform(0, 1, (64, 3))])
+    feats = predictor.sample_features(xyz, np.zeros_like(xyz), frame)
+    # x, y normalised around 0.5 wherever the column is; z over the room height
+    centre = xyz[..., :2].min(axis=1, keepdims=True) + 0.5
+    np.testing.assert_allclose(feats[..., 6:8], 0.5 + (xyz[..., :2] - centre) / [6, 5], atol=1e-6)
+    np.testing.assert_allclose(feats[..., 8], xyz[..., 2] / frame.extent[2], atol=1e-6)
+    with pytest.raises(ValueError, match="stride 1.5 m exceeds block_size"):
+        DGCNNParams(stride=1.5)
+
+
 def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
     monkeypatch.delenv(WEIGHTS_ENV["dgcnn"], raising=False)
     with pytest.raises(ConfigError, match="antao97/dgcnn.pytorch"):
