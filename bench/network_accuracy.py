@@ -19,7 +19,7 @@ import torch
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
-from jointseg.metrics import confusion_matrix, evaluate
+from jointseg.metrics import confusion_matrix, evaluate, per_class_iou
 from jointseg.network import load
 from jointseg.network.registry import DEFAULT_WEIGHTS
 from jointseg.scan import Scan
@@ -68,7 +68,7 @@ def main() -> None:
     print()
     print("| scan | points | mIoU | mAcc | OA | seconds |")
     print("|---|---|---|---|---|---|")
-    total = np.zeros((NUM_CLASSES, NUM_CLASSES), dtype=np.int64)
+    total = np.zeros((NUM_CLASSES, NUM_CLASSES + 1), dtype=np.int64)
     mious = []
     for name, scan in held_out(args.rooms, args.floors, args.points):
         t = time.perf_counter()
@@ -98,13 +98,12 @@ def main() -> None:
         )
     else:
         print(f"\n(S3DIS fragment not found at {FRAGMENT}: skipped)")
-    inter = np.diag(total).astype(float)
-    union = total.sum(0) + total.sum(1) - np.diag(total)
+    ious = per_class_iou(total)
     print()
     print("| class | IoU over all synthetic scans |")
     print("|---|---|")
     for c, name in enumerate(CLASS_NAMES):
-        print(f"| {name} | {fmt(inter[c] / union[c] if union[c] else None)} |")
+        print(f"| {name} | {fmt(ious[c])} |")
 
 
 if __name__ == "__main__":
