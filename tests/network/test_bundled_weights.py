@@ -1,0 +1,35 @@
+"""The weights that ship with the package: small enough, honest about their training, and
+better than chance on a held-out synthetic room."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jointseg.metrics import evaluate
+from jointseg.network import load
+from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.synth import make_room
+
+BUNDLED = DEFAULT_WEIGHTS["randlanet"]
+pytestmark = pytest.mark.skipif(not BUNDLED.is_file(), reason=f"no bundled weights at {BUNDLED}")
+
+
+def test_bundled_weights_are_small_and_say_what_they_were_trained_on() -> None:
+    assert BUNDLED.stat().st_size <= 10_000_000
+    _, card, body = load_checkpoint(BUNDLED)
+    assert "optimizer" not in body and card["weights_dtype"] == "float16"
+    assert "jointseg.synth" in card["data"] and "no real scans" in card["data"]
+    assert card["history"] and card["history"][-1]["epoch"] == card["epochs"]
+    assert card["input_conventions"]
+
+
+def test_bundled_weights_beat_chance_on_a_held_out_room() -> None:
+    scan = make_room(4321, points=40_000, shape="L")  # a seed no training run uses
+    labels = load("randlanet", device="cpu").predict(scan).labels
+    metrics = evaluate(scan.labels, labels)
+    # Chance level: always answering the largest class (mIoU well under 0.1).
+    majority = np.bincount(scan.labels[scan.labels >= 0]).max() / np.sum(scan.labels >= 0)
+    assert metrics.oa is not None and metrics.oa > majority + 0.2
+    assert metrics.miou is not None and metrics.miou > 0.2
