@@ -114,10 +114,11 @@ def sample_columns(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disjoint random samples of ``num_points`` points from every column.
 
-    A column of P points gets ``ceil(coverage * owned / num_points)`` samples (at least one),
-    where ``owned`` is its share of points (a point in four overlapping columns counts a
-    quarter in each): ``coverage`` is then roughly how many predictions each point receives,
-    whatever the overlap, and the cost grows with the points, not with the overlap. ``None``
+    A column of P points gets ``round(coverage * owned / num_points)`` samples (at least one,
+    at most enough for all P), where ``owned`` is its share of points (a point in four
+    overlapping columns counts a quarter in each): ``coverage`` is then roughly how many
+    predictions each point receives, whatever the overlap, and the cost grows with the
+    points, not with the overlap (a column smaller than a sample still costs one). ``None``
     covers every point of every column (``ceil(P / num_points)`` samples). Samples are
     consecutive slices of a random permutation of the column; the last one is topped up with
     the column's first points, and a column smaller than ``num_points`` repeats random points
@@ -142,7 +143,7 @@ def sample_columns(
         per_column = full
     else:
         owned = np.bincount(col_of, weights=columns.weight, minlength=len(sizes))
-        per_column = np.ceil(coverage * owned / num_points - 1e-9).astype(np.int64)
+        per_column = np.floor(coverage * owned / num_points + 0.5).astype(np.int64)
         per_column = np.clip(per_column, 1, full)
     column = np.repeat(np.arange(len(sizes)), per_column)
     first = np.repeat(np.cumsum(per_column) - per_column, per_column)

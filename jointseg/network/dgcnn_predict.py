@@ -55,7 +55,8 @@ class DGCNNParams(BaseModel):
         1.0,
         gt=0,
         description="Predictions per point, roughly (samples per column grow with its share "
-        "of points); None: every point of every column is predicted.",
+        "of points; points no sample holds take their nearest predicted neighbour's "
+        "probabilities); None: every point of every column is predicted.",
     )
     frame: Literal["room", "scan"] = Field(
         "room",
