@@ -10,6 +10,11 @@ variant with the best mean gain among those that lose on no scan.
 
     .venv/bin/python bench/fusion.py [--weights PATH] [--rooms 10] [--floors 2] [--points 300000]
     .venv/bin/python bench/fusion.py --stand-in    # no weights: ground truth with patchy noise
+    .venv/bin/python bench/fusion.py --network dgcnn --weights model_1.t7 ... model_6.t7 \
+        --rooms 0 --floors 0                       # real weights on the real fragment only
+
+With several weights files every scan is labelled by each of them (one row per scan and
+weights); when no synthetic scan is asked for, the summary is over the real ones.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from jointseg.geometry import segment
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate, segment_majority
 from jointseg.network import load
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import BACKENDS
 from jointseg.scan import Scan
 from jointseg.synth.label_noise import corrupt_labels
 
@@ -82,9 +87,12 @@ def measure(name: str, scan: Scan, labels_probs, seed: int, synthetic: bool) -> 
 
 
 def summary(rows: list[ScanRow]) -> str:
-    """Per-variant mean, mean gain, worst gain and losses over the synthetic scans."""
+    """Per-variant mean, mean gain, worst gain and losses over the synthetic scans (over the
+    real ones when there are no synthetic scans)."""
     synth = [r for r in rows if r.synthetic]
     real = [r for r in rows if not r.synthetic]
+    if not synth:
+        synth, real = real, []
     lines = [
         "| variant | mean mIoU | mean gain | worst gain | scans lost |"
         + (" S3DIS fragment gain |" if real else ""),
@@ -110,7 +118,10 @@ def summary(rows: list[ScanRow]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument("--network", choices=BACKENDS, default="randlanet")
+    parser.add_argument(
+        "--weights", nargs="+", default=[None], help="one or more (default: the backend's own)"
+    )
     parser.add_argument(
         "--stand-in",
         action="store_true",
@@ -124,15 +135,28 @@ def main() -> None:
     if args.stand_in:
         source = "stand-in network: ground truth with patchy label noise"
 
-        def label(scan: Scan, seed: int):
+        def noisy(scan: Scan, seed: int):
             return corrupt_labels(scan.xyz, scan.labels, rng=np.random.default_rng(seed))
-    else:
-        predictor = load("randlanet", args.weights)
-        source = f"RandLA-Net {args.weights} (trained on {predictor.card.get('data', '?')})"
 
-        def label(scan: Scan, seed: int):
-            result = predictor.predict(scan, seed=seed)
-            return result.labels, result.probs
+        labellers = {"": noisy}
+    else:
+        predictors = {w: load(args.network, w) for w in args.weights}
+        source = ", ".join(
+            f"{args.network} {w or '(default weights)'} (trained on {p.card.get('data', '?')})"
+            for w, p in predictors.items()
+        )
+
+        def labeller(predictor):
+            def label(scan: Scan, seed: int):
+                result = predictor.predict(scan, seed=seed)
+                return result.labels, result.probs
+
+            return label
+
+        labellers = {
+            (f", {Path(w).stem}" if len(predictors) > 1 else ""): labeller(p)
+            for w, p in predictors.items()
+        }
 
     print(f"# fusion variants, {source}, {time.strftime('%F')}\n")
     rows = []
@@ -140,9 +164,10 @@ def main() -> None:
     if FRAGMENT.is_file():
         scans.append(("S3DIS fragment (real)", read_scan(FRAGMENT), False))
     for i, (name, scan, synthetic) in enumerate(scans):
-        t = time.perf_counter()
-        rows.append(measure(name, scan, label(scan, i), i, synthetic))
-        print(f"{name}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
+        for suffix, label in labellers.items():
+            t = time.perf_counter()
+            rows.append(measure(name + suffix, scan, label(scan, i), i, synthetic))
+            print(f"{name}{suffix}: {time.perf_counter() - t:.1f} s", file=sys.stderr)
 
     print("mIoU per scan (network, each fusion variant, oracle = segment majority of truth)\n")
     print("| scan | points | network | " + " | ".join(VARIANTS) + " | oracle |")

@@ -1,11 +1,17 @@
-"""Network stage benchmark: our whole-scan RandLA-Net inference vs Open3D-ML's.
+"""Network stage benchmark: our whole-scan RandLA-Net inference vs Open3D-ML's; DGCNN's speed.
 
 Runs, in one process on the same synthetic room and the same weights (ours converted to
 Open3D-ML's layout), our `predict` and Open3D-ML's `SemanticSegmentation.run_inference`, and
 prints points per second, the speed ratio and the share of points on which the two agree.
 `--big N` also measures our peak memory on an N-point scan in a fresh process.
 
+`--dgcnn [WEIGHTS]` instead times DGCNN's whole-scan inference (dgcnn.pytorch's S3DIS weights;
+default $JOINTSEG_DGCNN_WEIGHTS) on the same room with the default block overlap and coverage,
+and with the reference's non-overlapping blocks that predict every point, torch using
+`--threads` threads (default: the cores this process may use).
+
     .venv/bin/python bench/network.py [--points 1000000] [--weights PATH] [--big 10000000]
+    .venv/bin/python bench/network.py --dgcnn model_1.t7 [--points 1000000] [--threads 2]
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import resource
 import subprocess
 import sys
@@ -22,7 +29,7 @@ import numpy as np
 import torch
 
 from jointseg.metrics import evaluate
-from jointseg.network import load
+from jointseg.network import DGCNNParams, load
 from jointseg.network.convert import to_open3d_ml_state
 from jointseg.network.registry import DEFAULT_WEIGHTS
 from jointseg.synth import make_room
@@ -70,15 +77,52 @@ def big_run(points: int, weights: str) -> None:
     print(json.dumps({"points": points, "seconds": seconds, "peak_mb": peak, "before_mb": before}))
 
 
+DGCNN_SETTINGS = {
+    "default (stride 0.5, coverage 1)": DGCNNParams(),
+    "reference blocks (stride 1, every point)": DGCNNParams(stride=1.0, coverage=None),
+}
+
+
+def dgcnn_speed(points: int, weights: str | None) -> None:
+    """DGCNN whole-scan inference on an N-point synthetic room, per setting."""
+    scan = make_room(0, points=points)
+    print(f"# DGCNN whole-scan inference, {len(scan):,} points (make_room seed 0)")
+    print(f"torch threads {torch.get_num_threads()}, device cpu, {time.strftime('%F')}\n")
+    print("| setting | seconds | s per 100k points | samples | blocks / forward / project s |")
+    print("|---|---|---|---|---|")
+    for name, params in DGCNN_SETTINGS.items():
+        predictor = load("dgcnn", weights, device="cpu", dgcnn=params)
+        t = time.perf_counter()
+        result = predictor.predict(scan)
+        seconds = time.perf_counter() - t
+        steps = " / ".join(f"{v:.1f}" for v in result.timings.values())
+        print(
+            f"| {name} | {seconds:.1f} | {seconds * 1e5 / len(scan):.2f} | {result.crops} | "
+            f"{steps} |",
+            flush=True,
+        )
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"\npeak RSS {peak:.0f} MB (the scan included)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
     parser.add_argument("--big", type=int, default=0, help="also measure memory at N points")
     parser.add_argument("--child-big", type=int, default=0, help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--dgcnn", nargs="?", const="", default=None, help="time DGCNN with these weights instead"
+    )
+    parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)))
     args = parser.parse_args()
     if args.child_big:
         big_run(args.child_big, args.weights)
+        return
+    if args.dgcnn is not None:
+        logging.basicConfig(level=logging.WARNING)
+        torch.set_num_threads(args.threads)
+        dgcnn_speed(args.points, args.dgcnn or None)
         return
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(max(1, torch.get_num_threads()))
