@@ -164,14 +164,16 @@ def train(
     body: dict | None = None
     if cfg.resume is not None:
         model, card, body = load_checkpoint(cfg.resume)
-        start_epoch = int(body["epoch"])
+        # A packed checkpoint (models pack) has no optimiser state or epoch: continue its
+        # weights from the epoch its card records, with a fresh optimiser.
+        start_epoch = int(body.get("epoch", card.get("epochs", 0)))
         history = list(card.get("history", []))
     else:
         model = RandLANet(RandLANetConfig(num_points=cfg.num_points))
     model_cfg = model.config
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
-    if body is not None:
+    if body is not None and "optimizer" in body:
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
     report(progress, STAGE, 0.0)

@@ -80,3 +80,13 @@ def test_augment_keeps_shapes_and_ranges() -> None:
 def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path) -> None:
     with pytest.raises(ConfigError, match="Annotations"):
         train(tiny(tmp_path, data=str(tmp_path)))
+
+
+def test_training_resumes_from_packed_weights(tmp_path) -> None:
+    from jointseg.network.checkpoint import pack_checkpoint
+
+    first = train(tiny(tmp_path))
+    packed = pack_checkpoint(first, tmp_path / "packed.pt")
+    resumed = train(tiny(tmp_path, epochs=2, out=tmp_path / "again.pt", resume=packed))
+    _, card, body = load_checkpoint(resumed)
+    assert body["epoch"] == 2 and [h["epoch"] for h in card["history"]] == [1, 2]
