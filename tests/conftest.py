@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 import torch
@@ -10,6 +12,7 @@ import torch
 from jointseg.network.checkpoint import save_checkpoint
 from jointseg.network.dgcnn import DGCNN
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.training import TrainConfig
 
 
 @pytest.fixture(scope="session")
@@ -38,3 +41,26 @@ def dgcnn_random_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("dgcnn") / "model_9.t7"
     torch.save({f"module.{k}": v for k, v in model.state_dict().items()}, path)
     return path
+
+
+@pytest.fixture
+def tiny_training(tmp_path: Path) -> Callable[..., TrainConfig]:
+    """A factory of training configurations small enough for a test (a few steps on one small
+    room); keyword arguments override the defaults."""
+
+    def make(**overrides: Any) -> TrainConfig:
+        base: dict[str, Any] = dict(
+            out=tmp_path / "m.pt",
+            epochs=1,
+            steps_per_epoch=2,
+            batch_size=1,
+            num_points=2048,
+            synth_rooms=1,
+            synth_floors=0,
+            val_rooms=1,
+            synth_points=20_000,
+            threads=1,
+        )
+        return TrainConfig(**{**base, **overrides})
+
+    return make

@@ -62,23 +62,11 @@ def test_models_list_shows_randlanet() -> None:
     assert "randlanet" in result.stdout
 
 
-def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path) -> None:
+def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:
     from jointseg.network.checkpoint import load_checkpoint
-    from jointseg.network.training import TrainConfig, train
+    from jointseg.network.training import train
 
-    cfg = TrainConfig(
-        out=tmp_path / "train.pt",
-        epochs=1,
-        steps_per_epoch=1,
-        batch_size=1,
-        num_points=2048,
-        synth_rooms=1,
-        synth_floors=0,
-        val_rooms=1,
-        synth_points=20_000,
-        threads=1,
-    )
-    source = train(cfg)
+    source = train(tiny_training(out=tmp_path / "train.pt", steps_per_epoch=1))
     packed = tmp_path / "ship.pt"
     result = run_cli("models", "pack", str(source), "-o", str(packed))
     assert result.returncode == 0, result.stderr

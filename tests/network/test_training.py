@@ -7,28 +7,11 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.training import TrainConfig, augment, class_weights, train
+from jointseg.network.training import augment, class_weights, train
 
 
-def tiny(tmp_path, **kw) -> TrainConfig:
-    base = dict(
-        out=tmp_path / "m.pt",
-        epochs=1,
-        steps_per_epoch=2,
-        batch_size=1,
-        num_points=2048,
-        synth_rooms=1,
-        synth_floors=0,
-        val_rooms=1,
-        synth_points=20_000,
-        threads=1,
-    )
-    base.update(kw)
-    return TrainConfig(**base)
-
-
-def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path) -> None:
-    cfg = tiny(tmp_path)
+def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path, tiny_training) -> None:
+    cfg = tiny_training()
     path = train(cfg)
     model, card, body = load_checkpoint(path)
     assert card["epochs"] == 1 and card["steps"] == 2
@@ -36,14 +19,14 @@ def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path) -> No
     assert len(card["history"]) == 1 and card["history"][0]["loss"] > 0
     assert 0.0 <= card["history"][0]["val_miou"] <= 1.0
     assert body["epoch"] == 1 and "optimizer" in body
-    resumed = train(tiny(tmp_path, epochs=2, out=tmp_path / "m2.pt", resume=path))
+    resumed = train(tiny_training(epochs=2, out=tmp_path / "m2.pt", resume=path))
     _, card2, body2 = load_checkpoint(resumed)
     assert body2["epoch"] == 2 and [h["epoch"] for h in card2["history"]] == [1, 2]
 
 
-def test_training_changes_the_weights(tmp_path) -> None:
+def test_training_changes_the_weights(tmp_path, tiny_training) -> None:
     torch.manual_seed(0)
-    path = train(tiny(tmp_path, seed=1))
+    path = train(tiny_training(seed=1))
     trained, _, _ = load_checkpoint(path)
     torch.manual_seed(0)
     from jointseg.network.randlanet import RandLANet, RandLANetConfig
@@ -77,16 +60,16 @@ def test_augment_keeps_shapes_and_ranges() -> None:
     assert np.corrcoef(x2[:, 2], xyz[:, 2])[0, 1] > 0.99
 
 
-def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path) -> None:
+def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path, tiny_training) -> None:
     with pytest.raises(ConfigError, match="Annotations"):
-        train(tiny(tmp_path, data=str(tmp_path)))
+        train(tiny_training(data=str(tmp_path)))
 
 
-def test_training_resumes_from_packed_weights(tmp_path) -> None:
+def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
     from jointseg.network.checkpoint import pack_checkpoint
 
-    first = train(tiny(tmp_path))
+    first = train(tiny_training())
     packed = pack_checkpoint(first, tmp_path / "packed.pt")
-    resumed = train(tiny(tmp_path, epochs=2, out=tmp_path / "again.pt", resume=packed))
+    resumed = train(tiny_training(epochs=2, out=tmp_path / "again.pt", resume=packed))
     _, card, body = load_checkpoint(resumed)
     assert body["epoch"] == 2 and [h["epoch"] for h in card["history"]] == [1, 2]
