@@ -22,6 +22,7 @@ from jointseg.io import read_scan
 from jointseg.metrics import confusion_matrix, evaluate, per_class_iou
 from jointseg.network import load
 from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.pipeline.tables import format_score as fmt
 from jointseg.scan import Scan
 from jointseg.synth import make_floor, make_room
 
@@ -45,10 +46,6 @@ def held_out(rooms: int, floors: int, points: int) -> list[tuple[str, Scan]]:
     for i in range(floors):
         scans.append((f"floor {FLOOR_SEEDS + i}", make_floor(FLOOR_SEEDS + i, points=points * 3)))
     return scans
-
-
-def fmt(value: float | None) -> str:
-    return "/" if value is None else f"{value:.3f}"
 
 
 def main() -> None:

@@ -20,6 +20,7 @@ from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan, write_scan
 from jointseg.io.atomic import atomic_open
 from jointseg.pipeline.config import PipelineConfig
+from jointseg.pipeline.tables import format_score
 
 #: Output formats that keep per-point fields (text formats would drop them).
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
@@ -92,16 +93,11 @@ def segment_scan(
         f"{body['timings_s']['total']:.1f} s -> {output}"
     )
     if result.metrics is not None:
-        m = result.metrics
-        line += (
-            f"\nmIoU network {_fmt(m['network'].miou)} -> fused {_fmt(m['fused'].miou)} "
-            f"(oracle {_fmt(m['oracle'].miou)})"
+        network, fused, oracle = (
+            format_score(result.metrics[k].miou) for k in ("network", "fused", "oracle")
         )
+        line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)
-
-
-def _fmt(value: float | None) -> str:
-    return "/" if value is None else f"{value:.3f}"
 
 
 def _scan_paths(paths: list[Path]) -> list[Path]:

@@ -94,6 +94,11 @@ def table2(rooms: Sequence[RoomScores]) -> tuple[list[str], list[list[Cell]]]:
     return header, rows
 
 
+def format_score(value: float | None) -> str:
+    """A score as the paper's tables print it: three decimals, '/' where undefined."""
+    return "/" if value is None else f"{value:.3f}"
+
+
 def _cell(value: Cell, missing: str) -> str:
     if value is None:
         return missing
