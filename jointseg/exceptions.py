@@ -24,3 +24,49 @@ class ConfigError(JointsegError, ValueError):
 
 class Cancelled(JointsegError):
     """Work was stopped because its cancel event was set."""
+
+
+class UnsupportedFormatError(ScanFormatError):
+    """A file's extension names no format jointseg reads (the message lists the ones it does)."""
+
+
+# Errors of the job service (server/) and its HTTP client (jointseg.client), kept here so the
+# service maps each class to one status code and the CLI prints every one as a single line.
+
+
+class JobNotFound(JointsegError, LookupError):
+    """No job has this id (or it was deleted)."""
+
+
+class JobStateError(JointsegError):
+    """The job is not in a state that allows the request (e.g. a result before it succeeded)."""
+
+
+class UploadTooLarge(JointsegError):
+    """An upload (or one of its form fields) is larger than the configured limit."""
+
+
+class AuthenticationError(JointsegError):
+    """A request lacks a valid API key."""
+
+
+class QueueUnavailable(JointsegError):
+    """The job queue (SQLite, PostgreSQL or Redis) cannot be reached."""
+
+
+class ServiceError(JointsegError):
+    """The job service answered a request with an error (client side).
+
+    Attributes
+    ----------
+    status_code : int
+        HTTP status, 0 when the service could not be reached at all.
+    """
+
+    def __init__(self, message: str, *, status_code: int = 0) -> None:
+        super().__init__(message)
+        self.status_code = status_code
+
+
+class JobFailed(JointsegError):
+    """A job the client waited for ended failed or cancelled; the message carries its error."""

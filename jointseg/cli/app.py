@@ -8,11 +8,18 @@ from __future__ import annotations
 
 import logging
 import sys
+from importlib.metadata import entry_points
 
 import typer
 from rich.markup import escape
 
-from jointseg.cli import geometry_command, network_commands, pipeline_commands, scan_commands
+from jointseg.cli import (
+    client_commands,
+    geometry_command,
+    network_commands,
+    pipeline_commands,
+    scan_commands,
+)
 from jointseg.cli.progress_bar import stderr_console
 from jointseg.exceptions import JointsegError
 
@@ -27,6 +34,34 @@ scan_commands.register(app)
 geometry_command.register(app)
 network_commands.register(app)
 pipeline_commands.register(app)
+client_commands.register(app)
+
+#: Entry-point group through which other packages add commands (server: serve, worker); each
+#: entry point is a callable ``register(app: typer.Typer)``.
+PLUGIN_GROUP = "jointseg.commands"
+log = logging.getLogger(__name__)
+
+
+def load_plugins(target: typer.Typer, group: str = PLUGIN_GROUP) -> list[str]:
+    """Register the commands of every installed plugin; a broken one is skipped with a warning.
+
+    Returns
+    -------
+    list of str
+        Names of the entry points that registered.
+    """
+    loaded = []
+    for ep in entry_points(group=group):
+        try:
+            ep.load()(target)
+        except Exception as exc:  # noqa: BLE001 - one broken plugin must not break the CLI
+            log.warning("jointseg: skipping command plugin %r (%s): %s", ep.name, ep.value, exc)
+            continue
+        loaded.append(ep.name)
+    return loaded
+
+
+load_plugins(app)
 
 
 @app.callback()

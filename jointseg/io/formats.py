@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, UnsupportedFormatError
 from jointseg.io import arrays, e57, las, pcd, ply, s3dis, text
 from jointseg.io.common import ScanInfo
 from jointseg.progress import ProgressFn
@@ -100,7 +100,7 @@ def detect_format(path: str | Path) -> str:
         return "s3dis"
     name = suffix[1:]
     if name not in FORMATS or name == "s3dis":
-        raise ScanFormatError(
+        raise UnsupportedFormatError(
             f"{path}: unsupported file extension {suffix or '(none)'!r}; supported: "
             f"{', '.join(READ_EXTENSIONS)}, or an S3DIS room folder"
         )

@@ -1,0 +1,198 @@
+"""A Python client of the job service, pure HTTP (httpx): submit, wait, download.
+
+It does not import the service: anything that speaks the REST API works, on any machine.
+
+Examples
+--------
+>>> from jointseg.client import JobClient                         # doctest: +SKIP
+>>> with JobClient("http://127.0.0.1:8000") as client:            # doctest: +SKIP
+...     job = client.submit("room.ply")
+...     job = client.wait(job.id)
+...     client.download(job.id, "room_segmented.laz")
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import httpx
+from pydantic import BaseModel, ConfigDict
+
+from jointseg.exceptions import ConfigError, JobFailed, ServiceError
+from jointseg.io.atomic import atomic_open
+from jointseg.progress import ProgressFn
+
+#: Environment variable holding the API key, when the service needs one.
+API_KEY_ENV = "JOINTSEG_API_KEY"
+FINAL = ("succeeded", "failed", "cancelled")
+RESULT_SUFFIXES = (".ply", ".las", ".laz")
+
+
+class RemoteJob(BaseModel):
+    """A job as the service reports it (the fields a client needs; others are kept too)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    id: str
+    filename: str
+    status: str
+    stage: str | None = None
+    progress: float = 0.0
+    points: int | None = None
+    error: str | None = None
+    timings: dict[str, float] | None = None
+
+    @property
+    def finished(self) -> bool:
+        """Whether the job reached a final status."""
+        return self.status in FINAL
+
+
+def _detail(response: httpx.Response) -> str:
+    try:
+        body = response.json()
+    except ValueError:
+        return response.text[:200] or response.reason_phrase
+    detail = body.get("detail") if isinstance(body, dict) else body
+    return detail if isinstance(detail, str) else json.dumps(detail)[:500]
+
+
+class JobClient:
+    """Talks to one job service.
+
+    Parameters
+    ----------
+    server : str
+        Base URL, e.g. ``http://127.0.0.1:8000``.
+    api_key : str, optional
+        Sent as ``Authorization: Bearer``; default: ``$JOINTSEG_API_KEY`` when set.
+    timeout : float
+        Seconds per request (an upload streams for as long as it needs).
+    """
+
+    def __init__(self, server: str, *, api_key: str | None = None, timeout: float = 30.0) -> None:
+        api_key = api_key or os.environ.get(API_KEY_ENV) or None
+        headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
+        self.server = server.rstrip("/")
+        self.http = httpx.Client(base_url=self.server, headers=headers, timeout=timeout)
+
+    def __enter__(self) -> JobClient:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the connection pool."""
+        self.http.close()
+
+    def _request(self, method: str, url: str, **kwargs: Any) -> httpx.Response:
+        try:
+            response = self.http.request(method, url, **kwargs)
+        except httpx.HTTPError as exc:
+            raise ServiceError(f"{self.server}: cannot reach the job service: {exc}") from exc
+        if response.status_code >= 400:
+            raise ServiceError(
+                f"{method} {url}: {response.status_code} {_detail(response)}",
+                status_code=response.status_code,
+            )
+        return response
+
+    def submit(
+        self, path: str | os.PathLike[str], *, config: Mapping[str, Any] | None = None
+    ) -> RemoteJob:
+        """Upload a scan (streamed from disk) with an optional PipelineConfig as a dict."""
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"{path}: file not found")
+        data = {"config": json.dumps(dict(config))} if config else None
+        with open(path, "rb") as fh:
+            response = self._request(
+                "POST",
+                "/v1/jobs",
+                files={"file": (path.name, fh, "application/octet-stream")},
+                data=data,
+                timeout=httpx.Timeout(self.http.timeout.read, write=None),
+            )
+        return RemoteJob.model_validate(response.json())
+
+    def get(self, job_id: str) -> RemoteJob:
+        """The job's current state."""
+        return RemoteJob.model_validate(self._request("GET", f"/v1/jobs/{job_id}").json())
+
+    def wait(
+        self,
+        job_id: str,
+        *,
+        poll_s: float = 0.5,
+        timeout_s: float | None = None,
+        progress: ProgressFn | None = None,
+    ) -> RemoteJob:
+        """Poll until the job finishes; ``progress("job", fraction)`` on every poll.
+
+        Raises
+        ------
+        JobFailed
+            When the job failed or was cancelled (with its error).
+        ServiceError
+            When the service cannot be reached, or ``timeout_s`` passed.
+        """
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            job = self.get(job_id)
+            if progress is not None:
+                progress(job.stage or job.status, job.progress)
+            if job.finished:
+                if job.status != "succeeded":
+                    raise JobFailed(f"job {job_id} {job.status}: {job.error or 'no reason given'}")
+                return job
+            if deadline is not None and time.monotonic() > deadline:
+                raise ServiceError(f"job {job_id} still {job.status} after {timeout_s} s")
+            time.sleep(poll_s)
+
+    def download(
+        self, job_id: str, out: str | os.PathLike[str], *, fmt: str | None = None
+    ) -> Path:
+        """Save the result as ``out`` (format from its suffix: .ply, .las or .laz), atomically."""
+        out = Path(out)
+        fmt = fmt or out.suffix.lower().lstrip(".")
+        if f".{fmt}" not in RESULT_SUFFIXES:
+            raise ConfigError(f"{out}: results are .ply, .las or .laz files, not {fmt!r}")
+        if not out.parent.is_dir():
+            raise ConfigError(f"{out}: folder {out.parent} does not exist")
+        url = f"/v1/jobs/{job_id}/result"
+        try:
+            with self.http.stream("GET", url, params={"format": fmt}) as response:
+                if response.status_code >= 400:
+                    response.read()
+                    raise ServiceError(
+                        f"GET {url}: {response.status_code} {_detail(response)}",
+                        status_code=response.status_code,
+                    )
+                with atomic_open(out) as fh:
+                    for chunk in response.iter_bytes(1 << 20):
+                        fh.write(chunk)
+        except httpx.HTTPError as exc:
+            raise ServiceError(f"{self.server}: download failed: {exc}") from exc
+        return out
+
+    def report(self, job_id: str) -> dict[str, Any]:
+        """The job's report.json."""
+        body: dict[str, Any] = self._request("GET", f"/v1/jobs/{job_id}/report").json()
+        return body
+
+    def cancel(self, job_id: str) -> RemoteJob | None:
+        """Cancel a queued or running job (its new state), or delete a finished one (None)."""
+        response = self._request("DELETE", f"/v1/jobs/{job_id}")
+        return None if response.status_code == 204 else RemoteJob.model_validate(response.json())

@@ -1,0 +1,79 @@
+"""`jointseg serve` and `jointseg worker`, added to the jointseg CLI through the entry-point
+group ``jointseg.commands`` (jointseg itself never imports server)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from jointseg.exceptions import ConfigError
+
+
+def load_settings(**overrides: Any) -> Any:
+    """Settings from the environment / JOINTSEG_CONFIG with the command line's options on top.
+
+    Raises
+    ------
+    ConfigError
+        Naming the setting that is invalid.
+    """
+    from pydantic import ValidationError
+
+    from server.settings import Settings
+
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        return Settings(**given)
+    except ValidationError as exc:
+        problems = "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {e['msg']}"
+            for e in exc.errors()
+        )
+        raise ConfigError(f"invalid settings: {problems}") from exc
+    except ValueError as exc:  # e.g. JOINTSEG_CONFIG names a missing file
+        raise ConfigError(str(exc)) from exc
+
+
+def serve(
+    host: str | None = typer.Option(None, help="API address [default: 127.0.0.1]."),
+    port: int | None = typer.Option(None, help="API port [default: 8000]."),
+    viewer_port: int | None = typer.Option(None, help="Viewer port [default: 8080]."),
+    data_dir: Path | None = typer.Option(None, help="Data directory [default: ./data]."),
+    workers: int | None = typer.Option(None, help="Worker processes [default: 1]."),
+) -> None:
+    """Run the job service: the API, the worker processes and the viewer (Ctrl-C stops all)."""
+    settings = load_settings(
+        host=host, port=port, viewer_port=viewer_port, data_dir=data_dir, workers=workers
+    )
+    from server.service import run_service
+
+    routers, processes = _viewer_parts()
+    run_service(settings, extra_routers=routers, extra_processes=processes)
+
+
+def _viewer_parts() -> tuple[list[Any], list[Any]]:
+    """The viewer's routers and processes, when web/ provides them (the viewer issue)."""
+    try:
+        from web import service_parts  # type: ignore[attr-defined]
+    except ImportError:
+        return [], []
+    routers, processes = service_parts()
+    return list(routers), list(processes)
+
+
+def worker(
+    data_dir: Path | None = typer.Option(None, help="Data directory [default: ./data]."),
+) -> None:
+    """Run one worker process (any number, on any machine sharing the data directory)."""
+    settings = load_settings(data_dir=data_dir)
+    from server.worker import worker_main
+
+    worker_main(settings)
+
+
+def register(app: typer.Typer) -> None:
+    """Entry point of the ``jointseg.commands`` group: add serve and worker to ``app``."""
+    app.command("serve")(serve)
+    app.command("worker")(worker)

@@ -1,0 +1,181 @@
+"""What the routes (and the viewer) do with jobs: create, list, look up, cancel, delete.
+
+Functions take a SQLAlchemy session and return :class:`JobView`, the pydantic model the API
+answers with, so callers never hold ORM objects.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from jointseg.exceptions import JobNotFound, JobStateError
+from server.models import FINAL_STATUSES, Job, utcnow
+from server.storage import check_job_id
+
+__all__ = [
+    "JobNotFound",
+    "JobStatus",
+    "JobView",
+    "cancel_job",
+    "count_jobs",
+    "create_job",
+    "delete_job_row",
+    "get_job",
+    "list_jobs",
+]
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class JobView(BaseModel):
+    """A job as the API shows it."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: str = Field(description="32 hex digits.")
+    filename: str = Field(description="The uploaded file's name (no folders).")
+    format: str = Field(description="Scan format read from the extension (ply, las, ...).")
+    status: JobStatus
+    stage: str | None = Field(None, description="Current stage: read, network, geometry, ...")
+    progress: float = Field(0.0, ge=0, le=1, description="Overall progress, 0 to 1.")
+    points: int | None = Field(None, description="Points in the scan (from the upload's header).")
+    timings: dict[str, float] | None = Field(None, description="Seconds per stage and total.")
+    error: str | None = Field(None, description="Why the job failed or was cancelled.")
+    network: str = Field(description="Network backend (randlanet, dgcnn).")
+    attempts: int = Field(0, description="Times a worker started the job.")
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+
+    @property
+    def finished(self) -> bool:
+        """Whether the job reached a final status."""
+        return self.status in FINAL_STATUSES
+
+
+def _view(job: Job) -> JobView:
+    return JobView.model_validate(job)
+
+
+def _row(session: Session, job_id: str) -> Job:
+    job = session.get(Job, check_job_id(job_id))
+    if job is None:
+        raise JobNotFound(f"job {job_id} not found")
+    return job
+
+
+def create_job(
+    session: Session,
+    *,
+    job_id: str,
+    filename: str,
+    fmt: str,
+    size_bytes: int,
+    points: int | None,
+    config: dict[str, Any],
+    network: str,
+) -> JobView:
+    """Insert a queued job (its upload already stored) and commit."""
+    job = Job(
+        id=check_job_id(job_id),
+        filename=filename,
+        format=fmt,
+        size_bytes=size_bytes,
+        status="queued",
+        progress=0.0,
+        points=points,
+        config=config,
+        network=network,
+        created_at=utcnow(),
+        attempts=0,
+        cancel_requested=False,
+    )
+    session.add(job)
+    session.commit()
+    return _view(job)
+
+
+def get_job(session: Session, job_id: str) -> JobView:
+    """One job.
+
+    Raises
+    ------
+    JobNotFound
+        For an unknown (or malformed) id.
+    """
+    return _view(_row(session, job_id))
+
+
+def list_jobs(
+    session: Session, *, status: str | None = None, limit: int = 50, offset: int = 0
+) -> list[JobView]:
+    """Jobs newest first, optionally only those with ``status``."""
+    query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
+    if status is not None:
+        query = query.where(Job.status == status)
+    return [_view(job) for job in session.scalars(query)]
+
+
+def count_jobs(session: Session, *, status: str | None = None) -> int:
+    """How many jobs (with ``status``) exist, for pagination."""
+    query = select(func.count()).select_from(Job)
+    if status is not None:
+        query = query.where(Job.status == status)
+    return int(session.scalar(query) or 0)
+
+
+def cancel_job(session: Session, job_id: str) -> JobView:
+    """Cancel a queued job at once, or ask a running job's worker to stop.
+
+    A queued job becomes ``cancelled`` immediately (its worker will skip it); a running one gets
+    its cancel flag, which the worker reads within about half a second and then marks the job
+    cancelled.
+
+    Raises
+    ------
+    JobNotFound
+    JobStateError
+        When the job has already finished.
+    """
+    job = _row(session, job_id)
+    queued = session.execute(
+        update(Job)
+        .where(Job.id == job.id, Job.status == "queued")
+        .values(status="cancelled", finished_at=utcnow(), error="cancelled by request")
+    )
+    changed = queued.rowcount  # type: ignore[attr-defined]
+    if not changed:
+        running = session.execute(
+            update(Job)
+            .where(Job.id == job.id, Job.status == "running")
+            .values(cancel_requested=True)
+        )
+        changed = running.rowcount  # type: ignore[attr-defined]
+    session.commit()
+    session.refresh(job)
+    if not changed:
+        raise JobStateError(f"job {job_id} has already finished ({job.status})")
+    return _view(job)
+
+
+def delete_job_row(session: Session, job_id: str) -> JobView:
+    """Delete a finished job's row (its files are the caller's: :meth:`Storage.delete`).
+
+    Raises
+    ------
+    JobNotFound
+    JobStateError
+        When the job is queued or running (cancel it first).
+    """
+    job = _row(session, job_id)
+    if job.status not in FINAL_STATUSES:
+        raise JobStateError(f"job {job_id} is {job.status}; cancel it before deleting it")
+    view = _view(job)
+    session.delete(job)
+    session.commit()
+    return view

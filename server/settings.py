@@ -1,0 +1,187 @@
+"""Every setting of the job service in one pydantic-settings class.
+
+Values come from (highest priority first) keyword arguments, ``JOINTSEG_*`` environment
+variables, the file named by ``JOINTSEG_CONFIG`` (``.toml``, or ``.env`` style for any other
+name) and the defaults below. :func:`settings_table` renders the README's table from the fields,
+so the documentation cannot drift from the code.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import Field, SecretStr, field_validator, model_validator
+from pydantic_settings import (
+    BaseSettings,
+    DotEnvSettingsSource,
+    NoDecode,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from jointseg.io import DEFAULT_MAX_POINTS
+
+ENV_PREFIX = "JOINTSEG_"
+#: Environment variable naming an optional settings file (.toml, or KEY=value lines).
+CONFIG_ENV = "JOINTSEG_CONFIG"
+
+QueueKind = Literal["sqlite", "postgres", "redis"]
+GIB = 1 << 30
+MIB = 1 << 20
+
+
+class Settings(BaseSettings):
+    """Settings of the API, the workers and (through ``viewer_*``) the viewer."""
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
+
+    data_dir: Path = Field(
+        Path("data"),
+        description="Uploads, results, the SQLite job table and queue. Shared by every API and "
+        "worker (NFS or equivalent when they run on several machines).",
+    )
+    host: str = Field("127.0.0.1", description="Address the API listens on.")
+    port: int = Field(8000, ge=0, le=65535, description="Port of the API.")
+    viewer_host: str = Field("127.0.0.1", description="Address the viewer listens on.")
+    viewer_port: int = Field(8080, ge=0, le=65535, description="Port of the viewer.")
+    database_url: str | None = Field(
+        None,
+        description="SQLAlchemy URL of the job table, e.g. `postgresql://user:pw@host/db`; "
+        "default: SQLite file `jobs.sqlite3` in data_dir.",
+    )
+    queue: QueueKind = Field(
+        "sqlite",
+        description="Huey storage of the queue: `sqlite` (file in data_dir), `postgres` (the "
+        "database_url database; implied by a PostgreSQL database_url) or `redis` (redis_url).",
+    )
+    redis_url: str | None = Field(
+        None, description="Redis URL for `queue=redis`, e.g. `redis://host:6379/0`."
+    )
+    queue_name: str = Field(
+        "jointseg",
+        min_length=1,
+        description="Name of the Huey queue (Redis key prefix; row tag in SQL storage).",
+    )
+    api_keys: Annotated[list[SecretStr], NoDecode] = Field(
+        default_factory=list,
+        description="Accepted API keys (comma-separated or a JSON list); empty: no key needed. "
+        "Clients send `Authorization: Bearer <key>`.",
+    )
+    max_upload_bytes: int = Field(2 * GIB, gt=0, description="Largest upload accepted (413).")
+    max_points: int = Field(DEFAULT_MAX_POINTS, gt=0, description="Largest scan accepted (422).")
+    full_check_max_bytes: int = Field(
+        64 * MIB,
+        ge=0,
+        description="Uploads up to this size are read completely before queuing (every point "
+        "checked, e.g. for NaN); larger ones only by header and size, their body when the "
+        "job runs.",
+    )
+    workers: int = Field(1, ge=0, description="Worker processes `jointseg serve` starts.")
+    torch_threads: int | None = Field(
+        None,
+        ge=1,
+        description="torch threads per worker; default: CPU cores / workers (at least 1).",
+    )
+    heartbeat_interval_s: float = Field(
+        5.0, gt=0, description="How often a worker stamps its job and itself as alive."
+    )
+    heartbeat_timeout_s: float = Field(
+        60.0,
+        gt=0,
+        description="A running job without a heartbeat for this long is re-queued (or failed).",
+    )
+    max_attempts: int = Field(
+        3, ge=1, description="Starts of one job before a lost worker fails it for good."
+    )
+    queue_poll_s: float = Field(
+        0.5, gt=0, description="Longest wait of an idle worker between queue polls."
+    )
+    weights_dirs: list[Path] = Field(
+        default_factory=list,
+        description="When set, a job's `network.weights` must lie in one of these folders.",
+    )
+    log_level: str = Field("INFO", description="Logging level of the API and the workers.")
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Keyword arguments, then the environment, then the ``JOINTSEG_CONFIG`` file."""
+        sources: list[PydanticBaseSettingsSource] = [init_settings, env_settings]
+        config_file = os.environ.get(CONFIG_ENV)
+        if config_file:
+            path = Path(config_file)
+            if not path.is_file():
+                raise ValueError(f"{CONFIG_ENV}={config_file}: file not found")
+            if path.suffix.lower() == ".toml":
+                sources.append(TomlConfigSettingsSource(settings_cls, toml_file=path))
+            else:
+                sources.append(DotEnvSettingsSource(settings_cls, env_file=path))
+        return tuple(sources)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _postgres_implies_queue(cls, data: Any) -> Any:
+        if isinstance(data, dict) and not data.get("queue"):
+            url = str(data.get("database_url") or "")
+            if url.startswith(("postgresql", "postgres:")):
+                data = {**data, "queue": "postgres"}
+        return data
+
+    @field_validator("api_keys", mode="before")
+    @classmethod
+    def _split_keys(cls, value: Any) -> Any:
+        if isinstance(value, str):
+            text = value.strip()
+            if text.startswith("["):
+                import json
+
+                return json.loads(text)
+            return [k.strip() for k in text.split(",") if k.strip()]
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Settings:
+        if self.queue == "postgres" and not self.database_url_resolved.startswith("postgres"):
+            raise ValueError("queue=postgres needs a PostgreSQL database_url")
+        if self.queue == "redis" and not self.redis_url:
+            raise ValueError("queue=redis needs redis_url")
+        if self.heartbeat_timeout_s <= 2 * self.heartbeat_interval_s:
+            raise ValueError(
+                f"heartbeat_timeout_s ({self.heartbeat_timeout_s}) must exceed twice "
+                f"heartbeat_interval_s ({self.heartbeat_interval_s})"
+            )
+        return self
+
+    @property
+    def database_url_resolved(self) -> str:
+        """database_url, or the SQLite file in data_dir."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(self.data_dir / 'jobs.sqlite3').resolve()}"
+
+    def api_key_values(self) -> list[str]:
+        """The configured keys in clear (for comparison only; never log them)."""
+        return [k.get_secret_value() for k in self.api_keys]
+
+
+def settings_table() -> str:
+    """The settings as a Markdown table: environment variable, default, meaning."""
+    rows = ["| environment variable | default | meaning |", "|---|---|---|"]
+    for name, field in Settings.model_fields.items():
+        if field.default_factory is not None:
+            default = "empty"
+        elif field.default is None:
+            default = "—"
+        else:
+            default = f"`{field.default}`"
+        rows.append(f"| `{ENV_PREFIX}{name.upper()}` | {default} | {field.description} |")
+    return "\n".join(rows)
