@@ -1,0 +1,51 @@
+"""Fixtures of the server tests: the shared embedded service, a locked one, job configs."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from service_process import Service, start_service
+
+
+@pytest.fixture(scope="session")
+def job_config(random_weights: Path) -> dict[str, Any]:
+    """A job config using the small random network, so jobs take about a second."""
+    return {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 1}
+
+
+@pytest.fixture(scope="session")
+def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder for synthetic scans (see :func:`scan_file`)."""
+    return tmp_path_factory.mktemp("scans")
+
+
+@pytest.fixture(scope="session")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """The embedded default (SQLite table and queue) with two workers, shared by many tests."""
+    svc = start_service(tmp_path_factory.mktemp("service"), workers=2)
+    try:
+        svc.wait_healthy(workers=2)
+        yield svc
+    finally:
+        svc.stop()
+
+
+@pytest.fixture(scope="session")
+def locked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """A service with API keys, a 64 KiB upload limit and no worker (jobs stay queued)."""
+    svc = start_service(
+        tmp_path_factory.mktemp("locked"),
+        workers=0,
+        api_keys="key-one,key-two",
+        max_upload_bytes=64 * 1024,
+    )
+    try:
+        svc.wait_healthy()
+        yield svc
+    finally:
+        svc.stop()
+
+

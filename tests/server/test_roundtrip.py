@@ -1,0 +1,108 @@
+"""Upload, poll, download through the real service (uvicorn + two worker processes): every
+input format, every result format, the report, and 20 uploads at once."""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+from service_process import post_scan, scan_file, wait_for
+
+from jointseg.client import JobClient
+from jointseg.io import WRITE_EXTENSIONS, read_scan
+from jointseg.pipeline import OUTPUT_FIELDS
+
+pye57 = pytest.importorskip("pye57")
+
+
+def _e57(folder: Path, points: int = 3000) -> Path:
+    """The synthetic room as an E57 file (jointseg reads E57 but does not write it)."""
+    path = folder / f"room_{points}.e57"
+    if not path.exists():
+        scan = read_scan(scan_file(folder, ".ply", points=points))
+        data = {
+            "cartesianX": scan.xyz[:, 0],
+            "cartesianY": scan.xyz[:, 1],
+            "cartesianZ": scan.xyz[:, 2],
+            "colorRed": scan.rgb[:, 0],
+            "colorGreen": scan.rgb[:, 1],
+            "colorBlue": scan.rgb[:, 2],
+        }
+        with pye57.E57(str(path), mode="w") as e57:
+            e57.write_scan_raw(data)
+    return path
+
+
+def _check_result(path: Path, source: Path) -> None:
+    expected = read_scan(source)
+    result = read_scan(path)
+    assert len(result) == len(expected)
+    assert set(OUTPUT_FIELDS) <= set(result.fields)
+    np.testing.assert_allclose(result.xyz, expected.xyz, atol=1e-3)
+    fused = result.fields["fused_label"]
+    assert fused.min() >= 0 and fused.max() <= 12
+    conf = result.fields["fused_confidence"]
+    assert ((conf >= 0) & (conf <= 1)).all()
+    if expected.labels is not None:
+        np.testing.assert_array_equal(result.labels, expected.labels)
+
+
+@pytest.mark.parametrize("suffix", sorted({*WRITE_EXTENSIONS, ".e57"}))
+def test_round_trip_every_input_format(service, scans, job_config, tmp_path, suffix) -> None:
+    source = _e57(scans) if suffix == ".e57" else scan_file(scans, suffix)
+    with JobClient(service.url) as client:
+        job = client.submit(source, config=job_config)
+        assert job.status == "queued" and job.points == 3000
+        done = client.wait(job.id, poll_s=0.1, timeout_s=120)
+        out = client.download(job.id, tmp_path / "out.ply")
+    assert done.status == "succeeded" and done.progress == 1.0 and done.points == 3000
+    assert done.timings is not None and done.timings["total"] > 0
+    _check_result(out, source)
+
+
+def test_result_formats_report_and_links(service, scans, job_config, tmp_path) -> None:
+    source = scan_file(scans, ".ply", seed=1)
+    with service.http() as http:
+        created = post_scan(http, source, job_config)
+        assert created.status_code == 201, created.text
+        body = created.json()
+        assert created.headers["location"] == body["links"]["self"] == f"/v1/jobs/{body['id']}"
+        job = wait_for(http, body["id"])
+        assert job["status"] == "succeeded", job
+        assert job["attempts"] == 1 and job["network"] == "randlanet"
+        assert job["started_at"] >= job["created_at"] and job["finished_at"] >= job["started_at"]
+        for fmt in ("ply", "las", "laz"):
+            response = http.get(body["links"]["result"], params={"format": fmt})
+            assert response.status_code == 200
+            assert f"_segmented.{fmt}" in response.headers["content-disposition"]
+            out = tmp_path / f"result.{fmt}"
+            out.write_bytes(response.content)
+            _check_result(out, source)
+        report = http.get(body["links"]["report"]).json()
+    assert report["points"] == 3000 and report["input"] == source.name
+    assert {"network", "geometry", "fusion", "read", "write", "total"} <= set(report["timings_s"])
+    assert report["metrics"]["fused"]["miou"] is not None  # the synthetic room is labelled
+    assert report["params"]["network"]["weights"] == job_config["network"]["weights"]
+    # cached conversions next to the PLY the worker wrote
+    files = sorted(p.name for p in (service.data_dir / "jobs" / body["id"]).iterdir())
+    assert files == ["input.ply", "report.json", "result.las", "result.laz", "result.ply"]
+
+
+def test_twenty_concurrent_uploads_all_succeed(service, scans, job_config) -> None:
+    sources = [scan_file(scans, ".ply", seed=seed, points=2000) for seed in range(5)]
+    started = time.monotonic()
+
+    def submit(i: int) -> str:
+        with JobClient(service.url) as client:
+            return client.submit(sources[i % len(sources)], config=job_config).id
+
+    with ThreadPoolExecutor(20) as pool:
+        ids = list(pool.map(submit, range(20)))
+    assert len(set(ids)) == 20
+    with JobClient(service.url) as client:
+        jobs = [client.wait(job_id, poll_s=0.2, timeout_s=180) for job_id in ids]
+    assert all(job.status == "succeeded" and job.points == 2000 for job in jobs)
+    assert time.monotonic() - started < 180
