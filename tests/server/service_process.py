@@ -148,8 +148,14 @@ def scan_file(folder: Path, suffix: str = ".ply", *, points: int = 3000, seed: i
     return path
 
 
-def wait_for(client: httpx.Client, job_id: str, *, until: tuple[str, ...] = FINAL,
-             timeout: float = 120.0, stage: str | None = None) -> dict[str, Any]:
+def wait_for(
+    client: httpx.Client,
+    job_id: str,
+    *,
+    until: tuple[str, ...] = FINAL,
+    timeout: float = 120.0,
+    stage: str | None = None,
+) -> dict[str, Any]:
     """Poll a job until its status is in ``until`` (and, if given, its stage is ``stage``)."""
     deadline = time.monotonic() + timeout
     job: dict[str, Any] = {}
@@ -162,7 +168,10 @@ def wait_for(client: httpx.Client, job_id: str, *, until: tuple[str, ...] = FINA
 
 
 def post_scan(
-    client: httpx.Client, path: Path, config: dict[str, Any] | None = None, *,
+    client: httpx.Client,
+    path: Path,
+    config: dict[str, Any] | None = None,
+    *,
     filename: str | None = None,
 ) -> httpx.Response:
     """POST /v1/jobs with ``path`` as the file (named ``filename``) and an optional config."""
@@ -170,6 +179,4 @@ def post_scan(
 
     data = {"config": json.dumps(config)} if config is not None else None
     with open(path, "rb") as fh:
-        return client.post(
-            "/v1/jobs", files={"file": (filename or path.name, fh)}, data=data
-        )
+        return client.post("/v1/jobs", files={"file": (filename or path.name, fh)}, data=data)
