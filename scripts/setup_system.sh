@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Install the Debian packages jointseg needs (open3d's shared libraries; later chromium for the
-# browser tests). Safe to run again: it installs only what is missing.
+# Install the Debian packages jointseg needs (open3d's shared libraries; chromium for the browser
+# tests of web/, Debian's own build: never a downloaded browser). Safe to run again: it installs
+# only what is missing.
 set -euo pipefail
-packages=(libusb-1.0-0 libgl1 libegl1 libgomp1 libglib2.0-0)
+packages=(libusb-1.0-0 libgl1 libegl1 libgomp1 libglib2.0-0 chromium)
 missing=()
 for p in "${packages[@]}"; do
   dpkg -s "$p" >/dev/null 2>&1 || missing+=("$p")

@@ -1,0 +1,99 @@
+"""Where the viewer finds finished jobs: an interface, and a folder of result files.
+
+The viewer only needs a list of finished jobs (newest first) and two paths per job, so it runs
+the same on the job service's storage (:mod:`web.service_source`) and on a plain folder
+(tests, or looking at results of ``jointseg segment`` without the service).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Protocol
+
+from pydantic import BaseModel, ConfigDict
+
+from jointseg.exceptions import JobNotFound
+
+#: File types a folder source lists as results.
+RESULT_SUFFIXES = (".ply", ".las", ".laz")
+
+
+class JobEntry(BaseModel):
+    """One finished job as the job picker lists it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    id: str
+    filename: str
+    created_at: datetime | None = None
+    points: int | None = None
+
+    @property
+    def label(self) -> str:
+        """The picker's text for this job: file name, short id and creation time."""
+        when = "" if self.created_at is None else self.created_at.strftime(" %Y-%m-%d %H:%M")
+        return f"{self.filename} [{self.id[:8]}]{when}"
+
+
+class JobSource(Protocol):
+    """What the viewer reads finished jobs from."""
+
+    def finished_jobs(self) -> Sequence[JobEntry]:
+        """Jobs with a result, newest first."""
+        ...
+
+    def result_path(self, job_id: str) -> Path:
+        """The job's result file; raises :class:`JobNotFound` for an unknown or unfinished job."""
+        ...
+
+    def report_path(self, job_id: str) -> Path | None:
+        """The job's report.json, None when it has none."""
+        ...
+
+
+class DirectorySource:
+    """Every result file in a folder is a finished job; its id is the file name's stem.
+
+    ``<id>.report.json`` (or ``<id>.json``) beside a result is its report.
+    """
+
+    def __init__(self, folder: str | os.PathLike[str]) -> None:
+        self.folder = Path(folder)
+
+    def finished_jobs(self) -> list[JobEntry]:
+        """Result files, newest first by modification time."""
+        files = [
+            p
+            for p in self.folder.iterdir()
+            if p.is_file() and p.suffix.lower() in RESULT_SUFFIXES and not p.name.startswith(".")
+        ]
+        stamped = sorted(((p.stat().st_mtime, p) for p in files), reverse=True)
+        return [
+            JobEntry(
+                id=p.stem,
+                filename=p.name,
+                created_at=datetime.fromtimestamp(mtime, tz=UTC),
+            )
+            for mtime, p in stamped
+        ]
+
+    def result_path(self, job_id: str) -> Path:
+        """The result file of ``job_id``."""
+        if Path(job_id).name != job_id or job_id.startswith("."):
+            raise JobNotFound(f"no finished job {job_id!r}")
+        for suffix in RESULT_SUFFIXES:
+            path = self.folder / f"{job_id}{suffix}"
+            if path.is_file():
+                return path
+        raise JobNotFound(f"no finished job {job_id!r} in {self.folder}")
+
+    def report_path(self, job_id: str) -> Path | None:
+        """``<id>.report.json`` or ``<id>.json`` beside the result, if present."""
+        for name in (f"{job_id}.report.json", f"{job_id}.json"):
+            path = self.folder / name
+            if path.is_file():
+                return path
+        return None
