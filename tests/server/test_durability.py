@@ -1,0 +1,112 @@
+"""Faults with real processes: a worker killed with SIGKILL mid-job, the service stopped with
+SIGTERM while a job runs and restarted with jobs queued (giving up after max_attempts:
+test_lifecycle.py)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+from service_process import post_scan, scan_file, spawn, start_service, wait_for
+
+LONG = 30_000  # points: a job of several seconds with the random network on one thread
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def _worker_of(service, job_id: str, timeout: float = 30.0) -> int:
+    """The pid of the worker running ``job_id`` (from /healthz)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        health = service.wait_healthy()
+        for worker in health["workers"]:
+            if worker["job_id"] == job_id:
+                return int(worker["pid"])
+        time.sleep(0.1)
+    raise AssertionError(f"no worker reports job {job_id}")
+
+
+def _wait_started(http, job_id: str) -> dict:
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        job = http.get(f"/v1/jobs/{job_id}").json()
+        if job["status"] == "running" and job["progress"] > 0.1:
+            return job
+        assert job["status"] in ("queued", "running"), job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not get going: {job}")
+
+
+def test_sigkill_of_a_worker_mid_job_is_recovered(tmp_path, scans, job_config) -> None:
+    service = start_service(tmp_path / "svc", workers=1)
+    try:
+        service.wait_healthy(workers=1)
+        with service.http() as http:
+            job_id = post_scan(http, scan_file(scans, ".ply", points=LONG, seed=4), job_config)
+            job_id = job_id.json()["id"]
+            _wait_started(http, job_id)
+            pid = _worker_of(service, job_id)
+            os.kill(pid, signal.SIGKILL)
+            killed_at = time.monotonic()
+            # heartbeat timeout (3 s) -> re-queued; `serve` has restarted the worker meanwhile
+            job = wait_for(http, job_id, timeout=180)
+        assert job["status"] == "succeeded", job
+        assert job["attempts"] == 2
+        assert time.monotonic() - killed_at > 3  # not before the heartbeat timed out
+        assert not _alive(pid)
+        assert pid not in [w["pid"] for w in service.wait_healthy(workers=1)["workers"]]
+        log = service.api.text()
+        assert "restarting it" in log and "stopped responding" in log
+        result = service.data_dir / "jobs" / job_id / "result.ply"
+        assert result.is_file()
+        assert not [p for p in result.parent.iterdir() if p.name.startswith(".")]  # no temp file
+    finally:
+        service.stop()
+
+
+def test_sigterm_requeues_the_running_job_and_a_restart_runs_every_queued_job(
+    tmp_path, scans, job_config
+) -> None:
+    data = tmp_path / "svc"
+    service = start_service(data, workers=1)
+    try:
+        service.wait_healthy(workers=1)
+        with service.http() as http:
+            long_id = post_scan(http, scan_file(scans, ".ply", points=LONG, seed=4), job_config)
+            long_id = long_id.json()["id"]
+            small = [
+                post_scan(http, scan_file(scans, ".ply", seed=s), job_config).json()["id"]
+                for s in (10, 11, 12)
+            ]
+            _wait_started(http, long_id)
+            pids = [w["pid"] for w in service.wait_healthy(workers=1)["workers"]]
+        started = time.monotonic()
+        assert service.api.stop(signal.SIGTERM) == 0
+        assert time.monotonic() - started < 30
+        assert not any(_alive(pid) for pid in pids)  # workers stopped with the API
+    finally:
+        service.stop()
+    assert "job re-queued" in service.api.text()
+
+    # the API alone: every job is still there, queued, the interrupted one not counted
+    again = start_service(data, workers=0)
+    try:
+        again.wait_healthy()
+        with again.http() as http:
+            listed = http.get("/v1/jobs").json()
+            assert listed["total"] == 4
+            assert {j["status"] for j in listed["items"]} == {"queued"}
+            assert http.get(f"/v1/jobs/{long_id}").json()["attempts"] == 0
+            # a worker started on its own (as on another machine) runs all of them
+            again.workers.append(spawn(["worker"], again.env, data / "worker.log"))
+            done = [wait_for(http, job_id, timeout=180) for job_id in [long_id, *small]]
+        assert all(j["status"] == "succeeded" and j["attempts"] == 1 for j in done), done
+    finally:
+        again.stop()
