@@ -14,11 +14,10 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel, Field
 
-from jointseg.exceptions import JobNotFound
 from jointseg.network.registry import BACKENDS
 
 log = logging.getLogger(__name__)
@@ -71,7 +70,7 @@ def job_page_router() -> APIRouter:
     def asset(name: str) -> Response:
         """One of the page's static files."""
         if name not in ASSETS:
-            raise JobNotFound(f"no such page asset: {name!r}")
+            raise HTTPException(status_code=404, detail=f"no such page asset: {name!r}")
         return Response(
             _static(name), media_type=ASSETS[name], headers={"Cache-Control": "no-cache"}
         )

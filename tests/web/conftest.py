@@ -1,0 +1,81 @@
+"""Fixtures of the viewer tests: result files made by the real pipeline, and Debian's chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from jointseg.io import write_scan
+from jointseg.pipeline import PipelineConfig, annotate, report_body, run
+from jointseg.scan import Scan
+from jointseg.synth import make_room
+
+CHROMIUM = Path("/usr/bin/chromium")
+#: Flags for headless chromium in a container: no sandbox, no GPU (SwiftShader renders WebGL),
+#: nothing fetched from the network.
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-dev-shm-usage",
+]
+
+
+def write_result(folder: Path, name: str, scan: Scan, config: PipelineConfig) -> Path:
+    """Run the pipeline on ``scan`` and write ``<name>.ply`` and ``<name>.report.json``."""
+    result = run(scan, config)
+    path = write_scan(annotate(scan, result), folder / f"{name}.ply")
+    report = report_body(scan, result)
+    (folder / f"{name}.report.json").write_text(json.dumps(report), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="session")
+def random_config(random_weights: Path) -> PipelineConfig:
+    """The small random network: the tests of the viewer never need good labels."""
+    return PipelineConfig.model_validate(
+        {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0}
+    )
+
+
+@pytest.fixture(scope="session")
+def results(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
+    """A folder with two small results: ``labelled`` (ground truth) and ``unlabelled``."""
+    folder = tmp_path_factory.mktemp("results")
+    scan = make_room(3, points=4000)
+    write_result(folder, "labelled", scan, random_config)
+    bare = Scan(scan.xyz, scan.rgb)
+    write_result(folder, "unlabelled", bare, random_config)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def artifacts() -> Path:
+    """Where browser tests leave their screenshots ($PYTEST_ARTIFACTS or tests/artifacts)."""
+    folder = Path(os.environ.get("PYTEST_ARTIFACTS") or Path(__file__).parents[1] / "artifacts")
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def browser() -> Iterator[Any]:
+    """Debian's headless chromium driven by Playwright (no browser is ever downloaded)."""
+    if not CHROMIUM.is_file():
+        pytest.skip(f"{CHROMIUM} is missing: install Debian's chromium (scripts/setup_system.sh)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        instance = playwright.chromium.launch(
+            executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS
+        )
+        try:
+            yield instance
+        finally:
+            instance.close()

@@ -1,0 +1,62 @@
+"""Panel layout and overview camera: copies side by side with gaps, all in view."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from web.layout import GAP_RATIO, overview_camera, panel_offsets, title_position
+
+
+def test_panels_sit_side_by_side_with_gaps_centred_on_the_origin() -> None:
+    extent = np.array([6.0, 4.0, 3.0])
+    offsets = panel_offsets(extent, 3)
+    assert np.allclose(offsets[:, 1:], 0)
+    assert np.allclose(np.diff(offsets[:, 0]), 6.0 * (1 + GAP_RATIO))
+    assert np.isclose(offsets[:, 0].mean(), 0)
+    # neighbouring panels never overlap
+    right_edge, next_left_edge = offsets[0, 0] + 3.0, offsets[1, 0] - 3.0
+    assert next_left_edge - right_edge == pytest.approx(6.0 * GAP_RATIO)
+    assert panel_offsets(extent, 1)[0].tolist() == [0, 0, 0]
+
+
+def test_title_sits_above_the_panel() -> None:
+    x, y, z = title_position(np.array([6.0, 4.0, 3.0]))
+    assert x == 0 and y == 2.0 and z > 1.5
+
+
+def _project(
+    point: np.ndarray, position: np.ndarray, look_at: np.ndarray, fov: float, aspect: float
+) -> tuple[float, float]:
+    """Normalised image coordinates (-1..1 inside the view) of a pinhole camera, z up."""
+    forward = (look_at - position) / np.linalg.norm(look_at - position)
+    right = np.cross(forward, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    rel = point - position
+    depth = rel @ forward
+    assert depth > 0, "point behind the camera"
+    t = math.tan(fov / 2)
+    return (rel @ right) / depth / (t * aspect), (rel @ up) / depth / t
+
+
+@pytest.mark.parametrize("count", [1, 3, 5])
+@pytest.mark.parametrize("aspect", [0.8, 1.35, 2.2])
+def test_overview_camera_sees_every_corner_of_every_panel(count: int, aspect: float) -> None:
+    extent = np.array([7.0, 5.0, 2.8])
+    pose = overview_camera(extent, count, aspect=aspect)
+    position, look_at = np.array(pose.position), np.array(pose.look_at)
+    assert position[2] > look_at[2]  # looks down onto the rooms
+    half = extent / 2
+    reach = 0.0
+    for offset in panel_offsets(extent, count):
+        for sx in (-1, 1):
+            for sy in (-1, 1):
+                for sz in (-1, 1):
+                    corner = offset + half * [sx, sy, sz]
+                    u, v = _project(corner, position, look_at, pose.fov, aspect)
+                    assert abs(u) < 1 and abs(v) < 1, (corner, u, v)
+                    reach = max(reach, abs(u), abs(v))
+    assert reach > 0.6  # and the rooms fill the view rather than sit small in its middle

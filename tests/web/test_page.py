@@ -1,0 +1,69 @@
+"""The job page's routes on the real API app (SQLite in a temporary data directory)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from server.app import create_app
+from server.settings import Settings
+from web import service_parts
+from web.page import VIEWER_FILE, job_page_router
+
+
+@pytest.fixture
+def client(tmp_path: Path) -> Iterator[TestClient]:
+    app = create_app(Settings(data_dir=tmp_path, viewer_port=8123, api_keys=["secret"]))
+    app.include_router(job_page_router())
+    with TestClient(app) as test_client:
+        yield test_client
+
+
+def test_page_is_plain_html_with_upload_form_and_job_table(client: TestClient) -> None:
+    response = client.get("/")  # public: the page holds no data, the API behind it needs keys
+    assert response.status_code == 200
+    assert response.headers["content-type"].startswith("text/html")
+    html = response.text
+    for needle in (
+        'id="upload-form"',
+        'type="file"',
+        'id="network"',
+        'id="jobs"',
+        'id="api-key"',
+        'src="/web/jobs.js"',
+        'href="/web/style.css"',
+    ):
+        assert needle in html
+    assert client.get("/v1/jobs").status_code == 401
+
+
+def test_assets_are_served_and_nothing_else(client: TestClient) -> None:
+    js = client.get("/web/jobs.js")
+    assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
+    assert "/v1/jobs" in js.text and "Authorization" in js.text and "localStorage" in js.text
+    assert client.get("/web/style.css").headers["content-type"].startswith("text/css")
+    for name in ("index.html", "..%2Fpage.py", "missing.js", "..%2F..%2Fpyproject.toml"):
+        response = client.get(f"/web/{name}")
+        assert response.status_code == 404, name
+        assert "[build-system]" not in response.text
+    assert "no such page asset" in client.get("/web/missing.js").json()["detail"]
+
+
+def test_config_gives_the_viewer_port_recorded_by_the_viewer(
+    client: TestClient, tmp_path: Path
+) -> None:
+    body = client.get("/web/config.json").json()
+    assert body == {"viewer_port": 8123, "networks": ["randlanet", "dgcnn"]}
+    (tmp_path / VIEWER_FILE).write_text(json.dumps({"port": 8125, "pid": 1}))
+    assert client.get("/web/config.json").json()["viewer_port"] == 8125
+
+
+def test_service_parts_give_the_page_router_and_the_viewer_process() -> None:
+    routers, processes = service_parts()
+    paths = {route.path for router in routers for route in router.routes}  # type: ignore[attr-defined]
+    assert {"/", "/web/config.json", "/web/{name}"} <= paths
+    assert [p.__name__ for p in processes] == ["run_viewer"]

@@ -1,0 +1,88 @@
+"""Job sources: a folder of results, and the job service's database and storage."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from jointseg.exceptions import JobNotFound
+from web.sources import DirectorySource
+
+
+def test_directory_source_lists_results_newest_first(results: Path, tmp_path: Path) -> None:
+    for i, name in enumerate(["old", "new"]):
+        shutil.copy(results / "labelled.ply", tmp_path / f"{name}.ply")
+        os.utime(tmp_path / f"{name}.ply", (time.time() + i, time.time() + i))
+    shutil.copy(results / "labelled.report.json", tmp_path / "new.report.json")
+    (tmp_path / "notes.txt.bak").write_text("not a result")
+    source = DirectorySource(tmp_path)
+    jobs = source.finished_jobs()
+    assert [j.id for j in jobs] == ["new", "old"]
+    assert jobs[0].filename == "new.ply" and "new.ply [new]" in jobs[0].label
+    assert source.result_path("old") == tmp_path / "old.ply"
+    assert source.report_path("new") == tmp_path / "new.report.json"
+    assert source.report_path("old") is None
+
+
+@pytest.mark.parametrize("bad", ["missing", "../labelled", ".hidden", "a/b"])
+def test_directory_source_refuses_unknown_ids_and_paths(results: Path, bad: str) -> None:
+    with pytest.raises(JobNotFound):
+        DirectorySource(results).result_path(bad)
+
+
+def test_service_source_lists_succeeded_jobs_only(results: Path, tmp_path: Path) -> None:
+    from server.db import init_db, make_engine, make_sessions
+    from server.jobs import create_job
+    from server.models import Job
+    from server.settings import Settings
+    from server.storage import Storage
+    from web.service_source import ServiceSource
+
+    settings = Settings(data_dir=tmp_path)
+    engine = make_engine(settings)
+    init_db(engine)
+    sessions, storage = make_sessions(engine), Storage(tmp_path)
+    ids = {status: uuid.uuid4().hex for status in ("succeeded", "running", "gone")}
+    with sessions() as session:
+        for status, job_id in ids.items():
+            create_job(
+                session,
+                job_id=job_id,
+                filename=f"{status}.ply",
+                fmt="ply",
+                size_bytes=1,
+                points=4000,
+                config={},
+                network="randlanet",
+            )
+            row = session.get(Job, job_id)
+            assert row is not None
+            row.status = "running" if status == "running" else "succeeded"
+            session.commit()
+    for status in ("succeeded", "running"):
+        storage.job_dir(ids[status]).mkdir(parents=True)
+        shutil.copy(results / "labelled.ply", storage.result_path(ids[status]))
+    shutil.copy(results / "labelled.report.json", storage.report_path(ids["succeeded"]))
+
+    source = ServiceSource(settings)
+    try:
+        listed = source.finished_jobs()
+        assert {j.id for j in listed} == {ids["succeeded"], ids["gone"]}
+        assert all(j.points == 4000 for j in listed)
+        assert source.result_path(ids["succeeded"]) == storage.result_path(ids["succeeded"])
+        assert source.report_path(ids["succeeded"]) == storage.report_path(ids["succeeded"])
+        with pytest.raises(JobNotFound, match="running"):
+            source.result_path(ids["running"])
+        with pytest.raises(JobNotFound, match="gone"):
+            source.result_path(ids["gone"])  # succeeded, but its files were deleted
+        with pytest.raises(JobNotFound):
+            source.result_path("../../etc/passwd")
+        assert source.report_path("not-an-id") is None
+    finally:
+        source.close()
+        engine.dispose()
