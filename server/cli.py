@@ -42,6 +42,7 @@ def serve(
     viewer_port: int | None = typer.Option(None, help="Viewer port [default: 8080]."),
     data_dir: Path | None = typer.Option(None, help="Data directory [default: ./data]."),
     workers: int | None = typer.Option(None, help="Worker processes [default: 1]."),
+    viewer: bool = typer.Option(True, help="Also run the viewer and the job page (web/)."),
 ) -> None:
     """Run the job service: the API, the worker processes and the viewer (Ctrl-C stops all)."""
     settings = load_settings(
@@ -49,14 +50,14 @@ def serve(
     )
     from server.service import run_service
 
-    routers, processes = _viewer_parts()
+    routers, processes = _viewer_parts() if viewer else ([], [])
     run_service(settings, extra_routers=routers, extra_processes=processes)
 
 
 def _viewer_parts() -> tuple[list[Any], list[Any]]:
     """The viewer's routers and processes, when web/ provides them (the viewer issue)."""
     try:
-        from web import service_parts  # type: ignore[attr-defined]
+        from web import service_parts
     except ImportError:
         return [], []
     routers, processes = service_parts()

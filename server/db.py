@@ -40,7 +40,16 @@ def make_engine(settings: Settings) -> Engine:
         )
         event.listen(engine, "connect", _sqlite_pragmas)
         return engine
-    return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
+    return create_engine(_with_driver(url), pool_pre_ping=True, pool_size=5, max_overflow=10)
+
+
+def _with_driver(url: str) -> str:
+    """A PostgreSQL URL without a driver gets psycopg2, the driver Huey's SQL storage uses too
+    (SQLAlchemy 2.1 would pick psycopg 3, which is not installed)."""
+    for scheme in ("postgresql://", "postgres://"):
+        if url.startswith(scheme):
+            return "postgresql+psycopg2://" + url[len(scheme) :]
+    return url
 
 
 def make_sessions(engine: Engine) -> SessionFactory:

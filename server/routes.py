@@ -134,7 +134,7 @@ async def create_job(request: Request, services: ServicesDep, response: Response
 @jobs_router.get("/jobs", response_model=JobList)
 def list_jobs(
     session: SessionDep,
-    status: Annotated[jobs.JobStatus | None, Query(description="Only jobs with this status.")] = None,
+    status: Annotated[jobs.JobStatus | None, Query(description="Only this status.")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=1 << 40)] = 0,
 ) -> JobList:

@@ -115,23 +115,31 @@ class Service:
         raise AssertionError(f"service not healthy in {timeout} s: {last}\n{log}")
 
     def stop(self) -> None:
-        for proc in [*self.workers, self.api]:
+        """SIGTERM to every process at once, then wait for each."""
+        procs = [*self.workers, self.api]
+        for proc in procs:
+            if proc.popen.poll() is None:
+                proc.popen.send_signal(signal.SIGTERM)
+        for proc in procs:
             proc.stop()
 
 
 def start_service(
-    data_dir: Path, *, workers: int = 1, extra_workers: int = 0, **settings: Any
+    data_dir: Path,
+    *,
+    workers: int = 1,
+    extra_workers: int = 0,
+    viewer: bool = False,
+    **settings: Any,
 ) -> Service:
     """`jointseg serve` with ``workers`` workers, plus ``extra_workers`` `jointseg worker`
-    processes (as on other machines), all sharing ``data_dir``."""
+    processes (as on other machines), all sharing ``data_dir``; the viewer only on request
+    (on a free port)."""
     data_dir.mkdir(parents=True, exist_ok=True)
     port = free_port()
-    env = service_env(data_dir, **settings)
-    api = spawn(
-        ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers)],
-        env,
-        data_dir / "serve.log",
-    )
+    env = service_env(data_dir, viewer_port=free_port(), **settings)
+    args = ["serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers)]
+    api = spawn([*args, "--viewer" if viewer else "--no-viewer"], env, data_dir / "serve.log")
     service = Service(f"http://127.0.0.1:{port}", data_dir, api, env)
     for i in range(extra_workers):
         service.workers.append(spawn(["worker"], env, data_dir / f"worker-{i}.log"))

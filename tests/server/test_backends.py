@@ -1,0 +1,114 @@
+"""The many-machines modes against this machine's servers: the job table and queue in
+PostgreSQL (PostgresHuey: Huey's SQL storage), or the queue in Redis; an API without workers
+and two separate `jointseg worker` processes, as on other machines sharing the data dir."""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
+
+import pytest
+from service_process import post_scan, scan_file, start_service, wait_for
+
+PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
+REDIS = "redis://127.0.0.1:6379/0"
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """A fresh database for this test, dropped afterwards."""
+    psycopg2 = pytest.importorskip("psycopg2")
+    try:
+        admin = psycopg2.connect(PG_ADMIN, connect_timeout=3)
+    except psycopg2.OperationalError as exc:
+        pytest.skip(f"PostgreSQL at {PG_ADMIN} not reachable (.ci/run starts it): {exc}")
+    admin.autocommit = True
+    name = f"jointseg_test_{uuid.uuid4().hex[:12]}"
+    with admin.cursor() as cur:
+        cur.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
+    finally:
+        with admin.cursor() as cur:
+            cur.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        admin.close()
+
+
+@pytest.fixture
+def redis_queue() -> Iterator[str]:
+    """A fresh queue name (Redis key prefix), its keys deleted afterwards."""
+    redis = pytest.importorskip("redis")
+    client = redis.Redis.from_url(REDIS, socket_connect_timeout=3)
+    try:
+        client.ping()
+    except redis.RedisError as exc:
+        pytest.skip(f"Redis at {REDIS} not reachable (.ci/run starts it): {exc}")
+    name = f"jointseg-test-{uuid.uuid4().hex[:12]}"
+    try:
+        yield name
+    finally:
+        keys = list(client.scan_iter(match=f"*{name}*"))
+        if keys:
+            client.delete(*keys)
+        client.close()
+
+
+def _run_jobs(service, scans, job_config, n: int = 4) -> list[dict]:
+    service.wait_healthy(workers=2)
+    with service.http() as http:
+
+        def submit(seed: int) -> str:
+            room = scan_file(scans, ".ply", seed=20 + seed, points=2000)
+            response = post_scan(http, room, job_config)
+            assert response.status_code == 201, response.text
+            return str(response.json()["id"])
+
+        with ThreadPoolExecutor(n) as pool:
+            ids = list(pool.map(submit, range(n)))
+        done = [wait_for(http, job_id, timeout=120) for job_id in ids]
+        for job in done:
+            assert http.get(f"/v1/jobs/{job['id']}/result").status_code == 200
+    return done
+
+
+def test_postgres_job_table_and_queue(tmp_path, scans, job_config, postgres_url) -> None:
+    service = start_service(
+        tmp_path / "shared", workers=0, extra_workers=2, database_url=postgres_url
+    )
+    try:
+        done = _run_jobs(service, scans, job_config)
+        assert all(job["status"] == "succeeded" for job in done), done
+        health = service.wait_healthy(workers=2)
+        assert health["queue_kind"] == "postgres" and health["pending"] == 0
+    finally:
+        service.stop()
+    # the job table lives in PostgreSQL, not in the data directory
+    assert not (tmp_path / "shared" / "jobs.sqlite3").exists()
+    assert not (tmp_path / "shared" / "queue.sqlite3").exists()
+    import psycopg2
+
+    with psycopg2.connect(postgres_url) as conn, conn.cursor() as cur:
+        cur.execute("SELECT count(*) FROM jobs WHERE status = 'succeeded'")
+        assert cur.fetchone()[0] == len(done)
+        cur.execute("SELECT count(DISTINCT worker) FROM jobs")
+        assert cur.fetchone()[0] >= 1
+
+
+def test_redis_queue(tmp_path, scans, job_config, redis_queue) -> None:
+    service = start_service(
+        tmp_path / "shared",
+        workers=0,
+        extra_workers=2,
+        queue="redis",
+        redis_url=REDIS,
+        queue_name=redis_queue,
+    )
+    try:
+        done = _run_jobs(service, scans, job_config)
+        assert all(job["status"] == "succeeded" for job in done), done
+        health = service.wait_healthy(workers=2)
+        assert health["queue_kind"] == "redis" and health["pending"] == 0
+    finally:
+        service.stop()
+    assert not (tmp_path / "shared" / "queue.sqlite3").exists()
