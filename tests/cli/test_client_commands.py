@@ -1,0 +1,125 @@
+"""`jointseg submit` against a real service (`jointseg serve` in a subprocess): wait, download,
+report, a failing job, an unreachable server, an API key."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from jointseg.cli import main
+from jointseg.io import read_scan
+from jointseg.pipeline import OUTPUT_FIELDS
+from tests.server.service_process import Service, free_port, scan_file, start_service
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    """The real entry point in a subprocess."""
+    return subprocess.run(
+        [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:
+    """The CLI's ``main`` in this process (no second start of Python and torch)."""
+    try:
+        main(list(args))
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    svc = start_service(tmp_path_factory.mktemp("svc"), workers=1, api_keys="cli-key")
+    try:
+        svc.wait_healthy(workers=1)
+        yield svc
+    finally:
+        svc.stop()
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return scan_file(tmp_path_factory.mktemp("scans"), ".ply", points=3000)
+
+
+def test_submit_wait_download_and_report(service, room, random_weights, tmp_path) -> None:
+    config = tmp_path / "cfg.json"
+    config.write_text(json.dumps({"network": {"weights": str(random_weights)}}))
+    out, report = tmp_path / "out.laz", tmp_path / "report.json"
+    result = run_cli(
+        "submit",
+        str(room),
+        "--server",
+        service.url,
+        "--api-key",
+        "cli-key",
+        "--config",
+        str(config),
+        "-o",
+        str(out),
+        "--report",
+        str(report),
+    )
+    assert result.returncode == 0, result.stderr
+    job_id = result.stdout.strip()
+    assert re.fullmatch(r"[0-9a-f]{32}", job_id)
+    assert f"job {job_id} succeeded: 3,000 points" in result.stderr
+    scan = read_scan(out)
+    assert len(scan) == 3000 and set(OUTPUT_FIELDS) <= set(scan.fields)
+    assert json.loads(report.read_text())["points"] == 3000
+
+
+def test_submit_without_wait_prints_the_id_only(service, room, monkeypatch, capsys) -> None:
+    monkeypatch.setenv("JOINTSEG_API_KEY", "cli-key")
+    monkeypatch.setenv("JOINTSEG_SERVER", service.url)
+    code, out, err = run_here(capsys, "submit", str(room))
+    assert code == 0, err
+    assert re.fullmatch(r"[0-9a-f]{32}\n", out)
+
+
+def test_a_failed_job_is_one_error_line(service, room, tmp_path, capsys) -> None:
+    config = tmp_path / "cfg.json"
+    config.write_text(json.dumps({"network": {"name": "dgcnn"}}))  # no DGCNN weights there
+    result = run_cli(
+        "submit",
+        str(room),
+        "--server",
+        service.url,
+        "--api-key",
+        "cli-key",
+        "--config",
+        str(config),
+        "--wait",
+    )
+    assert result.returncode == 2
+    assert re.search(r"error: job [0-9a-f]{32} failed: no weights for 'dgcnn'", result.stderr)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--api-key", "wrong"], "401 invalid API key"),
+        ([], "401 missing API key"),
+        (["-o", "out.txt"], "results are .ply, .las, .laz files"),
+    ],
+)
+def test_client_errors(service, room, args, message, monkeypatch, capsys) -> None:
+    monkeypatch.delenv("JOINTSEG_API_KEY", raising=False)
+    code, _, err = run_here(capsys, "submit", str(room), "--server", service.url, *args)
+    assert code == 2 and message in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_unreachable_server(room, capsys) -> None:
+    url = f"http://127.0.0.1:{free_port()}"
+    code, _, err = run_here(capsys, "submit", str(room), "--server", url)
+    assert code == 2 and "cannot reach the job service" in err
