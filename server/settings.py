@@ -85,6 +85,13 @@ class Settings(BaseSettings):
         ge=1,
         description="torch threads per worker; default: CPU cores / workers (at least 1).",
     )
+    worker_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="Niceness added to worker processes, so the API stays responsive on a "
+        "machine whose cores the workers keep busy.",
+    )
     heartbeat_interval_s: float = Field(
         5.0, gt=0, description="How often a worker stamps its job and itself as alive."
     )

@@ -265,6 +265,8 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     import torch
 
     configure_logging(settings)
+    if settings.worker_nice:
+        os.nice(settings.worker_nice)
     torch.set_num_threads(_torch_threads(settings))
     engine = make_engine(settings)
     init_db(engine)
