@@ -48,6 +48,8 @@ VARIANTS: dict[str, FusionParams] = {
     "guarded": FusionParams(mode="guarded"),
     "guarded, keep": FusionParams(mode="guarded", guard_cell_size=0.0),
     "soft r=0.3": FusionParams(mode="soft", ratio_threshold=0.3),
+    "soft, no support check": FusionParams(mode="soft", min_support=0.0),
+    "soft support 0.1": FusionParams(mode="soft", min_support=0.1),
     "soft": FusionParams(mode="soft"),
     "soft_guarded": FusionParams(mode="soft_guarded"),
     "soft_guarded 1 m": FusionParams(mode="soft_guarded", guard_cell_size=1.0),

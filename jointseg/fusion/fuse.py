@@ -155,6 +155,10 @@ def fuse(
         if params.guard_cell_size == 0:
             kept_units |= impure
         replace &= ~kept_units[unit]
+    if params.mode != "paper" and probs is not None and params.min_support > 0:
+        # never relabel a point to a class the network ruled out for it
+        target = majority[unit]
+        replace &= np.take_along_axis(probs, target[:, None], axis=1)[:, 0] >= params.min_support
     fused = np.where(replace, majority[unit], labels)
     confidence = _confidence(fused, labels, probs, shares[unit, fused])
     timings["relabel"] = time.perf_counter() - t

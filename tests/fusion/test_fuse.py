@@ -235,3 +235,16 @@ def test_params_reject_unknown_keys_and_bad_values() -> None:
 def test_empty_input_gives_empty_result() -> None:
     result = fuse(np.zeros((0, 3)), np.zeros(0, int), np.zeros(0, int))
     assert result.labels.shape == (0,) and result.n_segments == 0
+
+
+def test_soft_fusion_never_relabels_a_point_to_a_class_the_network_ruled_out() -> None:
+    # a 'wall' segment with two 'window' points: one window point gives wall 0.2, the other 0
+    labels = np.array([2] * 8 + [5, 5])
+    second = np.array([[5, 0.1]] * 8 + [[2, 0.2], [2, 0.0]])
+    probs = probs_for(labels, np.array([0.9] * 8 + [0.8, 0.99]), second)
+    xyz, segments = np.zeros((10, 3)), np.zeros(10, int)
+    soft = fuse(xyz, segments, labels, probs, FusionParams(mode="soft", min_support=0.05))
+    assert soft.labels.tolist() == [2] * 9 + [5]
+    # without the check (and in the paper's rule, which never looks at probabilities) both go
+    for params in (FusionParams(mode="soft", min_support=0.0), FusionParams(mode="paper")):
+        assert fuse(xyz, segments, labels, probs, params).labels.tolist() == [2] * 10
