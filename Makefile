@@ -4,8 +4,9 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 TORCH  ?= torch==2.13.0
 DEMO   ?= demo
+PORT   ?= 8000
 
-.PHONY: setup system run test lint typecheck pytest clean
+.PHONY: setup system run serve test lint typecheck pytest clean
 
 setup: system $(VENV)/.installed
 
@@ -24,7 +25,11 @@ run: setup
 	mkdir -p $(DEMO)
 	$(BIN)/jointseg synth --seed 0 --points 1000000 -o $(DEMO)/room.ply
 	$(BIN)/jointseg info $(DEMO)/room.ply
-	$(BIN)/jointseg segment $(DEMO)/room.ply -o $(DEMO)/room_segmented.ply --report $(DEMO)/report.json
+	bash scripts/demo_service.sh $(DEMO)/room.ply $(DEMO)/room_segmented.ply $(DEMO)/report.json $(DEMO)/data $(PORT)
+
+# the job service in the foreground (API, worker, viewer; Ctrl-C stops all)
+serve: setup
+	$(BIN)/jointseg serve --port $(PORT) --data-dir $(DEMO)/data
 
 lint: setup
 	$(BIN)/ruff check jointseg server web tests bench

@@ -108,7 +108,8 @@ class Settings(BaseSettings):
     )
     weights_dirs: list[Path] = Field(
         default_factory=list,
-        description="When set, a job's `network.weights` must lie in one of these folders.",
+        description="When set (a JSON list of folders), a job's `network.weights` must lie in one "
+        "of them.",
     )
     log_level: str = Field("INFO", description="Logging level of the API and the workers.")
 
