@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import viser
 
+from jointseg.classes import NUM_CLASSES, UNLABELLED
 from jointseg.exceptions import JointsegError
 from web.layout import CameraPose, overview_camera, panel_offsets, title_position
 from web.legend import class_title, iou_html, legend_html, present_classes
@@ -60,7 +61,6 @@ class ClientView:
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
         self._groups: dict[str, dict[tuple[int, bool], np.ndarray]] = {}
         self._root: viser.FrameHandle | None = None
-        self._job_gui: list[Any] = []
         self._labels: dict[str, str] = {}
         self._entries: dict[str, JobEntry] = {}
         self._lock = threading.RLock()
@@ -90,8 +90,15 @@ class ClientView:
             self.only_changed = gui.add_checkbox(
                 "Only points changed by fusion", False, hint="labels the fusion replaced"
             )
-        self.classes_folder = gui.add_folder("Classes")
-        self.scores_folder = gui.add_folder("Scores (IoU)", visible=False)
+        # built once and updated per job (no GUI elements are created or removed per job)
+        with gui.add_folder("Classes"):
+            self.legend = gui.add_html("")
+            self.class_boxes = {
+                cls: gui.add_checkbox(class_title(cls), cls not in self.hidden, visible=False)
+                for cls in (*range(NUM_CLASSES), UNLABELLED)
+            }
+        with gui.add_folder("Scores (IoU)", visible=False) as self.scores_folder:
+            self.scores = gui.add_html("")
         with gui.add_folder("Downloads"):
             self.download_result = gui.add_button("Result", icon=viser.Icon.DOWNLOAD, disabled=True)
             self.download_report = gui.add_button("Report", icon=viser.Icon.DOWNLOAD, disabled=True)
@@ -102,6 +109,8 @@ class ClientView:
         self.segments_box.on_update(lambda _: self.redraw())
         self.point_size.on_update(lambda _: self._resize_points())
         self.only_changed.on_update(lambda _: self._apply_visibility())
+        for cls, box in self.class_boxes.items():
+            box.on_update(self._class_toggle(cls))
         self.download_result.on_click(lambda _: self._send_download(result=True))
         self.download_report.on_click(lambda _: self._send_download(result=False))
         self.refresh_jobs()
@@ -169,7 +178,7 @@ class ClientView:
                 self._groups["truth"] = group_points(data.truth, data.changed)
             with self.client.atomic():
                 self._root = self.client.scene.add_frame(ROOT, show_axes=False)
-                self._build_job_gui(data)
+                self._update_job_gui(data)
                 self.redraw(camera=True)
             self.client.flush()
             return True
@@ -179,26 +188,22 @@ class ClientView:
         with self._lock:
             if self._root is not None:
                 self._root.remove()  # removes every panel node below it
-            for handle in self._job_gui:
-                handle.remove()
             self._root, self.job_id, self.data = None, None, None
-            self.frames, self.nodes, self._groups, self._job_gui = {}, {}, {}, []
+            self.frames, self.nodes, self._groups = {}, {}, {}
             self.download_result.disabled = self.download_report.disabled = True
             self.scores_folder.visible = False
+            self.legend.content = ""
+            for box in self.class_boxes.values():
+                box.visible = False
             self.status.content = "No job shown."
 
-    def _build_job_gui(self, data: SceneData) -> None:
-        gui = self.client.gui
-        with self.classes_folder:
-            self._job_gui.append(gui.add_html(legend_html(data.counts)))
-            for cls in present_classes(data.counts):
-                box = gui.add_checkbox(class_title(cls), cls not in self.hidden)
-                box.on_update(self._class_toggle(cls))
-                self._job_gui.append(box)
+    def _update_job_gui(self, data: SceneData) -> None:
+        self.legend.content = legend_html(data.counts)
+        present = present_classes(data.counts)
+        for cls, box in self.class_boxes.items():
+            box.visible = cls in present
         table = iou_html(data.report)
-        if table is not None:
-            with self.scores_folder:
-                self._job_gui.append(gui.add_html(table))
+        self.scores.content = table or ""
         self.scores_folder.visible = table is not None
         self.truth_box.disabled = data.truth is None
         self.download_result.disabled = False
@@ -357,4 +362,4 @@ class ClientView:
         entry = self._entries.get(job_id)
         stem = Path(entry.filename).stem if entry is not None else job_id
         name = f"{stem}_segmented{path.suffix}" if result else f"{stem}_report.json"
-        self.client.send_file_download(name, path.read_bytes())
+        self.client.send_file_download(name, path.read_bytes(), save_immediately=True)

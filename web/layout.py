@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Gap between neighbouring panels as a fraction of a panel's width.
-GAP_RATIO = 0.15
+GAP_RATIO = 0.25
 #: The camera looks down on the row from this elevation above the horizontal.
 ELEVATION_DEG = 58.0
 #: Vertical field of view the viewer sets, degrees.

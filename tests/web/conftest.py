@@ -25,6 +25,7 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--no-first-run",
     "--disable-dev-shm-usage",
+    "--js-flags=--expose-gc",  # lets a test measure the page's heap after a collection
 ]
 
 

@@ -1,0 +1,246 @@
+"""The viewer in Debian's headless chromium, on a folder of results made by the real pipeline.
+
+What a person checks by looking: the panels show the palette colours of the classes present,
+a class switched off disappears, several tabs view different jobs, downloads arrive, and
+switching jobs does not pile up memory.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+import tracemalloc
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import write_result
+from shots import HIDE_TOASTS, ink, palette_pixels, panel_spans, settled
+
+from jointseg.classes import CLASS_NAMES, NUM_CLASSES
+from jointseg.pipeline import PipelineConfig
+from jointseg.scan import Scan
+from jointseg.synth import make_room
+from web.scene import load_scene
+from web.sources import DirectorySource
+from web.viewer import Viewer
+
+VIEWPORT = {"width": 1600, "height": 900}
+#: The page's JavaScript heap after a forced collection (chromium runs with --expose-gc).
+HEAP_AFTER_GC = "() => { window.gc(); return performance.memory.usedJSHeapSize; }"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
+    """``room``: 30 k labelled points through the bundled network (many classes);
+    ``bare``: 8 k points without ground truth through the random network."""
+    folder = tmp_path_factory.mktemp("viewer_jobs")
+    write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
+    scan = make_room(5, points=8_000)
+    write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def viewer(jobs: Path) -> Iterator[Viewer]:
+    instance = Viewer(DirectorySource(jobs), port=free_port())
+    try:
+        yield instance
+    finally:
+        instance.stop()
+
+
+def open_viewer(browser: Any, viewer: Viewer, job_id: str, *, toasts: bool = False) -> Any:
+    """A new tab on the viewer's link to ``job_id``, once the job is shown."""
+    page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
+    page.goto(viewer.link(job_id))
+    if not toasts:
+        page.add_style_tag(content=HIDE_TOASTS)
+    page.get_by_text("points shown").wait_for(timeout=30_000)
+    return page
+
+
+def view_of(viewer: Viewer, job_id: str) -> Any:
+    """The server-side view of the tab showing ``job_id``."""
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        found = [v for v in viewer.views.values() if v.job_id == job_id]
+        if found:
+            return found[0]
+        time.sleep(0.1)
+    raise AssertionError(f"no client shows {job_id}")
+
+
+def visible_classes(labels: np.ndarray, *, share: float = 0.03) -> list[int]:
+    """Classes holding at least ``share`` of the points, the ceiling excepted (hidden at first)."""
+    counts = np.bincount(labels[labels >= 0], minlength=NUM_CLASSES)
+    return [c for c in range(1, NUM_CLASSES) if counts[c] >= share * labels.size]
+
+
+def test_panels_show_class_colours_and_a_class_switched_off_disappears(
+    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
+) -> None:
+    data = load_scene(jobs / "room.ply")
+    page = open_viewer(browser, viewer, "room")
+    try:
+        image = settled(page)
+        (artifacts / "viewer_room.png").write_bytes(page.screenshot())
+        raw, network, fused, truth = panel_spans(image, 4)
+        for span, labels in ((network, data.network), (fused, data.fused), (truth, data.truth)):
+            assert labels is not None
+            seen = palette_pixels(image, span)
+            expected = visible_classes(labels)
+            assert len(expected) >= 3
+            for cls in expected:
+                assert seen[cls] >= 20, f"{CLASS_NAMES[cls]} missing: {seen.tolist()}"
+            assert seen[0] == 0  # the ceiling starts hidden
+        # the raw panel shows the scan's own colours, not the palette
+        raw_pixels = image[:, raw[0] : raw[1]][ink(image[:, raw[0] : raw[1]])]
+        assert len(np.unique(raw_pixels, axis=0)) > 200
+
+        # switch the fused result's largest class off with a click in the legend
+        counts = np.bincount(data.fused, minlength=NUM_CLASSES)
+        counts[0] = 0
+        off = int(np.argmax(counts))
+        page.get_by_label(CLASS_NAMES[off], exact=True).uncheck()
+        image = settled(page)
+        (artifacts / f"viewer_room_without_{CLASS_NAMES[off]}.png").write_bytes(page.screenshot())
+        _, network, fused, _ = panel_spans(image, 4)
+        for span in (network, fused):
+            seen = palette_pixels(image, span)
+            assert seen[off] == 0, f"{CLASS_NAMES[off]} still drawn"
+            others = [c for c in visible_classes(data.fused) if c != off]
+            assert all(seen[c] > 0 for c in others)
+
+        # and the ceiling on again: its colour appears
+        page.get_by_label("ceiling", exact=True).check()
+        image = settled(page)
+        assert palette_pixels(image, panel_spans(image, 4)[2])[0] > 100
+        page.get_by_label("ceiling", exact=True).uncheck()
+        page.get_by_label(CLASS_NAMES[off], exact=True).check()
+    finally:
+        page.close()
+
+
+def test_only_changed_points_and_optional_panels(
+    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
+) -> None:
+    data = load_scene(jobs / "room.ply")
+    assert 0 < data.changed.sum() < 0.5 * data.changed.size
+    page = open_viewer(browser, viewer, "room")
+    try:
+        before = settled(page)
+        fused_before = panel_spans(before, 4)[2]
+        page.get_by_label("Only points changed by fusion", exact=True).check()
+        after = settled(page, min_ink=500)
+        spans = panel_spans(after, 4)
+        (artifacts / "viewer_room_changed_only.png").write_bytes(page.screenshot())
+        cols_before = before[:, fused_before[0] : fused_before[1]]
+        cols_after = after[:, spans[2][0] : spans[2][1]]
+        assert 0 < ink(cols_after).sum() < 0.6 * ink(cols_before).sum()
+        page.get_by_label("Only points changed by fusion", exact=True).uncheck()
+        # the segments panel is a fifth copy; the ground truth panel can be hidden
+        page.get_by_label("Segments panel", exact=True).check()
+        assert len(panel_spans(settled(page), 5)) == 5
+        page.get_by_label("Ground truth panel", exact=True).uncheck()
+        assert len(panel_spans(settled(page), 4)) == 4
+    finally:
+        page.close()
+
+
+def test_tabs_view_different_jobs_and_the_picker_switches(
+    browser: Any, viewer: Viewer, jobs: Path
+) -> None:
+    room = open_viewer(browser, viewer, "room")
+    bare = open_viewer(browser, viewer, "bare")
+    try:
+        assert len(panel_spans(settled(room), 4)) == 4  # ground truth: a fourth panel
+        assert len(panel_spans(settled(bare), 3)) == 3  # none: raw, network, fused
+        assert view_of(viewer, "room") is not view_of(viewer, "bare")
+        assert room.get_by_text("Scores (IoU)").is_visible()
+        assert not bare.get_by_text("Scores (IoU)").is_visible()
+        # the picker lists the finished jobs; choosing one replaces that tab's scene only
+        bare.get_by_label("Job", exact=True).click()
+        options = bare.get_by_role("option")
+        names = [options.nth(i).inner_text() for i in range(options.count())]
+        assert any(n.startswith("room.ply") for n in names)
+        assert any(n.startswith("bare.ply") for n in names)
+        bare.get_by_role("option", name="room.ply", exact=False).click()
+        bare.locator("strong", has_text="room.ply [room]").wait_for(timeout=30_000)
+        assert len(panel_spans(settled(bare), 4)) == 4
+        assert sorted(v.job_id for v in viewer.views.values() if v.job_id) == ["room", "room"]
+    finally:
+        room.close()
+        bare.close()
+
+
+def test_downloads_send_the_result_and_the_report(browser: Any, viewer: Viewer, jobs: Path) -> None:
+    page = open_viewer(browser, viewer, "room")
+    try:
+        for button, name, source in (
+            ("Result", "room_segmented.ply", jobs / "room.ply"),
+            ("Report", "room_report.json", jobs / "room.report.json"),
+        ):
+            with page.expect_download(timeout=30_000) as info:
+                page.get_by_role("button", name=button).click()
+            assert info.value.suggested_filename == name
+            assert Path(info.value.path()).read_bytes() == source.read_bytes()
+    finally:
+        page.close()
+
+
+def test_an_unknown_job_is_reported_not_shown(browser: Any, viewer: Viewer) -> None:
+    page = browser.new_page(viewport=VIEWPORT)
+    try:
+        page.goto(viewer.link("no-such-job"))
+        page.get_by_text("Cannot show this job").wait_for(timeout=30_000)
+        assert page.get_by_text("No job shown.").is_visible()
+    finally:
+        page.close()
+
+
+def test_switching_jobs_replaces_the_clouds_without_growing_memory(
+    browser: Any, viewer: Viewer
+) -> None:
+    page = open_viewer(browser, viewer, "room")
+    try:
+        settled(page)
+        view = view_of(viewer, "room")
+        nodes = {}
+        tracemalloc.start()
+        try:
+            for i in range(6):
+                job = ("bare", "room")[i % 2]
+                assert view.show_job(job)
+                settled(page)
+                nodes[job] = len(view.nodes)
+                if i == 1:
+                    baseline = tracemalloc.get_traced_memory()[0]
+            grown = tracemalloc.get_traced_memory()[0] - baseline
+        finally:
+            tracemalloc.stop()
+        shown = view.data
+        assert shown is not None
+        # one job's nodes at a time (one per class and change flag and panel), never more
+        assert len(view.nodes) == nodes["room"]
+        assert all(key[0] in ("raw", "network", "fused", "truth") for key in view.nodes)
+        assert len(viewer.cache) <= 2
+        # a leak of either job's arrays would add at least 2 x 0.25 MB here
+        assert grown < 0.5 * shown.nbytes, (grown, shown.nbytes)
+        # the browser drops the old clouds too: its heap after a forced GC stays flat
+        heap = [page.evaluate(HEAP_AFTER_GC)]
+        for job in ("bare", "room"):
+            view.show_job(job)
+            settled(page)
+            heap.append(page.evaluate(HEAP_AFTER_GC))
+        assert heap[-1] < heap[0] * 1.3 + 5e6, heap
+    finally:
+        page.close()
