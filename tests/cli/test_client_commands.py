@@ -15,7 +15,7 @@ import pytest
 from jointseg.cli import main
 from jointseg.io import read_scan
 from jointseg.pipeline import OUTPUT_FIELDS
-from tests.server.service_process import Service, free_port, scan_file, start_service
+from tests.server.service_process import Service, free_port, running, scan_file
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -38,12 +38,8 @@ def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, 
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    svc = start_service(tmp_path_factory.mktemp("svc"), workers=1, api_keys="cli-key")
-    try:
-        svc.wait_healthy(workers=1)
+    with running(tmp_path_factory.mktemp("svc"), workers=1, api_keys="cli-key") as svc:
         yield svc
-    finally:
-        svc.stop()
 
 
 @pytest.fixture(scope="module")
@@ -51,24 +47,17 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return scan_file(tmp_path_factory.mktemp("scans"), ".ply", points=3000)
 
 
+def _config(tmp_path: Path, body: dict) -> str:
+    path = tmp_path / "cfg.json"
+    path.write_text(json.dumps(body))
+    return str(path)
+
+
 def test_submit_wait_download_and_report(service, room, random_weights, tmp_path) -> None:
-    config = tmp_path / "cfg.json"
-    config.write_text(json.dumps({"network": {"weights": str(random_weights)}}))
     out, report = tmp_path / "out.laz", tmp_path / "report.json"
-    result = run_cli(
-        "submit",
-        str(room),
-        "--server",
-        service.url,
-        "--api-key",
-        "cli-key",
-        "--config",
-        str(config),
-        "-o",
-        str(out),
-        "--report",
-        str(report),
-    )
+    config = _config(tmp_path, {"network": {"weights": str(random_weights)}})
+    args = ["--server", service.url, "--api-key", "cli-key", "--config", config]
+    result = run_cli("submit", str(room), *args, "-o", str(out), "--report", str(report))
     assert result.returncode == 0, result.stderr
     job_id = result.stdout.strip()
     assert re.fullmatch(r"[0-9a-f]{32}", job_id)
@@ -87,21 +76,11 @@ def test_submit_without_wait_prints_the_id_only(service, room, monkeypatch, caps
 
 
 def test_a_failed_job_is_one_error_line(service, room, tmp_path, capsys) -> None:
-    config = tmp_path / "cfg.json"
-    config.write_text(json.dumps({"network": {"name": "dgcnn"}}))  # no DGCNN weights there
-    result = run_cli(
-        "submit",
-        str(room),
-        "--server",
-        service.url,
-        "--api-key",
-        "cli-key",
-        "--config",
-        str(config),
-        "--wait",
-    )
-    assert result.returncode == 2
-    assert re.search(r"error: job [0-9a-f]{32} failed: no weights for 'dgcnn'", result.stderr)
+    config = _config(tmp_path, {"network": {"name": "dgcnn"}})  # no DGCNN weights there
+    args = ["--server", service.url, "--api-key", "cli-key", "--config", config, "--wait"]
+    code, _, err = run_here(capsys, "submit", str(room), *args)
+    assert code == 2
+    assert re.search(r"error: job [0-9a-f]{32} failed: no weights for 'dgcnn'", err)
 
 
 @pytest.mark.parametrize(

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from service_process import Service, start_service
+from service_process import Service, running
 
 
 @pytest.fixture(scope="session")
@@ -25,25 +25,13 @@ def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     """The embedded default (SQLite table and queue) with two workers, shared by many tests."""
-    svc = start_service(tmp_path_factory.mktemp("service"), workers=2)
-    try:
-        svc.wait_healthy(workers=2)
+    with running(tmp_path_factory.mktemp("service"), workers=2) as svc:
         yield svc
-    finally:
-        svc.stop()
 
 
 @pytest.fixture(scope="session")
 def locked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     """A service with API keys, a 64 KiB upload limit and no worker (jobs stay queued)."""
-    svc = start_service(
-        tmp_path_factory.mktemp("locked"),
-        workers=0,
-        api_keys="key-one,key-two",
-        max_upload_bytes=64 * 1024,
-    )
-    try:
-        svc.wait_healthy()
+    folder = tmp_path_factory.mktemp("locked")
+    with running(folder, workers=0, api_keys="key-one,key-two", max_upload_bytes=65536) as svc:
         yield svc
-    finally:
-        svc.stop()

@@ -13,6 +13,8 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -96,7 +98,7 @@ class Service:
         headers = {"Authorization": f"Bearer {self.api_key}"} if self.api_key else {}
         return httpx.Client(base_url=self.url, headers=headers, timeout=60, **kwargs)
 
-    def wait_healthy(self, *, workers: int = 0, timeout: float = 90.0) -> dict[str, Any]:
+    def wait_healthy(self, *, workers: int = 0, timeout: float = 180.0) -> dict[str, Any]:
         """Wait for /healthz to answer with at least ``workers`` live workers."""
         deadline = time.monotonic() + timeout
         last: Any = None
@@ -111,7 +113,8 @@ class Service:
             except (httpx.HTTPError, ValueError):
                 pass
             time.sleep(0.2)
-        log = self.api.text()[-3000:]
+        lines = [line for line in self.api.text().splitlines() if "GET /healthz" not in line]
+        log = "\n".join(lines[-40:])
         raise AssertionError(f"service not healthy in {timeout} s: {last}\n{log}")
 
     def stop(self) -> None:
@@ -146,6 +149,19 @@ def start_service(
     keys = settings.get("api_keys")
     service.api_key = str(keys).split(",")[0] if keys else None
     return service
+
+
+@contextmanager
+def running(
+    data_dir: Path, *, workers: int = 1, extra_workers: int = 0, **settings: Any
+) -> Iterator[Service]:
+    """:func:`start_service`, waited for until every worker announced itself, stopped after."""
+    service = start_service(data_dir, workers=workers, extra_workers=extra_workers, **settings)
+    try:
+        service.wait_healthy(workers=workers + extra_workers)
+        yield service
+    finally:
+        service.stop()
 
 
 def scan_file(folder: Path, suffix: str = ".ply", *, points: int = 3000, seed: int = 0) -> Path:

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
-from service_process import post_scan, scan_file, start_service, wait_for
+from service_process import post_scan, running, scan_file, wait_for
 
 PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
 REDIS = "redis://127.0.0.1:6379/0"
@@ -55,7 +55,6 @@ def redis_queue() -> Iterator[str]:
 
 
 def _run_jobs(service, scans, job_config, n: int = 4) -> list[dict]:
-    service.wait_healthy(workers=2)
     with service.http() as http:
 
         def submit(seed: int) -> str:
@@ -72,17 +71,18 @@ def _run_jobs(service, scans, job_config, n: int = 4) -> list[dict]:
     return done
 
 
-def test_postgres_job_table_and_queue(tmp_path, scans, job_config, postgres_url) -> None:
-    service = start_service(
-        tmp_path / "shared", workers=0, extra_workers=2, database_url=postgres_url
-    )
-    try:
+def _run_everywhere(tmp_path, scans, job_config, kind: str, **settings: str) -> list[dict]:
+    """An API without workers and two `jointseg worker` processes; four jobs through them."""
+    with running(tmp_path / "shared", workers=0, extra_workers=2, **settings) as service:
         done = _run_jobs(service, scans, job_config)
         assert all(job["status"] == "succeeded" for job in done), done
         health = service.wait_healthy(workers=2)
-        assert health["queue_kind"] == "postgres" and health["pending"] == 0
-    finally:
-        service.stop()
+        assert health["queue_kind"] == kind and health["pending"] == 0
+    return done
+
+
+def test_postgres_job_table_and_queue(tmp_path, scans, job_config, postgres_url) -> None:
+    done = _run_everywhere(tmp_path, scans, job_config, "postgres", database_url=postgres_url)
     # the job table lives in PostgreSQL, not in the data directory
     assert not (tmp_path / "shared" / "jobs.sqlite3").exists()
     assert not (tmp_path / "shared" / "queue.sqlite3").exists()
@@ -96,19 +96,6 @@ def test_postgres_job_table_and_queue(tmp_path, scans, job_config, postgres_url)
 
 
 def test_redis_queue(tmp_path, scans, job_config, redis_queue) -> None:
-    service = start_service(
-        tmp_path / "shared",
-        workers=0,
-        extra_workers=2,
-        queue="redis",
-        redis_url=REDIS,
-        queue_name=redis_queue,
-    )
-    try:
-        done = _run_jobs(service, scans, job_config)
-        assert all(job["status"] == "succeeded" for job in done), done
-        health = service.wait_healthy(workers=2)
-        assert health["queue_kind"] == "redis" and health["pending"] == 0
-    finally:
-        service.stop()
+    settings = {"queue": "redis", "redis_url": REDIS, "queue_name": redis_queue}
+    _run_everywhere(tmp_path, scans, job_config, "redis", **settings)
     assert not (tmp_path / "shared" / "queue.sqlite3").exists()

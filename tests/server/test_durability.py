@@ -8,7 +8,11 @@ import os
 import signal
 import time
 
-from service_process import post_scan, scan_file, spawn, start_service, wait_for
+from service_process import post_scan, running, scan_file, start_service, wait_for
+
+from server import jobs
+from server.db import make_engine, make_sessions
+from server.settings import Settings
 
 LONG = 30_000  # points: a job of several seconds with the random network on one thread
 
@@ -45,18 +49,15 @@ def _wait_started(http, job_id: str) -> dict:
 
 
 def test_sigkill_of_a_worker_mid_job_is_recovered(tmp_path, scans, job_config) -> None:
-    service = start_service(tmp_path / "svc", workers=1)
-    try:
-        service.wait_healthy(workers=1)
-        with service.http() as http:
-            job_id = post_scan(http, scan_file(scans, ".ply", points=LONG, seed=4), job_config)
-            job_id = job_id.json()["id"]
-            _wait_started(http, job_id)
-            pid = _worker_of(service, job_id)
-            os.kill(pid, signal.SIGKILL)
-            killed_at = time.monotonic()
-            # heartbeat timeout (3 s) -> re-queued; `serve` has restarted the worker meanwhile
-            job = wait_for(http, job_id, timeout=180)
+    with running(tmp_path / "svc", workers=1) as service, service.http() as http:
+        job_id = post_scan(http, scan_file(scans, ".ply", points=LONG, seed=4), job_config)
+        job_id = job_id.json()["id"]
+        _wait_started(http, job_id)
+        pid = _worker_of(service, job_id)
+        os.kill(pid, signal.SIGKILL)
+        killed_at = time.monotonic()
+        # heartbeat timeout (3 s) -> re-queued; `serve` has restarted the worker meanwhile
+        job = wait_for(http, job_id, timeout=180)
         assert job["status"] == "succeeded", job
         assert job["attempts"] == 2
         assert time.monotonic() - killed_at > 3  # not before the heartbeat timed out
@@ -67,8 +68,6 @@ def test_sigkill_of_a_worker_mid_job_is_recovered(tmp_path, scans, job_config) -
         result = service.data_dir / "jobs" / job_id / "result.ply"
         assert result.is_file()
         assert not [p for p in result.parent.iterdir() if p.name.startswith(".")]  # no temp file
-    finally:
-        service.stop()
 
 
 def test_sigterm_requeues_the_running_job_and_a_restart_runs_every_queued_job(
@@ -95,18 +94,14 @@ def test_sigterm_requeues_the_running_job_and_a_restart_runs_every_queued_job(
         service.stop()
     assert "job re-queued" in service.api.text()
 
-    # the API alone: every job is still there, queued, the interrupted one not counted
-    again = start_service(data, workers=0)
-    try:
-        again.wait_healthy()
-        with again.http() as http:
-            listed = http.get("/v1/jobs").json()
-            assert listed["total"] == 4
-            assert {j["status"] for j in listed["items"]} == {"queued"}
-            assert http.get(f"/v1/jobs/{long_id}").json()["attempts"] == 0
-            # a worker started on its own (as on another machine) runs all of them
-            again.workers.append(spawn(["worker"], again.env, data / "worker.log"))
-            done = [wait_for(http, job_id, timeout=180) for job_id in [long_id, *small]]
-        assert all(j["status"] == "succeeded" and j["attempts"] == 1 for j in done), done
-    finally:
-        again.stop()
+    # the job table on disk: every job is still there, queued, the interrupted one not counted
+    engine = make_engine(Settings(data_dir=data))
+    with make_sessions(engine)() as session:
+        queued = jobs.list_jobs(session)
+    engine.dispose()
+    assert len(queued) == 4 and {j.status for j in queued} == {"queued"}
+    assert {j.id: j.attempts for j in queued}[long_id] == 0
+    # restarted: the API answers for the queued jobs and the worker runs all of them
+    with running(data, workers=1) as again, again.http() as http:
+        done = [wait_for(http, job_id, timeout=180) for job_id in [long_id, *small]]
+    assert all(j["status"] == "succeeded" and j["attempts"] == 1 for j in done), done

@@ -9,6 +9,15 @@ from hypothesis import HealthCheck, given, settings
 from schemathesis.checks import not_a_server_error
 
 EXAMPLES_PER_OPERATION = 25
+OPERATIONS = [
+    "POST /v1/jobs",
+    "GET /v1/jobs",
+    "GET /v1/jobs/{job_id}",
+    "GET /v1/jobs/{job_id}/result",
+    "GET /v1/jobs/{job_id}/report",
+    "DELETE /v1/jobs/{job_id}",
+    "GET /healthz",
+]
 
 
 def _operations(url: str) -> list:
@@ -17,30 +26,10 @@ def _operations(url: str) -> list:
 
 
 def test_every_operation_is_fuzzed(locked) -> None:
-    labels = {op.label for op in _operations(locked.url)}
-    assert {
-        "POST /v1/jobs",
-        "GET /v1/jobs",
-        "GET /v1/jobs/{job_id}",
-        "GET /v1/jobs/{job_id}/result",
-        "GET /v1/jobs/{job_id}/report",
-        "DELETE /v1/jobs/{job_id}",
-        "GET /healthz",
-    } <= labels
+    assert set(OPERATIONS) <= {op.label for op in _operations(locked.url)}
 
 
-@pytest.mark.parametrize(
-    "label",
-    [
-        "POST /v1/jobs",
-        "GET /v1/jobs",
-        "GET /v1/jobs/{job_id}",
-        "GET /v1/jobs/{job_id}/result",
-        "GET /v1/jobs/{job_id}/report",
-        "DELETE /v1/jobs/{job_id}",
-        "GET /healthz",
-    ],
-)
+@pytest.mark.parametrize("label", OPERATIONS)
 def test_no_server_errors(locked, label) -> None:
     (operation,) = [op for op in _operations(locked.url) if op.label == label]
     seen: list[int] = []
