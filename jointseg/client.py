@@ -152,7 +152,7 @@ class JobClient:
         while True:
             job = self.get(job_id)
             if progress is not None:
-                progress(job.stage or job.status, job.progress)
+                progress("job", job.progress)
             if job.finished:
                 if job.status != "succeeded":
                     raise JobFailed(f"job {job_id} {job.status}: {job.error or 'no reason given'}")
