@@ -247,7 +247,7 @@ def main() -> None:
     if upload is not None:
         print(
             f"| {args.upload_gib:g} GiB upload: answer, time | {upload['status']} "
-            f"({upload['detail'][:60]}), {upload['seconds']:.1f} s "
+            f"({upload['detail'][:80]}), {upload['seconds']:.1f} s "
             f"({upload['mib_per_s']:.0f} MiB/s) |"
         )
         print(
