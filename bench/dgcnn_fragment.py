@@ -34,7 +34,10 @@ SETTINGS = {
     "reference (scan box, stride 1)": DGCNNParams(frame="scan", stride=1.0),
     "scan box, stride 0.5": DGCNNParams(frame="scan"),
     "room frame, stride 1": DGCNNParams(stride=1.0),
-    "room frame, stride 0.5 (default)": DGCNNParams(),
+    "room frame, stride 0.5, coverage 1": DGCNNParams(coverage=1.0),
+    "room frame, stride 0.5, coverage 0.75": DGCNNParams(coverage=0.75),
+    "room frame, stride 0.5, coverage 0.5": DGCNNParams(coverage=0.5),
+    "default": DGCNNParams(),
 }
 
 
