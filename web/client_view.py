@@ -159,6 +159,7 @@ class ClientView:
             False (and a notification in the browser) when the job cannot be shown.
         """
         with self._lock:
+            started = time.perf_counter()
             try:
                 result = self.source.result_path(job_id)
                 data = self.cache.load(result, self.source.report_path(job_id))
@@ -168,6 +169,7 @@ class ClientView:
                     "Cannot show this job", str(exc), color="red", auto_close_seconds=10.0
                 )
                 return False
+            loaded = time.perf_counter()
             self.clear()
             self.job_id, self.data = job_id, data
             self._groups = {
@@ -181,6 +183,13 @@ class ClientView:
                 self._update_job_gui(data)
                 self.redraw(camera=True)
             self.client.flush()
+            log.info(
+                "client %d shows %s: loaded in %.2f s, sent in %.2f s",
+                self.client.client_id,
+                job_id,
+                loaded - started,
+                time.perf_counter() - loaded,
+            )
             return True
 
     def clear(self) -> None:

@@ -92,7 +92,8 @@ class Viewer:
         return viewer_link(f"http://{host}:{self.port}", job_id)
 
     def _connect(self, client: viser.ClientHandle) -> None:
-        client.gui.configure_theme(control_layout="fixed", control_width="large", show_logo=False)
+        client.gui.configure_theme(control_width="large", show_logo=False)
+        client.gui.main_panel.dock_right()  # beside the canvas, not over the panels
         view = ClientView(client, self.source, self.cache)
         with self._views_lock:
             self.views[client.client_id] = view
