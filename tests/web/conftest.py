@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from result_files import write_result
 
-from jointseg.io import write_scan
-from jointseg.pipeline import PipelineConfig, annotate, report_body, run
+from jointseg.pipeline import PipelineConfig
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
@@ -27,15 +26,6 @@ CHROMIUM_ARGS = [
     "--disable-dev-shm-usage",
     "--js-flags=--expose-gc",  # lets a test measure the page's heap after a collection
 ]
-
-
-def write_result(folder: Path, name: str, scan: Scan, config: PipelineConfig) -> Path:
-    """Run the pipeline on ``scan`` and write ``<name>.ply`` and ``<name>.report.json``."""
-    result = run(scan, config)
-    path = write_scan(annotate(scan, result), folder / f"{name}.ply")
-    report = report_body(scan, result)
-    (folder / f"{name}.report.json").write_text(json.dumps(report), encoding="utf-8")
-    return path
 
 
 @pytest.fixture(scope="session")

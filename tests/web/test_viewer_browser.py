@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import write_result
+from result_files import write_result
 from shots import HIDE_TOASTS, ink, palette_pixels, panel_spans, settled
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
