@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -64,3 +64,13 @@ def tiny_training(tmp_path: Path) -> Callable[..., TrainConfig]:
         return TrainConfig(**{**base, **overrides})
 
     return make
+
+
+@pytest.fixture(scope="session")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+    """The job service's embedded default (`jointseg serve`: SQLite table and queue, two
+    workers, API key ``key-one``) in subprocesses, shared by the server and CLI tests."""
+    from tests.server.service_process import running
+
+    with running(tmp_path_factory.mktemp("service"), workers=2, api_keys="key-one") as svc:
+        yield svc

@@ -7,7 +7,6 @@ import json
 import re
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -15,7 +14,7 @@ import pytest
 from jointseg.cli import main
 from jointseg.io import read_scan
 from jointseg.pipeline import OUTPUT_FIELDS
-from tests.server.service_process import Service, free_port, running, scan_file
+from tests.server.service_process import free_port, scan_file
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -37,12 +36,6 @@ def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, 
 
 
 @pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    with running(tmp_path_factory.mktemp("svc"), workers=1, api_keys="cli-key") as svc:
-        yield svc
-
-
-@pytest.fixture(scope="module")
 def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return scan_file(tmp_path_factory.mktemp("scans"), ".ply", points=3000)
 
@@ -56,7 +49,7 @@ def _config(tmp_path: Path, body: dict) -> str:
 def test_submit_wait_download_and_report(service, room, random_weights, tmp_path) -> None:
     out, report = tmp_path / "out.laz", tmp_path / "report.json"
     config = _config(tmp_path, {"network": {"weights": str(random_weights)}})
-    args = ["--server", service.url, "--api-key", "cli-key", "--config", config]
+    args = ["--server", service.url, "--api-key", "key-one", "--config", config]
     result = run_cli("submit", str(room), *args, "-o", str(out), "--report", str(report))
     assert result.returncode == 0, result.stderr
     job_id = result.stdout.strip()
@@ -68,7 +61,7 @@ def test_submit_wait_download_and_report(service, room, random_weights, tmp_path
 
 
 def test_submit_without_wait_prints_the_id_only(service, room, monkeypatch, capsys) -> None:
-    monkeypatch.setenv("JOINTSEG_API_KEY", "cli-key")
+    monkeypatch.setenv("JOINTSEG_API_KEY", "key-one")
     monkeypatch.setenv("JOINTSEG_SERVER", service.url)
     code, out, err = run_here(capsys, "submit", str(room))
     assert code == 0, err
@@ -77,7 +70,7 @@ def test_submit_without_wait_prints_the_id_only(service, room, monkeypatch, caps
 
 def test_a_failed_job_is_one_error_line(service, room, tmp_path, capsys) -> None:
     config = _config(tmp_path, {"network": {"name": "dgcnn"}})  # no DGCNN weights there
-    args = ["--server", service.url, "--api-key", "cli-key", "--config", config, "--wait"]
+    args = ["--server", service.url, "--api-key", "key-one", "--config", config, "--wait"]
     code, _, err = run_here(capsys, "submit", str(room), *args)
     assert code == 2
     assert re.search(r"error: job [0-9a-f]{32} failed: no weights for 'dgcnn'", err)

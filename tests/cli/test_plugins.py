@@ -4,10 +4,9 @@ and a broken plugin is skipped with a warning instead of breaking the CLI."""
 from __future__ import annotations
 
 import logging
-import subprocess
-import sys
 
 import typer
+from typer.testing import CliRunner
 
 from jointseg.cli.app import PLUGIN_GROUP, app, load_plugins
 
@@ -15,14 +14,9 @@ from jointseg.cli.app import PLUGIN_GROUP, app, load_plugins
 def test_server_commands_come_from_the_entry_point() -> None:
     names = {command.name for command in app.registered_commands}
     assert {"serve", "worker", "submit", "segment"} <= names
-    result = subprocess.run(
-        [sys.executable, "-m", "jointseg", "serve", "--help"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert result.returncode == 0 and "--workers" in result.stdout
-    assert "--viewer-port" in result.stdout
+    result = CliRunner().invoke(app, ["serve", "--help"])
+    assert result.exit_code == 0 and "--workers" in result.output
+    assert "--viewer-port" in result.output and "--data-dir" in result.output
 
 
 def test_a_broken_plugin_does_not_break_the_cli(tmp_path, monkeypatch, caplog) -> None:

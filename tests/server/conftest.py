@@ -1,4 +1,5 @@
-"""Fixtures of the server tests: the shared embedded service, a locked one, job configs."""
+"""Fixtures of the server tests: a locked service, job configs (the shared `service` is in
+tests/conftest.py)."""
 
 from __future__ import annotations
 
@@ -20,13 +21,6 @@ def job_config(random_weights: Path) -> dict[str, Any]:
 def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder for synthetic scans (see :func:`scan_file`)."""
     return tmp_path_factory.mktemp("scans")
-
-
-@pytest.fixture(scope="session")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    """The embedded default (SQLite table and queue) with two workers, shared by many tests."""
-    with running(tmp_path_factory.mktemp("service"), workers=2) as svc:
-        yield svc
 
 
 @pytest.fixture(scope="session")

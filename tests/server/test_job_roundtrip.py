@@ -53,7 +53,7 @@ def _check_result(path: Path, source: Path) -> None:
 @pytest.mark.parametrize("suffix", sorted({*WRITE_EXTENSIONS, ".e57"}))
 def test_round_trip_every_input_format(service, scans, job_config, tmp_path, suffix) -> None:
     source = _e57(scans) if suffix == ".e57" else scan_file(scans, suffix)
-    with JobClient(service.url) as client:
+    with JobClient(service.url, api_key=service.api_key) as client:
         job = client.submit(source, config=job_config)
         assert job.status == "queued" and job.points == 3000
         done = client.wait(job.id, poll_s=0.1, timeout_s=120)
@@ -96,13 +96,13 @@ def test_twenty_concurrent_uploads_all_succeed(service, scans, job_config) -> No
     started = time.monotonic()
 
     def submit(i: int) -> str:
-        with JobClient(service.url) as client:
+        with JobClient(service.url, api_key=service.api_key) as client:
             return client.submit(sources[i % len(sources)], config=job_config).id
 
     with ThreadPoolExecutor(20) as pool:
         ids = list(pool.map(submit, range(20)))
     assert len(set(ids)) == 20
-    with JobClient(service.url) as client:
+    with JobClient(service.url, api_key=service.api_key) as client:
         jobs = [client.wait(job_id, poll_s=0.2, timeout_s=180) for job_id in ids]
     assert all(job.status == "succeeded" and job.points == 2000 for job in jobs)
     assert time.monotonic() - started < 180
