@@ -11,7 +11,7 @@ import time
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event, text
-from sqlalchemy.exc import OperationalError, ProgrammingError
+from sqlalchemy.exc import DBAPIError
 from sqlalchemy.orm import Session, sessionmaker
 
 from server.models import Base
@@ -67,7 +67,7 @@ def init_db(engine: Engine, *, attempts: int = 5) -> None:
         try:
             Base.metadata.create_all(engine)
             return
-        except (OperationalError, ProgrammingError) as exc:  # pragma: no cover - race only
+        except DBAPIError as exc:  # pragma: no cover - race only (IntegrityError on pg_type)
             if attempt == attempts - 1:
                 raise
             log.debug("create tables collided (%s); retrying", exc)

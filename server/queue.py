@@ -8,6 +8,7 @@ same task, :func:`run_job`; only a worker process installs a handler that does t
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from urllib.parse import urlsplit, urlunsplit
 
@@ -50,11 +51,26 @@ def make_huey(settings: Settings) -> Huey:
         assert settings.redis_url is not None  # checked by Settings
         return RedisHuey(name, url=settings.redis_url, results=False)
     if settings.queue == "postgres":
-        from huey.contrib.sql_huey import SqlHuey
-
-        return SqlHuey(name, database=peewee_url(settings.database_url_resolved), results=False)
+        return _sql_huey(name, peewee_url(settings.database_url_resolved))
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     return SqliteHuey(name, filename=str(settings.data_dir / "queue.sqlite3"), results=False)
+
+
+def _sql_huey(name: str, url: str, attempts: int = 5) -> Huey:
+    """Huey's SQL storage; it creates its tables on start, and when the API and workers start
+    at once PostgreSQL can refuse one of two concurrent ``CREATE TABLE``: try again."""
+    import peewee
+    from huey.contrib.sql_huey import SqlHuey
+
+    for attempt in range(attempts):
+        try:
+            return SqlHuey(name, database=url, results=False)
+        except (peewee.IntegrityError, peewee.ProgrammingError, peewee.OperationalError) as exc:
+            if attempt == attempts - 1:
+                raise
+            log.debug("creating the queue tables collided (%s); retrying", exc)
+            time.sleep(0.2 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 class JobQueue:
