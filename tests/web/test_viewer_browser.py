@@ -41,10 +41,10 @@ def free_port() -> int:
 @pytest.fixture(scope="module")
 def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
     """``room``: 30 k labelled points through the bundled network (many classes);
-    ``bare``: 8 k points without ground truth through the random network."""
+    ``bare``: 30 k points without ground truth through the random network."""
     folder = tmp_path_factory.mktemp("viewer_jobs")
     write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
-    scan = make_room(5, points=8_000)
+    scan = make_room(5, points=30_000)
     write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
     return folder
 
@@ -233,8 +233,9 @@ def test_switching_jobs_replaces_the_clouds_without_growing_memory(
         assert len(view.nodes) == nodes["room"]
         assert all(key[0] in ("raw", "network", "fused", "truth") for key in view.nodes)
         assert len(viewer.cache) <= 2
-        # a leak of either job's arrays would add at least 2 x 0.25 MB here
-        assert grown < 0.5 * shown.nbytes, (grown, shown.nbytes)
+        # four switches after the baseline: keeping what each switch sends (the panels' copies
+        # of the points) or loads would add at least 4 x 0.8 MB; the rest is allocator noise
+        assert grown < 1.5 * shown.nbytes, (grown, shown.nbytes)
         # the browser drops the old clouds too: its heap after a forced GC stays flat
         heap = [page.evaluate(HEAP_AFTER_GC)]
         for job in ("bare", "room"):
