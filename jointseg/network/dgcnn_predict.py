@@ -52,12 +52,12 @@ class DGCNNParams(BaseModel):
     num_points: int = Field(4096, ge=32, description="Points per sample (training: 4 096).")
     min_block_points: int = Field(100, ge=1, description="Smaller columns are skipped.")
     coverage: float | None = Field(
-        0.75,
+        1.0,
         gt=0,
         description="Predictions per point, roughly (samples per column grow with its share "
         "of points; points no sample holds take their nearest predicted neighbour's "
-        "probabilities); None: every point of every column is predicted. 0.75 keeps a 1 M-point "
-        "room near a minute on 2 CPU cores; columns sparser than one sample are unaffected.",
+        "probabilities); None: every point of every column is predicted. Lower is faster on "
+        "dense scans; columns sparser than one sample are unaffected.",
     )
     frame: Literal["room", "scan"] = Field(
         "room",
