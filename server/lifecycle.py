@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import delete, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
 from server.models import Job, Worker, utcnow
@@ -229,3 +229,17 @@ def live_workers(session: Session, *, timeout_s: float) -> list[Worker]:
     """Workers seen within ``timeout_s``."""
     cutoff = utcnow() - timedelta(seconds=timeout_s)
     return list(session.scalars(select(Worker).where(Worker.seen_at >= cutoff).order_by(Worker.id)))
+
+
+def queued_before(session: Session, *, timeout_s: float) -> list[str]:
+    """Ids of jobs queued for longer than ``timeout_s`` (since creation or their last run).
+
+    Such a job is either waiting behind others or an orphan whose id never reached the queue
+    (its enqueue failed, or the process re-queueing it died between commit and enqueue); the
+    caller tells them apart with the queue's pending ids.
+    """
+    cutoff = utcnow() - timedelta(seconds=timeout_s)
+    since = func.coalesce(Job.heartbeat_at, Job.created_at)
+    return list(
+        session.scalars(select(Job.id).where(Job.status == "queued", since < cutoff)).all()
+    )

@@ -99,6 +99,10 @@ class JobQueue:
         """Job ids waiting in the queue (raises when the storage is unreachable)."""
         return int(self.huey.pending_count())
 
+    def pending_ids(self) -> set[str]:
+        """The job ids waiting in the queue (reads the whole queue: call it rarely)."""
+        return {str(task.args[0]) for task in self.huey.pending() if task.args}
+
     def close(self) -> None:
         """Release the storage's connections."""
         close = getattr(self.huey.storage, "close", None)

@@ -227,11 +227,22 @@ def _public_message(exc: BaseException, upload: Path, filename: str) -> str:
 
 
 def reap_and_requeue(sessions: SessionFactory, queue: JobQueue, settings: Settings) -> list[str]:
-    """Run the reaper once and enqueue the jobs it put back (shared by API and workers)."""
+    """Run the reaper once and enqueue the jobs it put back (shared by API and workers).
+
+    It also enqueues orphans: jobs queued for longer than the heartbeat timeout whose id is
+    not in the queue. Enqueueing a job twice is harmless (the second claim finds it taken).
+    """
     with sessions() as session:
         requeued = lifecycle.reap_stale(
             session, timeout_s=settings.heartbeat_timeout_s, max_attempts=settings.max_attempts
         )
+        waiting = set(lifecycle.queued_before(session, timeout_s=settings.heartbeat_timeout_s))
+    waiting -= set(requeued)
+    if waiting:
+        orphans = sorted(waiting - queue.pending_ids())
+        for job_id in orphans:
+            log.warning("job %s was queued without a queue entry; enqueueing it", job_id)
+        requeued += orphans
     for job_id in requeued:
         queue.enqueue(job_id)
     return requeued

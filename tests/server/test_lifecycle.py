@@ -115,3 +115,28 @@ def test_workers_are_alive_while_they_beat(sessions) -> None:
         assert (worker.hostname, worker.pid, worker.job_id) == ("host", 42, None)
         lifecycle.forget_worker(session, "host:42")
         assert lifecycle.live_workers(session, timeout_s=3) == []
+
+
+def test_a_queued_job_without_a_queue_entry_is_enqueued_once(tmp_path, sessions) -> None:
+    from server.queue import JobQueue
+    from server.worker import reap_and_requeue
+
+    settings = Settings(data_dir=tmp_path, heartbeat_interval_s=1, heartbeat_timeout_s=5)
+    queue = JobQueue(settings)
+    try:
+        orphan, waiting, fresh = _queued(sessions, 1), _queued(sessions, 2), _queued(sessions, 3)
+        with sessions() as session:
+            session.execute(
+                update(Job)
+                .where(Job.id.in_([orphan, waiting]))
+                .values(created_at=utcnow() - timedelta(seconds=60))
+            )
+            session.commit()
+        queue.enqueue(waiting)  # old but in the queue: not an orphan
+        assert reap_and_requeue(sessions, queue, settings) == [orphan]
+        assert queue.pending_ids() == {orphan, waiting}
+        # now it is in the queue: the next sweep leaves everything alone
+        assert reap_and_requeue(sessions, queue, settings) == []
+        assert fresh not in queue.pending_ids()
+    finally:
+        queue.close()
