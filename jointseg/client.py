@@ -161,9 +161,7 @@ class JobClient:
                 raise ServiceError(f"job {job_id} still {job.status} after {timeout_s} s")
             time.sleep(poll_s)
 
-    def download(
-        self, job_id: str, out: str | os.PathLike[str], *, fmt: str | None = None
-    ) -> Path:
+    def download(self, job_id: str, out: str | os.PathLike[str], *, fmt: str | None = None) -> Path:
         """Save the result as ``out`` (format from its suffix: .ply, .las or .laz), atomically."""
         out = Path(out)
         fmt = fmt or out.suffix.lower().lstrip(".")

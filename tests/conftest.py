@@ -14,6 +14,22 @@ from jointseg.network.dgcnn import DGCNN
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
 from jointseg.network.training import TrainConfig
 
+#: Real scans and published weights shared between checkouts (never copied into the repository).
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+@pytest.fixture(scope="session")
+def shared_file() -> Callable[[str], Path]:
+    """``shared_file("data/x.ply")``: a path under ../shared; skips when it is absent."""
+
+    def find(relative: str) -> Path:
+        path = SHARED / relative
+        if not path.exists():
+            pytest.skip(f"{path} is not present")
+        return path
+
+    return find
+
 
 @pytest.fixture(scope="session")
 def random_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:

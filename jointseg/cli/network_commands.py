@@ -63,7 +63,11 @@ def predict(
 
 
 def train(
-    data: str = typer.Option("synth", help="'synth' or a Stanford3dDataset_v1.2 folder."),
+    data: str = typer.Option(
+        "synth",
+        help="'synth', a Stanford3dDataset_v1.2 folder, or a folder of labelled scans "
+        "(any format jointseg reads, with a label field).",
+    ),
     out: Path = typer.Option(..., "--out", help="Checkpoint to write (after every epoch)."),
     epochs: int = typer.Option(20, min=1),
     steps: int = typer.Option(100, min=1, help="Steps per epoch."),
@@ -73,10 +77,25 @@ def train(
     test_area: int = typer.Option(5, min=1, max=6, help="S3DIS area held out."),
     synth_rooms: int = typer.Option(40, min=1, help="Synthetic training rooms."),
     synth_floors: int = typer.Option(4, min=0, help="Synthetic training floors."),
+    val_scan: list[str] = typer.Option(
+        [], help="Folder data: a scan (file stem) kept out of training for validation; repeat."
+    ),
+    val_count: int = typer.Option(
+        5, min=1, help="Folder data without --val-scan: hold out this many scans."
+    ),
+    synth_share: float = typer.Option(
+        0.0, min=0.0, max=0.95, help="Real data: share of crops from synthetic rooms."
+    ),
+    balanced: bool = typer.Option(True, help="Centre crops on rare classes more often."),
+    channels: float = typer.Option(
+        1.0, min=0.1, max=1.0, help="Scale of the channel widths (1 = official configuration)."
+    ),
+    threads: int | None = typer.Option(None, min=1, help="CPU threads for torch."),
     seed: int = typer.Option(0),
+    init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
 ) -> None:
-    """Train RandLA-Net on synthetic rooms or on S3DIS."""
+    """Train RandLA-Net on synthetic rooms, S3DIS, or a folder of labelled scans (mixable)."""
     from jointseg.network.training import TrainConfig
     from jointseg.network.training import train as run_training
 
@@ -93,6 +112,13 @@ def train(
         synth_floors=synth_floors,
         seed=seed,
         resume=resume,
+        init=init,
+        val_scans=val_scan,
+        val_count=val_count,
+        synth_share=synth_share,
+        balanced_crops=balanced,
+        num_channels_scale=channels,
+        threads=threads,
     )
     with progress_bar() as progress:
         path = run_training(cfg, progress=progress)

@@ -15,7 +15,7 @@ import numpy as np
 
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
-from jointseg.fusion import guard
+from jointseg.fusion import evidence, guard, learned
 from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
 from jointseg.fusion.transfer import transfer_labels
 
@@ -123,8 +123,98 @@ def fuse(
     timings["transfer"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    segment_ids, seg = _compact(segments)
+    segment_ids, seg = guard.compact_ids(segments)
     n_seg = len(segment_ids)
+    if params.mode == "evidence":
+        fused, confidence, seg_votes, split, kept_units, replace = _evidence_vote(
+            xyz, seg, n_seg, labels, probs, params
+        )
+        timings["vote"] = time.perf_counter() - t
+    elif params.mode == "learned":
+        fused, confidence, seg_votes, split, kept_units, replace = _learned_vote(
+            seg, n_seg, labels, probs, params
+        )
+        timings["vote"] = time.perf_counter() - t
+    else:
+        fused, confidence, seg_votes, split, kept_units, replace = _majority_vote(
+            xyz, seg, n_seg, labels, probs, params, timings, t
+        )
+    seg_shares, seg_first, _ = guard.top_two_shares(seg_votes)
+    seg_kept = kept_units & ~split
+    log.info(
+        "fusion (%s): %d points, %d segments, %d relabelled, %d segments kept, %d split",
+        params.mode,
+        n,
+        n_seg,
+        int(np.count_nonzero(replace & (fused != labels))),
+        int(seg_kept.sum()),
+        int(split.sum()),
+    )
+    return FusionResult(
+        labels=fused.astype(np.int32),
+        confidence=confidence,
+        network_labels=labels.astype(np.int32),
+        segment_ids=segment_ids,
+        segment_label=seg_shares.argmax(axis=1).astype(np.int32),
+        segment_share=seg_first.astype(np.float32),
+        segment_kept=seg_kept,
+        segment_split=split,
+        params=params,
+        timings=timings,
+    )
+
+
+def _evidence_vote(
+    xyz: np.ndarray,
+    seg: np.ndarray,
+    n_seg: int,
+    labels: np.ndarray,
+    probs: np.ndarray | None,
+    params: FusionParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 'evidence' mode (see :mod:`jointseg.fusion.evidence`) over segment cells."""
+    p = evidence.point_probs(labels, probs)
+    split = np.ones(n_seg, dtype=bool) if params.vote_cell_size > 0 else np.zeros(n_seg, bool)
+    if split.any():
+        unit, n_units = guard.segment_cells(xyz, seg, params.vote_cell_size)
+    else:
+        unit, n_units = seg, n_seg
+    fused, means = evidence.evidence_labels(unit, n_units, labels, p, weight=params.evidence_weight)
+    unit_share = means[unit, fused]
+    confidence = _confidence(fused, labels, probs, unit_share)
+    seg_votes = _votes(seg, n_seg, labels, p if probs is not None else None)
+    return fused, confidence, seg_votes, split, np.zeros(n_seg, bool), fused != labels
+
+
+def _learned_vote(
+    seg: np.ndarray,
+    n_seg: int,
+    labels: np.ndarray,
+    probs: np.ndarray | None,
+    params: FusionParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The 'learned' mode (see :mod:`jointseg.fusion.learned`) over whole segments."""
+    p = evidence.point_probs(labels, probs)
+    fused, _ = learned.learned_labels(seg, n_seg, labels, p, threshold=params.flip_threshold)
+    seg_votes = learned.segment_label_sums(seg, n_seg, p)
+    shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
+    confidence = _confidence(fused, labels, probs, shares[seg, fused])
+    none = np.zeros(n_seg, dtype=bool)
+    return fused, confidence, seg_votes, none, none, fused != labels
+
+
+def _majority_vote(
+    xyz: np.ndarray,
+    seg: np.ndarray,
+    n_seg: int,
+    labels: np.ndarray,
+    probs: np.ndarray | None,
+    params: FusionParams,
+    timings: dict[str, float],
+    t: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 6-7 (hard or soft votes), with the impure-segment guard in the guarded modes."""
+    n = len(xyz)
     soft = params.mode in SOFT_MODES
     vote_probs = probs if soft else None
     seg_votes = _votes(seg, n_seg, labels, vote_probs)
@@ -133,6 +223,7 @@ def fuse(
     unit, n_units = seg, n_seg
     shares, first, second = seg_shares, seg_first, seg_second
     guarded = params.mode in GUARDED_MODES
+    impure = np.zeros(n_seg, dtype=bool)
     if guarded:
         impure = guard.impure(
             np.bincount(seg, minlength=n_seg), seg_first, seg_second, n_points=n, params=params
@@ -162,29 +253,7 @@ def fuse(
     fused = np.where(replace, majority[unit], labels)
     confidence = _confidence(fused, labels, probs, shares[unit, fused])
     timings["relabel"] = time.perf_counter() - t
-
-    seg_kept = kept_units[:n_seg] & ~split
-    log.info(
-        "fusion (%s): %d points, %d segments, %d relabelled, %d segments kept, %d split",
-        params.mode,
-        n,
-        n_seg,
-        int(np.count_nonzero(replace & (fused != labels))),
-        int(seg_kept.sum()),
-        int(split.sum()),
-    )
-    return FusionResult(
-        labels=fused.astype(np.int32),
-        confidence=confidence,
-        network_labels=labels.astype(np.int32),
-        segment_ids=segment_ids,
-        segment_label=seg_shares.argmax(axis=1).astype(np.int32),
-        segment_share=seg_first.astype(np.float32),
-        segment_kept=seg_kept,
-        segment_split=split,
-        params=params,
-        timings=timings,
-    )
+    return fused, confidence, seg_votes, split, kept_units[:n_seg], replace
 
 
 def _votes(
@@ -209,20 +278,6 @@ def _confidence(
     else:
         own = np.take_along_axis(probs, fused[:, None], axis=1)[:, 0]
     return (0.5 * (own + unit_share)).astype(np.float32)
-
-
-def _compact(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Renumber segment ids to 0..S-1 (linear time unless the ids are very sparse)."""
-    if len(segments) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    top = int(segments.max())
-    if top > 16 * len(segments):
-        ids, seg = np.unique(segments, return_inverse=True)
-        return ids.astype(np.int64), seg.astype(np.int64)
-    present = np.bincount(segments, minlength=top + 1) > 0
-    ids = np.flatnonzero(present)
-    lookup = np.cumsum(present) - 1
-    return ids.astype(np.int64), lookup[segments].astype(np.int64)
 
 
 def _validated(

@@ -12,18 +12,18 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt
 
-FusionMode = Literal["paper", "guarded", "soft", "soft_guarded"]
+FusionMode = Literal["paper", "guarded", "soft", "soft_guarded", "evidence", "learned"]
 
 #: Modes that vote with summed class probabilities instead of hard labels.
 SOFT_MODES: frozenset[str] = frozenset({"soft", "soft_guarded"})
 #: Modes that apply the impure-segment guard.
 GUARDED_MODES: frozenset[str] = frozenset({"guarded", "soft_guarded"})
 
-#: The default: the best mode of bench/fusion.py with the bundled weights on 10 held-out rooms
-#: and 2 floors (largest mean gain over the network among the variants that lose on no scan;
-#: the README has the table). The paper's rule at ratio 0.5 gains about as much on average but
-#: loses slightly on one room; soft votes with the min_support check lose on none.
-DEFAULT_MODE: FusionMode = "soft"
+#: The default: the variant of bench/fusion_real.py that gains most on the tuning rooms of real
+#: S3DIS Area_6 with DGCNN and on synthetic calibration rooms with the bundled network while
+#: losing on none; the README has the tables (tuning and judging rooms apart). Majority modes
+#: ('paper', 'soft') overwrite a strong network's correct labels inside impure real segments.
+DEFAULT_MODE: FusionMode = "learned"
 
 
 class FusionParams(BaseModel):
@@ -38,7 +38,10 @@ class FusionParams(BaseModel):
         DEFAULT_MODE,
         description="'paper': eq. 6-7 with hard labels; 'soft': votes are summed class "
         "probabilities (one-hot when the network gave none); 'guarded' / 'soft_guarded': the "
-        "same with the impure-segment guard.",
+        "same with the impure-segment guard; 'evidence': a point follows its unit only where "
+        "the unit's evidence outweighs the network's confidence at the point; 'learned' "
+        "(default): a point takes its segment's label where the shipped vote model "
+        "(jointseg/fusion/vote_model.json) finds the change more likely right than wrong.",
     )
     ratio_threshold: float = Field(
         0.5,
@@ -79,6 +82,25 @@ class FusionParams(BaseModel):
         ge=0,
         description="Cell side (m) for splitting impure segments; 0 keeps their network "
         "labels instead.",
+    )
+    evidence_weight: float = Field(
+        0.4,
+        ge=0,
+        description="'evidence': w in log p_i(c) + w log q_U(c); how much the voting unit's "
+        "mean probabilities count against the point's own (0 keeps the network's labels).",
+    )
+    vote_cell_size: float = Field(
+        0.3,
+        ge=0,
+        description="'evidence': voting units are segments cut into cubic cells of this side "
+        "(m), so a vote stays local inside a large plane; 0 votes over whole segments.",
+    )
+    flip_threshold: float = Field(
+        0.5,
+        ge=0,
+        le=1,
+        description="'learned': a point takes its segment's label where the vote model's "
+        "probability that the change is right exceeds this (higher: fewer, safer changes).",
     )
     min_support: float = Field(
         0.03,

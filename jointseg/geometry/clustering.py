@@ -128,6 +128,8 @@ def region_grow_rgb(
     point_threshold: float | None,
     region_threshold: float | None,
     adaptive: float = 0.0,
+    normals: np.ndarray | None = None,
+    max_normal_deg: float = 90.0,
 ) -> np.ndarray:
     """Colour region growing inside each group (a main plane or a Euclidean cluster).
 
@@ -146,6 +148,10 @@ def region_grow_rgb(
         return compact(groups)
     colour = rgb.astype(np.float32)  # may already be smoothed
     close = np.linalg.norm(colour[src] - colour[dst], axis=1) < point_threshold
+    if normals is not None and max_normal_deg < 90:
+        # a crease (table top to leg, seat to back, lamp to ceiling) stops a region too
+        cos = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst]))
+        close &= cos > np.cos(np.radians(max_normal_deg))
     regions = components(graph.n, src[close], dst[close])
     if region_threshold is None:
         return regions

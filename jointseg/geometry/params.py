@@ -74,6 +74,14 @@ class GeometryParams(BaseModel):
         description="Least share of a further plane's footprint cells that "
         "hold points (inlier density).",
     )
+    plane_normal_deg: float = Field(
+        90.0,
+        gt=0,
+        le=90,
+        description="A main-plane point whose normal leans more than this (degrees) from its "
+        "plane's leaves the plane for the clustering (objects touching a plane are not of "
+        "it); 90 keeps every inlier, as the paper.",
+    )
     # -- Euclidean clustering (§2.2.2) -------------------------------------------------------
     cluster_distance: PositiveFloat | None = Field(
         None, description="d_th: Euclidean cluster tolerance. Default: 3 x spacing."
@@ -103,6 +111,17 @@ class GeometryParams(BaseModel):
         None,
         description="Neighbouring regions merge when their mean colours differ by less. "
         "Default: 4 x colour noise.",
+    )
+    colour_scale: PositiveFloat = Field(
+        1.0,
+        description="Multiplies the derived colour thresholds (below 1: more, purer regions).",
+    )
+    region_normal_deg: float = Field(
+        90.0,
+        gt=0,
+        le=90,
+        description="Neighbouring points whose normals differ by more (degrees) do not join "
+        "one region (a crease between two surfaces); 90 grows on colour alone, as the paper.",
     )
     min_region_points: PositiveInt | None = Field(
         None,
@@ -145,9 +164,9 @@ def resolve(
         plane_distance=params.plane_distance or max(2.5 * s, 0.015),
         cluster_distance=params.cluster_distance or 3 * s,
         point_colour_threshold=params.point_colour_threshold
-        or (None if noise is None else 2.5 * noise),
+        or (None if noise is None else 2.5 * params.colour_scale * noise),
         region_colour_threshold=params.region_colour_threshold
-        or (None if noise is None else 4 * noise),
+        or (None if noise is None else 4 * params.colour_scale * noise),
         min_region_points=params.min_region_points or max(30, n_points // 20_000),
     )
     return ResolvedGeometryParams(**values)

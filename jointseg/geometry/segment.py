@@ -196,6 +196,8 @@ def segment(
         for plane, idx in extra:
             plane_id[idx] = len(found)
             found.append((plane, idx))
+    if p.plane_normal_deg < 90:
+        plane_id = _release_off_plane(plane_id, found, normals, p.plane_normal_deg)
     lap("further_planes", 0.6)
 
     clusters = clustering.euclidean_clusters(
@@ -213,6 +215,8 @@ def segment(
         point_threshold=p.point_colour_threshold,
         region_threshold=p.region_colour_threshold,
         adaptive=p.adaptive_radius,
+        normals=normals,
+        max_normal_deg=p.region_normal_deg,
     )
     regions = clustering.merge_small_regions(
         graph, work, regions, groups, weights, min_points=p.min_region_points
@@ -244,6 +248,25 @@ def segment(
         params=p,
         timings=timings,
     )
+
+
+def _release_off_plane(
+    plane_id: np.ndarray,
+    found: list[tuple[planes.Plane, np.ndarray]],
+    normals: np.ndarray,
+    max_deg: float,
+) -> np.ndarray:
+    """Main-plane points whose own normal leans more than ``max_deg`` from their plane's leave
+    it: chair legs on the floor, lamps under the ceiling, frames and shelves on a wall are
+    near their plane but not of it, and go to the clustering instead."""
+    on = np.flatnonzero(plane_id >= 0)
+    if len(on) == 0:
+        return plane_id
+    plane_normals = np.array([plane.normal for plane, _ in found])
+    cos = np.abs(np.einsum("ij,ij->i", normals[on], plane_normals[plane_id[on]]))
+    out = plane_id.copy()
+    out[on[cos < np.cos(np.radians(max_deg))]] = -1
+    return out
 
 
 def _assign_planes(

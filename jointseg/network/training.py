@@ -1,7 +1,9 @@
-"""Training RandLA-Net on synthetic rooms or on S3DIS's own folder layout.
+"""Training RandLA-Net on synthetic rooms, S3DIS's own folder layout, a folder of labelled scans,
+or real scans mixed with synthetic rooms.
 
-Weighted cross-entropy, Adam with exponential decay, augmentation (rotation about z, scaling,
-jitter, colour jitter), validation mIoU per epoch, resumable checkpoints with a model card.
+Weighted cross-entropy, Adam with exponential decay, augmentation (rotation about z, mirror,
+anisotropic scaling, jitter, colour jitter and drop, point drop), class-balanced crop centres,
+validation mIoU per epoch, resumable checkpoints with a model card.
 """
 
 from __future__ import annotations
@@ -19,8 +21,20 @@ from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
-from jointseg.network.crops import GridCloud, build_batch, crop_indices, grid_subsample, pad_to
+from jointseg.network.crops import (
+    MIN_CROP,
+    GridCloud,
+    build_batch,
+    crop_indices,
+    grid_subsample,
+    pad_to,
+)
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.train_data import (
+    centre_weights,
+    load_folder,
+    mix_weights,
+)
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 
 log = logging.getLogger(__name__)
@@ -32,13 +46,28 @@ class TrainConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    data: str = Field("synth", description="'synth' or a Stanford3dDataset_v1.2 folder")
+    data: str = Field(
+        "synth",
+        description="'synth', a Stanford3dDataset_v1.2 folder, or a folder of labelled scans",
+    )
     out: Path
     test_area: int = Field(5, ge=1, le=6, description="S3DIS area held out for validation")
     synth_rooms: int = Field(40, ge=1, description="synthetic training rooms")
     synth_floors: int = Field(4, ge=0, description="synthetic training floors")
     synth_points: int = Field(300_000, ge=10_000, description="points per synthetic room")
     val_rooms: int = Field(4, ge=1, description="synthetic validation rooms")
+    val_scans: list[str] = Field(
+        default_factory=list,
+        description="folder data: file stems kept out of training for validation",
+    )
+    val_count: int = Field(
+        5, ge=1, description="folder data without val_scans: this many, in a name-hash order"
+    )
+    synth_share: float = Field(
+        0.0, ge=0, lt=1, description="folder/S3DIS data: share of crops from synthetic rooms"
+    )
+    balanced_crops: bool = Field(True, description="centre crops on rare classes more often")
+    init: Path | None = Field(None, description="start from these weights (fresh optimiser)")
     epochs: int = Field(20, ge=1)
     steps_per_epoch: int = Field(100, ge=1)
     batch_size: int = Field(2, ge=1)
@@ -48,6 +77,23 @@ class TrainConfig(BaseModel):
     seed: int = 0
     resume: Path | None = None
     threads: int | None = None
+    num_channels_scale: float = Field(
+        1.0, gt=0, le=1, description="scale RandLA-Net's channel widths (lighter network)"
+    )
+
+
+def _model_config(cfg: TrainConfig) -> RandLANetConfig:
+    """The official configuration, channel widths scaled by ``num_channels_scale``."""
+    base = RandLANetConfig(num_points=cfg.num_points)
+    if cfg.num_channels_scale == 1.0:
+        return base
+    scale = cfg.num_channels_scale
+    return base.model_copy(
+        update={
+            "d_stem": max(4, round(base.d_stem * scale)),
+            "d_out": tuple(max(8, round(d * scale)) for d in base.d_out),
+        }
+    )
 
 
 def class_weights(labels: list[np.ndarray]) -> torch.Tensor:
@@ -57,29 +103,60 @@ def class_weights(labels: list[np.ndarray]) -> torch.Tensor:
     return torch.tensor(1.0 / (freq + 0.02), dtype=torch.float32)
 
 
-def load_clouds(cfg: TrainConfig, grid: float) -> tuple[list[GridCloud], list[GridCloud], str]:
-    """Training and validation clouds, and a one-line description for the model card."""
-    if cfg.data == "synth":
-        from jointseg.synth import make_floor, make_room
+def _synthetic(cfg: TrainConfig, grid: float) -> tuple[list[GridCloud], list[GridCloud], str]:
+    from jointseg.synth import make_floor, make_room
 
-        train: list[GridCloud] = []
-        val: list[GridCloud] = []
-        for i in range(cfg.synth_rooms):
-            scan = make_room(1000 + i, points=cfg.synth_points, shape="L" if i % 3 == 2 else "box")
-            train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-        for i in range(cfg.synth_floors):
-            scan = make_floor(3000 + i, points=cfg.synth_points * 3)
-            train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-        for i in range(cfg.val_rooms):
-            scan = make_room(2000 + i, points=cfg.synth_points, shape="L" if i % 2 else "box")
-            val.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-        text = (
-            f"jointseg.synth: {cfg.synth_rooms} rooms (seeds 1000+, box and L, random yaw, "
-            f"{cfg.synth_points} points) and {cfg.synth_floors} floors (seeds 3000+); "
-            f"validation rooms seeds 2000+; no real scans"
+    train: list[GridCloud] = []
+    val: list[GridCloud] = []
+    for i in range(cfg.synth_rooms):
+        scan = make_room(1000 + i, points=cfg.synth_points, shape="L" if i % 3 == 2 else "box")
+        train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
+    for i in range(cfg.synth_floors):
+        scan = make_floor(3000 + i, points=cfg.synth_points * 3)
+        train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
+    for i in range(cfg.val_rooms):
+        scan = make_room(2000 + i, points=cfg.synth_points, shape="L" if i % 2 else "box")
+        val.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
+    text = (
+        f"jointseg.synth: {cfg.synth_rooms} rooms (seeds 1000+, box and L, random yaw, "
+        f"{cfg.synth_points} points) and {cfg.synth_floors} floors (seeds 3000+)"
+    )
+    return train, val, text
+
+
+def load_clouds(
+    cfg: TrainConfig, grid: float
+) -> tuple[list[GridCloud], np.ndarray, list[GridCloud], str]:
+    """Training clouds, their draw probabilities, validation clouds and a card description.
+
+    Validation is on real scans whenever there are any; synthetic rooms mixed into a real
+    source only train.
+    """
+    if cfg.data == "synth":
+        train, val, text = _synthetic(cfg, grid)
+        return (
+            train,
+            mix_weights(len(train), 0, 0.0),
+            val,
+            text + "; validation rooms seeds 2000+; no real scans",
         )
-        return train, val, text
-    return _load_s3dis(Path(cfg.data), cfg.test_area, grid)
+    root = Path(cfg.data)
+    if root.is_dir() and any(root.glob("Area_*/*/Annotations")):
+        train, val, text = _load_s3dis(root, cfg.test_area, grid)
+    else:
+        train, val, train_names, val_names = load_folder(
+            root, grid, val=cfg.val_scans, val_count=cfg.val_count
+        )
+        text = (
+            f"{len(train_names)} labelled scans from {root} ({', '.join(train_names)}); "
+            f"validation (never trained on): {', '.join(val_names)}"
+        )
+    n_real = len(train)
+    if cfg.synth_share > 0:
+        synth, _, synth_text = _synthetic(cfg, grid)
+        train += synth
+        text += f"; mixed with {synth_text} at {cfg.synth_share:.0%} of the crops"
+    return train, mix_weights(n_real, len(train) - n_real, cfg.synth_share), val, text
 
 
 def _load_s3dis(
@@ -105,21 +182,43 @@ def _load_s3dis(
 def augment(
     xyz: np.ndarray, rgb: np.ndarray, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation about z, scaling 0.9-1.1, 1 mm jitter, brightness and colour noise."""
+    """Rotation about z, a mirror half of the time, scaling 0.9-1.1 per axis, 1 mm jitter,
+    brightness, per-channel gain and colour noise; one crop in ten loses its colour (grey),
+    so a scan with poor colour does not throw the network."""
     theta = rng.uniform(0, 2 * np.pi)
     c, s = np.cos(theta), np.sin(theta)
     centre = xyz.mean(axis=0)
     rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32)
-    xyz = (xyz - centre) @ rot.T * rng.uniform(0.9, 1.1) + centre
+    scale = rng.uniform(0.9, 1.1, 3)
+    if rng.random() < 0.5:
+        scale[0] = -scale[0]
+    xyz = (xyz - centre) @ rot.T * scale.astype(np.float32) + centre
     xyz = xyz + rng.normal(0, 0.001, xyz.shape).astype(np.float32)
-    rgb = rgb * rng.uniform(0.8, 1.2) + rng.normal(0, 0.02, rgb.shape)
+    rgb = rgb * rng.uniform(0.8, 1.2) * rng.uniform(0.95, 1.05, 3) + rng.normal(0, 0.02, rgb.shape)
+    if rng.random() < 0.1:
+        rgb = np.repeat(rgb.mean(axis=1, keepdims=True), 3, axis=1)
     return xyz.astype(np.float32), np.clip(rgb, 0, 1).astype(np.float32)
 
 
-def random_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator, *, train: bool):
-    """A shuffled crop around a random point, augmented for training."""
-    idx = crop_indices(cloud, cloud.xyz[rng.integers(len(cloud.xyz))], num_points)
-    idx = rng.permutation(pad_to(idx, min(num_points, max(len(idx), 1024)), rng))
+def random_crop(
+    cloud: GridCloud,
+    num_points: int,
+    rng: np.random.Generator,
+    *,
+    train: bool,
+    centre_p: np.ndarray | None = None,
+):
+    """A shuffled crop around a random point (drawn with ``centre_p`` when given), augmented
+    for training, where up to a tenth of its points are also dropped (then re-padded)."""
+    centre = (
+        rng.choice(len(cloud.xyz), p=centre_p)
+        if centre_p is not None
+        else rng.integers(len(cloud.xyz))
+    )
+    idx = crop_indices(cloud, cloud.xyz[centre], num_points)
+    if train and len(idx) > MIN_CROP:
+        idx = idx[rng.random(len(idx)) >= rng.uniform(0, 0.1)]
+    idx = rng.permutation(pad_to(idx, min(num_points, max(len(idx), MIN_CROP)), rng))
     xyz, rgb = cloud.xyz[idx], cloud.rgb[idx]
     if train:
         xyz, rgb = augment(xyz, rgb, rng)
@@ -128,13 +227,13 @@ def random_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator, *, 
 
 
 def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> float | None:
-    """mIoU on a few deterministic crops of each validation cloud."""
+    """mIoU on deterministic crops of each validation cloud (about twice its points)."""
     rng = np.random.default_rng(12345)
     gts, preds = [], []
     model.eval()
     with torch.no_grad():
         for cloud in clouds:
-            for _ in range(2):
+            for _ in range(max(2, int(np.ceil(2 * len(cloud.xyz) / cfg.num_points)))):
                 xyz, rgb, lab, idx = random_crop(cloud, cfg.num_points, rng, train=False)
                 batch = build_batch([(xyz, rgb, lab, idx)], model.config)
                 logits = model(
@@ -168,8 +267,10 @@ def train(
         # weights from the epoch its card records, with a fresh optimiser.
         start_epoch = int(body.get("epoch", card.get("epochs", 0)))
         history = list(card.get("history", []))
+    elif cfg.init is not None:
+        model, _, _ = load_checkpoint(cfg.init)
     else:
-        model = RandLANet(RandLANetConfig(num_points=cfg.num_points))
+        model = RandLANet(_model_config(cfg))
     model_cfg = model.config
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
@@ -177,8 +278,16 @@ def train(
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
     report(progress, STAGE, 0.0)
-    train_clouds, val_clouds, data_text = load_clouds(cfg, model_cfg.grid_size)
+    train_clouds, draw_p, val_clouds, data_text = load_clouds(cfg, model_cfg.grid_size)
+    if cfg.init is not None:
+        data_text += f"; started from {cfg.init.name}"
     weights = class_weights([c.labels for c in train_clouds if c.labels is not None])
+    centre_p = [
+        centre_weights(c.labels, weights.numpy())
+        if cfg.balanced_crops and c.labels is not None
+        else None
+        for c in train_clouds
+    ]
     loss_fn = torch.nn.CrossEntropyLoss(weight=weights, ignore_index=-1)
     model.train()
     total_steps = cfg.epochs * cfg.steps_per_epoch
@@ -186,11 +295,10 @@ def train(
         started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
+            picks = rng.choice(len(train_clouds), size=cfg.batch_size, p=draw_p)
             crops = [
-                random_crop(
-                    train_clouds[rng.integers(len(train_clouds))], cfg.num_points, rng, train=True
-                )
-                for _ in range(cfg.batch_size)
+                random_crop(train_clouds[k], cfg.num_points, rng, train=True, centre_p=centre_p[k])
+                for k in picks
             ]
             size = min(len(c[0]) for c in crops)
             crops = [(x[:size], r[:size], lab[:size], i[:size]) for x, r, lab, i in crops]

@@ -37,24 +37,13 @@ def small_room():
     return make_room(1, points=30_000)
 
 
-#: Real scans and published weights shared between checkouts (never copied into the repository).
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
-
-
-def _shared_file(relative: str) -> Path:
-    path = SHARED / relative
-    if not path.is_file():
-        pytest.skip(f"{path} is not present")
-    return path
-
-
 @pytest.fixture(scope="session")
-def s3dis_fragment() -> Path:
+def s3dis_fragment(shared_file) -> Path:
     """The real labelled S3DIS fragment; skips when ../shared is absent."""
-    return _shared_file("data/s3dis_fragment.ply")
+    return shared_file("data/s3dis_fragment.ply")
 
 
 @pytest.fixture(scope="session")
-def dgcnn_model_1() -> Path:
+def dgcnn_model_1(shared_file) -> Path:
     """dgcnn.pytorch's S3DIS weights with Area 1 held out; skips when ../shared is absent."""
-    return _shared_file("models/dgcnn_s3dis/model_1.t7")
+    return shared_file("models/dgcnn_s3dis/model_1.t7")

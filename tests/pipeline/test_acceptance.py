@@ -22,7 +22,7 @@ def test_default_fusion_gains_on_held_out_rooms_and_never_loses() -> None:
     predictor = load_predictor(config.network)
     gains = []
     for seed, shape in ((5000, "box"), (5001, "L")):
-        scan = make_room(seed, points=60_000, shape=shape)
+        scan = make_room(seed, points=100_000, shape=shape)
         metrics = run(scan, config, predictor=predictor).metrics
         assert metrics is not None
         network, fused = metrics["network"].miou, metrics["fused"].miou

@@ -1,0 +1,50 @@
+"""Fusion time per variant on one synthetic room, against the paper's rule in the same process.
+
+The network is a stand-in (ground truth with patchy label noise and probabilities,
+jointseg.synth.label_noise); the segments are the real geometry's. Prints seconds per variant
+(best of --repeat), seconds per million points and the ratio to `paper`.
+
+    .venv/bin/python bench/fusion_speed.py [--points 1000000] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+
+import numpy as np
+
+from jointseg.fusion import fuse
+from jointseg.fusion.variants import VARIANTS
+from jointseg.geometry import segment
+from jointseg.synth import make_room
+from jointseg.synth.label_noise import corrupt_labels
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--points", type=int, default=1_000_000)
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    scan = make_room(0, points=args.points)
+    segments = segment(scan, seed=0).segments
+    labels, probs = corrupt_labels(scan.xyz, scan.labels, rng=np.random.default_rng(0))
+    print(f"# fusion speed, {len(scan):,} points, {segments.max() + 1} segments\n")
+    print("| variant | seconds | s per 1 M points | x paper |")
+    print("|---|---|---|---|")
+    base = None
+    for name, params in VARIANTS.items():
+        best = np.inf
+        for _ in range(args.repeat):
+            t = time.perf_counter()
+            fuse(scan.xyz, segments, labels, probs, params)
+            best = min(best, time.perf_counter() - t)
+        base = base or best
+        per_m = best / len(scan) * 1e6
+        print(f"| {name} | {best:.3f} | {per_m:.3f} | {best / base:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
