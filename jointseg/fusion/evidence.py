@@ -39,9 +39,9 @@ def point_probs(labels: np.ndarray, probs: np.ndarray | None) -> np.ndarray:
 
 def unit_means(unit: np.ndarray, n_units: int, probs: np.ndarray) -> np.ndarray:
     """Mean probability per voting unit, shape (n_units, C)."""
-    sums = np.column_stack(
-        [np.bincount(unit, weights=probs[:, c], minlength=n_units) for c in range(probs.shape[1])]
-    )
+    from jointseg.fusion.learned import segment_label_sums
+
+    sums = segment_label_sums(unit, n_units, probs)
     counts = np.bincount(unit, minlength=n_units)
     return sums / np.maximum(counts, 1)[:, None]
 
