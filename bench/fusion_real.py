@@ -191,7 +191,9 @@ def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: di
         cm_net=confusion_matrix(gt, labels),
     )
     for v in variants:
-        result = fuse(item.scan.xyz, segs, labels, probs, VARIANTS[v])
+        result = fuse(
+            item.scan.xyz, segs, labels, probs, VARIANTS[v], main_plane=g["plane_id"] >= 0
+        )
         row.fused[v] = evaluate(gt, result.labels).miou or 0.0
         row.cm_fused[v] = confusion_matrix(gt, result.labels)
     return row

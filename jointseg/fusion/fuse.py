@@ -78,6 +78,7 @@ def fuse(
     params: FusionParams | None = None,
     *,
     network_xyz: np.ndarray | None = None,
+    main_plane: np.ndarray | None = None,
 ) -> FusionResult:
     """Combine network labels with geometric segments (eq. 6-7 and the modes beyond them).
 
@@ -96,6 +97,9 @@ def fuse(
     network_xyz : ndarray of shape (M, 3), metres, optional
         The points the network labelled when they are not ``xyz`` (e.g. a sub-sample); labels
         reach ``xyz`` through a K-nearest-neighbour majority (``params.neighbours``).
+    main_plane : ndarray of shape (N,), bool, optional
+        Points on the geometry's main planes (``GeometryResult.main_plane``): the learned vote
+        weighs an offer from a wall or floor plane differently from one from an object.
 
     Returns
     -------
@@ -112,6 +116,10 @@ def fuse(
         xyz, segments, network_labels, network_probs, network_xyz, params
     )
     n = len(xyz)
+    if main_plane is not None:
+        main_plane = np.asarray(main_plane, dtype=bool)
+        if main_plane.shape != (n,):
+            raise ConfigError(f"main_plane must have shape ({n},) like xyz, got {main_plane.shape}")
     timings: dict[str, float] = {}
     t = time.perf_counter()
     if network_xyz is not None:
@@ -132,7 +140,7 @@ def fuse(
         timings["vote"] = time.perf_counter() - t
     elif params.mode == "learned":
         fused, confidence, seg_votes, split, kept_units, replace = _learned_vote(
-            seg, n_seg, labels, probs, params
+            xyz, seg, n_seg, labels, probs, params, main_plane
         )
         timings["vote"] = time.perf_counter() - t
     else:
@@ -187,15 +195,26 @@ def _evidence_vote(
 
 
 def _learned_vote(
+    xyz: np.ndarray,
     seg: np.ndarray,
     n_seg: int,
     labels: np.ndarray,
     probs: np.ndarray | None,
     params: FusionParams,
+    main_plane: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The 'learned' mode (see :mod:`jointseg.fusion.learned`) over whole segments."""
+    """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment and cell offers."""
     p = evidence.point_probs(labels, probs)
-    fused, _ = learned.learned_labels(seg, n_seg, labels, p, threshold=params.flip_threshold)
+    fused, _ = learned.learned_labels(
+        xyz,
+        seg,
+        n_seg,
+        labels,
+        p,
+        threshold=params.flip_threshold,
+        min_support=params.min_support if probs is not None else 0.0,
+        main_plane=main_plane,
+    )
     seg_votes = learned.segment_label_sums(seg, n_seg, p)
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

@@ -1,42 +1,66 @@
-"""The learned vote (beyond the paper): a point takes its segment's majority label only where a
+"""The learned vote (beyond the paper): a point takes a label its segment offers only where a
 small model, fitted on labelled rooms, says the change is more likely right than wrong.
 
 A strong network on real scans is mostly right, and real segments mix objects (a board inside
 its wall plane, clutter on a table), so eq. 7 overwrites correct minority labels; a weak network
-on clean segments is the opposite case. Which case a point is in shows in a few numbers the
-vote already has: the network's probability of its own label and of the segment's label at the
-point, the segment's soft and hard shares of both, its size and mean entropy. A gradient-boosted
+on clean segments is the opposite case. Which case a point is in shows in numbers the vote
+already has. Every point is offered up to two labels: its segment's soft-majority label and, where
+that differs, the soft-majority label of its *cell* (the part of its segment inside the same
+cubic cell of ``cell_size`` metres), so a board inside a wall plane can keep its board label
+while specks of wrong labels around it still follow their neighbours. For each offer the model
+sees the network's probability of both labels at the point, the shares of both labels in the
+segment and in the cell, the segment's size, entropy and main-plane share, whether either label
+is a structural class (ceiling, floor, wall), and which level made the offer. A gradient-boosted
 tree ensemble over these (``vote_model.json``, fitted by ``bench/fit_vote.py`` on real tuning
-rooms and synthetic rooms together, never on the judging rooms) decides per point. The model is
-plain JSON evaluated with numpy: no learning library is needed at run time.
+rooms and synthetic rooms together, never on the judging rooms) gives P(the offer is right);
+a point takes its most probable offer above the threshold. The model is plain JSON evaluated
+with numpy: no learning library is needed at run time.
 """
 
 from __future__ import annotations
 
 import json
 from dataclasses import dataclass
-from functools import cache
+from functools import cache, cached_property
 from pathlib import Path
 
 import numpy as np
 
+from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
+from jointseg.fusion.guard import segment_cells
 
 #: The model shipped with the library.
 MODEL_PATH = Path(__file__).with_name("vote_model.json")
 #: Names of the features, in the order the model expects them.
 FEATURES = (
     "logit p(own)",
-    "logit p(segment label)",
-    "logit segment soft share of its label",
-    "logit segment soft share of own label",
-    "logit segment hard share of its label",
+    "logit p(offer)",
+    "logit segment soft share of offer",
+    "logit segment soft share of own",
+    "logit segment hard share of offer",
     "log10 segment share of the scan",
     "segment mean entropy",
     "point entropy",
+    "logit cell soft share of offer",
+    "logit cell soft share of own",
+    "log10 cell share of its segment",
+    "segment main-plane share",
+    "own label is structural",
+    "offer is structural",
+    "offer is the segment's label",
+    "scan mean entropy",
 )
 #: Probabilities are clipped to [EPS, 1 - EPS] before the logit.
 EPS = 1e-4
+#: Classes that are the room's shell: a label moving between them and an object class is the
+#: vote's riskiest change (a board in its wall plane), so the model sees it.
+STRUCTURAL = np.zeros(NUM_CLASSES, dtype=bool)
+STRUCTURAL[[CLASS_INDEX["ceiling"], CLASS_INDEX["floor"], CLASS_INDEX["wall"]]] = True
+#: Trees with at most this many split nodes are evaluated through a lookup table.
+MAX_TABLE_BITS = 12
+#: Cell side (m) the shipped model was fitted with, when its file names none.
+DEFAULT_CELL_SIZE = 0.3
 
 
 def _logit(x: np.ndarray) -> np.ndarray:
@@ -51,14 +75,49 @@ def segment_label_sums(seg: np.ndarray, n_seg: int, weights: np.ndarray) -> np.n
     )
 
 
-def vote_features(
-    seg: np.ndarray, n_seg: int, labels: np.ndarray, probs: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The segment's soft-majority label of every point and the features of the points where it
-    differs from the network's label.
+@dataclass(frozen=True)
+class Offers:
+    """The labels a vote offers points that the network labelled otherwise.
+
+    Attributes
+    ----------
+    point : ndarray of shape (M,), int64
+        Index of the point each offer is made to (a point gets at most two).
+    label : ndarray of shape (M,), int64
+        The offered label (never the point's network label).
+    features : ndarray of shape (M, len(FEATURES)), float64
+    segment_label : ndarray of shape (N,), int64
+        The segment's soft-majority label at every point.
+    """
+
+    point: np.ndarray
+    label: np.ndarray
+    features: np.ndarray
+    segment_label: np.ndarray
+
+
+def _shares(unit: np.ndarray, n_units: int, probs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points per unit and each unit's mean probabilities (soft shares), (U,) and (U, C)."""
+    size = np.bincount(unit, minlength=n_units).astype(np.float64)
+    soft = segment_label_sums(unit, n_units, probs) / np.maximum(size, 1)[:, None]
+    return size, soft
+
+
+def vote_offers(
+    xyz: np.ndarray,
+    seg: np.ndarray,
+    n_seg: int,
+    labels: np.ndarray,
+    probs: np.ndarray,
+    *,
+    cell_size: float = DEFAULT_CELL_SIZE,
+    main_plane: np.ndarray | None = None,
+) -> Offers:
+    """Every offer of a segment or cell label to a point whose network label differs.
 
     Parameters
     ----------
+    xyz : ndarray of shape (N, 3), metres
     seg : ndarray of shape (N,), int
         Segment 0..n_seg-1 of every point.
     n_seg : int
@@ -66,41 +125,63 @@ def vote_features(
         The network's labels.
     probs : ndarray of shape (N, C)
         The network's probabilities (rows sum to 1).
+    cell_size : float
+        Side (m) of the cubic cells that cut segments into local voting units.
+    main_plane : ndarray of shape (N,), bool, optional
+        Points on the geometry's main planes (walls, floor, ceiling); none when not given.
 
     Returns
     -------
-    candidate : ndarray of shape (N,), int64
-        The segment's label (largest summed probability) at every point.
-    open_ : ndarray of shape (M,), int64
-        Indices of the points whose label differs from ``candidate``.
-    features : ndarray of shape (M, len(FEATURES)), float64
+    Offers
     """
     n, n_classes = probs.shape
-    size = np.bincount(seg, minlength=n_seg).astype(np.float64)
-    per = np.maximum(size, 1)[:, None]
-    soft = segment_label_sums(seg, n_seg, probs) / per
-    hard = (
+    labels = np.asarray(labels, dtype=np.int64)
+    if n == 0:
+        none = np.zeros(0, dtype=np.int64)
+        return Offers(none, none, np.zeros((0, len(FEATURES))), none)
+    seg_size, seg_soft = _shares(seg, n_seg, probs)
+    seg_hard = (
         np.bincount(seg * n_classes + labels, minlength=n_seg * n_classes).reshape(n_seg, n_classes)
-        / per
+        / np.maximum(seg_size, 1)[:, None]
     )
-    candidate = soft.argmax(axis=1)[seg]
+    cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
+    cell_size_pts, cell_soft = _shares(cell, n_cells, probs)
     entropy = -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)
-    mean_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(size, 1)
-    open_ = np.flatnonzero(candidate != labels)
-    s, own, cand = seg[open_], labels[open_], candidate[open_]
+    seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
+    plane_share = (
+        np.zeros(n_seg)
+        if main_plane is None
+        else np.bincount(seg, weights=main_plane.astype(np.float64), minlength=n_seg)
+        / np.maximum(seg_size, 1)
+    )
+    seg_label = seg_soft.argmax(axis=1)[seg]
+    cell_label = cell_soft.argmax(axis=1)[cell]
+    by_segment = np.flatnonzero(seg_label != labels)
+    by_cell = np.flatnonzero((cell_label != labels) & (cell_label != seg_label))
+    point = np.concatenate([by_segment, by_cell])
+    offer = np.concatenate([seg_label[by_segment], cell_label[by_cell]])
+    s, c, own = seg[point], cell[point], labels[point]
     features = np.column_stack(
         [
-            _logit(probs[open_, own]),
-            _logit(probs[open_, cand]),
-            _logit(soft[s, cand]),
-            _logit(soft[s, own]),
-            _logit(hard[s, cand]),
-            np.log10(size[s] / max(n, 1)),
-            mean_entropy[s],
-            entropy[open_],
+            _logit(probs[point, own]),
+            _logit(probs[point, offer]),
+            _logit(seg_soft[s, offer]),
+            _logit(seg_soft[s, own]),
+            _logit(seg_hard[s, offer]),
+            np.log10(seg_size[s] / max(n, 1)),
+            seg_entropy[s],
+            entropy[point],
+            _logit(cell_soft[c, offer]),
+            _logit(cell_soft[c, own]),
+            np.log10(cell_size_pts[c] / np.maximum(seg_size[s], 1)),
+            plane_share[s],
+            STRUCTURAL[own],
+            STRUCTURAL[offer],
+            np.arange(len(point)) < len(by_segment),
+            np.full(len(point), entropy.mean()),
         ]
-    )
-    return candidate.astype(np.int64), open_, features
+    ).astype(np.float64)
+    return Offers(point, offer, features, seg_label.astype(np.int64))
 
 
 @dataclass(frozen=True)
@@ -119,6 +200,7 @@ class TreeEnsemble:
     value: list[np.ndarray]
     leaf: list[np.ndarray]
     card: dict
+    cell_size: float = DEFAULT_CELL_SIZE
 
     @classmethod
     def from_json(cls, path: Path) -> TreeEnsemble:
@@ -137,26 +219,67 @@ class TreeEnsemble:
                 value=[np.asarray(t["value"], np.float64) for t in trees],
                 leaf=[np.asarray(t["leaf"], bool) for t in trees],
                 card=dict(body.get("card", {})),
+                cell_size=float(body.get("cell_size", DEFAULT_CELL_SIZE)),
             )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"vote model {path}: {exc}") from exc
 
     def probability(self, x: np.ndarray) -> np.ndarray:
         """P(the change is right) for every row of ``x`` (M, F)."""
+        columns = np.ascontiguousarray(np.asarray(x, dtype=np.float64).T)
         raw = np.full(len(x), self.base)
-        rows = np.arange(len(x))
-        for feat, thr, left, right, value, leaf in zip(
-            self.feature, self.threshold, self.left, self.right, self.value, self.leaf, strict=True
-        ):
-            node = np.zeros(len(x), dtype=np.int64)
-            while True:
-                inner = ~leaf[node]
-                if not inner.any():
-                    break
-                go_left = x[rows, feat[node]] <= thr[node]
-                node = np.where(inner, np.where(go_left, left[node], right[node]), node)
-            raw += value[node]
+        for t in range(len(self.feature)):
+            raw += self._tree_values(t, columns)
         return 1.0 / (1.0 + np.exp(-raw))
+
+    def _tree_values(self, t: int, columns: np.ndarray) -> np.ndarray:
+        """Leaf value of tree ``t`` for every row. A shallow tree (the shipped ones) is read as
+        one integer per row whose bits are its split tests, looked up in a table of leaf values:
+        a few contiguous comparisons instead of a gather per level."""
+        inner, table = self._tables[t]
+        if table is None:
+            return self._walk(t, columns)
+        code = np.zeros(columns.shape[1], dtype=np.int64)
+        for bit, node in enumerate(inner):
+            goes_left = columns[self.feature[t][node]] <= self.threshold[t][node]
+            code |= goes_left.astype(np.int64) << bit
+        return table[code]
+
+    @cached_property
+    def _tables(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Per tree: its split nodes and, for a shallow tree, its leaf-value table."""
+        out: list[tuple[np.ndarray, np.ndarray | None]] = []
+        for t in range(len(self.feature)):
+            inner = np.flatnonzero(~self.leaf[t])
+            out.append((inner, self._table(t, inner) if len(inner) <= MAX_TABLE_BITS else None))
+        return out
+
+    def _table(self, t: int, inner: np.ndarray) -> np.ndarray:
+        """Leaf value for every combination of the tree's split outcomes (bit i: node inner[i]
+        sends the row left)."""
+        bit_of = {int(node): i for i, node in enumerate(inner)}
+        table = np.empty(1 << len(inner))
+        for code in range(len(table)):
+            node = 0
+            while not self.leaf[t][node]:
+                left = (code >> bit_of[node]) & 1
+                node = int(self.left[t][node] if left else self.right[t][node])
+            table[code] = self.value[t][node]
+        return table
+
+    def _walk(self, t: int, columns: np.ndarray) -> np.ndarray:
+        """Leaf value of a deep tree: index subsets sent down its nodes."""
+        out = np.empty(columns.shape[1])
+        stack = [(0, np.arange(columns.shape[1]))]
+        while stack:
+            node, idx = stack.pop()
+            if self.leaf[t][node]:
+                out[idx] = self.value[t][node]
+                continue
+            go_left = columns[self.feature[t][node]][idx] <= self.threshold[t][node]
+            stack.append((int(self.left[t][node]), idx[go_left]))
+            stack.append((int(self.right[t][node]), idx[~go_left]))
+        return out
 
 
 @cache
@@ -166,26 +289,41 @@ def shipped_model() -> TreeEnsemble:
 
 
 def learned_labels(
+    xyz: np.ndarray,
     seg: np.ndarray,
     n_seg: int,
     labels: np.ndarray,
     probs: np.ndarray,
     *,
     threshold: float,
+    min_support: float = 0.0,
+    main_plane: np.ndarray | None = None,
     model: TreeEnsemble | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fused labels: the segment's label where the model's P(right) exceeds ``threshold``.
+    """Fused labels: each point's most probable offer where the model's P(right) exceeds
+    ``threshold``, else the network's label. An offer of a class the network gave the point
+    less than ``min_support`` probability is never taken.
 
     Returns
     -------
     labels : ndarray of shape (N,), int64
-    candidate : ndarray of shape (N,), int64
-        The segment label every point was offered.
+    segment_label : ndarray of shape (N,), int64
+        The segment's soft-majority label at every point.
     """
     model = model or shipped_model()
-    candidate, open_, features = vote_features(seg, n_seg, labels, probs)
+    offers = vote_offers(
+        xyz, seg, n_seg, labels, probs, cell_size=model.cell_size, main_plane=main_plane
+    )
     fused = np.asarray(labels, dtype=np.int64).copy()
-    if len(open_):
-        take = model.probability(features) > threshold
-        fused[open_[take]] = candidate[open_[take]]
-    return fused, candidate
+    if len(offers.point):
+        supported = np.flatnonzero(probs[offers.point, offers.label] >= min_support)
+        p = np.zeros(len(offers.point))
+        p[supported] = model.probability(offers.features[supported])
+        take = np.flatnonzero(p > threshold)
+        # a point with two accepted offers takes the more probable one
+        order = take[np.lexsort((-p[take], offers.point[take]))]
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = offers.point[order][1:] != offers.point[order][:-1]
+        best = order[first]
+        fused[offers.point[best]] = offers.label[best]
+    return fused, offers.segment_label

@@ -40,8 +40,8 @@ class FusionParams(BaseModel):
         "probabilities (one-hot when the network gave none); 'guarded' / 'soft_guarded': the "
         "same with the impure-segment guard; 'evidence': a point follows its unit only where "
         "the unit's evidence outweighs the network's confidence at the point; 'learned' "
-        "(default): a point takes its segment's label where the shipped vote model "
-        "(jointseg/fusion/vote_model.json) finds the change more likely right than wrong.",
+        "(default): a point takes the label its segment or cell offers where the shipped vote "
+        "model (jointseg/fusion/vote_model.json) finds the change more likely right than wrong.",
     )
     ratio_threshold: float = Field(
         0.5,
@@ -99,8 +99,9 @@ class FusionParams(BaseModel):
         0.5,
         ge=0,
         le=1,
-        description="'learned': a point takes its segment's label where the vote model's "
-        "probability that the change is right exceeds this (higher: fewer, safer changes).",
+        description="'learned': a point takes the label its segment or cell offers where the "
+        "vote model's probability that the change is right exceeds this (higher: fewer, safer "
+        "changes).",
     )
     min_support: float = Field(
         0.03,

@@ -182,7 +182,9 @@ def run(
 
     t = time.perf_counter()
     check_cancel(cancel)
-    fused = fuse(scan.xyz, geo.segments, net.labels, net.probs, config.fusion)
+    fused = fuse(
+        scan.xyz, geo.segments, net.labels, net.probs, config.fusion, main_plane=geo.main_plane
+    )
     report(serialised, "fusion", 1.0)
     timings["fusion"] = time.perf_counter() - t
 

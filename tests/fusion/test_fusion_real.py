@@ -22,9 +22,10 @@ def model_6(shared_file):
 def test_default_fusion_never_loses_where_the_majority_vote_does(shared_file, model_6, room):
     scan = read_scan(shared_file(f"data/s3dis_area6/{room}.ply"))
     net = model_6.predict(scan, seed=0)
-    segments = segment(scan, seed=0).segments
+    geo = segment(scan, seed=0)
+    segments = geo.segments
     network = evaluate(scan.labels, net.labels).miou
-    default = fuse(scan.xyz, segments, net.labels, net.probs).labels
+    default = fuse(scan.xyz, segments, net.labels, net.probs, main_plane=geo.main_plane).labels
     paper = fuse(scan.xyz, segments, net.labels, net.probs, FusionParams(mode="paper")).labels
     fused, majority = evaluate(scan.labels, default).miou, evaluate(scan.labels, paper).miou
     assert network is not None and fused is not None and majority is not None

@@ -17,7 +17,7 @@ from jointseg.fusion.learned import (
     MODEL_PATH,
     TreeEnsemble,
     shipped_model,
-    vote_features,
+    vote_offers,
 )
 from jointseg.network.train_data import stable_order
 from tests.fusion.test_evidence import probs_for
@@ -62,40 +62,86 @@ def test_a_broken_model_file_is_a_config_error(tmp_path, body, message) -> None:
         TreeEnsemble.from_json(path)
 
 
-def test_features_are_computed_only_where_the_segment_disagrees() -> None:
+def line(n: int, step: float = 0.01) -> np.ndarray:
+    return np.column_stack([np.arange(n) * step, np.zeros(n), np.zeros(n)])
+
+
+def test_offers_are_made_only_where_the_segment_or_the_cell_disagrees() -> None:
     probs = probs_for([{2: 0.9}] * 8 + [{5: 0.6, 2: 0.3}] * 2)
     labels = probs.argmax(axis=1)
     seg = np.zeros(10, dtype=np.int64)
-    candidate, open_, x = vote_features(seg, 1, labels, probs)
-    assert (candidate == 2).all()
-    assert open_.tolist() == [8, 9]
-    assert x.shape == (2, len(FEATURES))
-    # p(own) > p(segment label) at the open points; hard share of the segment label 0.8
-    assert (x[:, 0] > x[:, 1]).all()
-    np.testing.assert_allclose(x[:, 4], np.log(0.8 / 0.2))
+    offers = vote_offers(line(10), seg, 1, labels, probs)
+    assert (offers.segment_label == 2).all()
+    assert offers.point.tolist() == [8, 9]
+    assert (offers.label == 2).all()
+    assert offers.features.shape == (2, len(FEATURES))
+    # p(own) > p(offer) at the open points; hard share of the segment label 0.8
+    assert (offers.features[:, 0] > offers.features[:, 1]).all()
+    np.testing.assert_allclose(offers.features[:, 4], np.log(0.8 / 0.2))
+    assert (offers.features[:, FEATURES.index("offer is the segment's label")] == 1).all()
 
 
-def wall_with(extra: list[dict[int, float]], walls: int = 200) -> tuple[np.ndarray, ...]:
-    probs = probs_for([{2: 0.9, 5: 0.05}] * walls + extra)
-    xyz = np.column_stack(
-        [np.arange(len(probs)) * 0.01, np.zeros(len(probs)), np.zeros(len(probs))]
-    )
-    return xyz, probs, probs.argmax(axis=1)
+def test_a_cell_offers_its_own_label_where_it_differs_from_the_segment() -> None:
+    # a 2 m wall (class 2) whose last 0.3 m cell is mostly window (5), with one wall speck there
+    probs = probs_for([{2: 0.9}] * 170 + [{5: 0.9}] * 25 + [{2: 0.6, 5: 0.3}] + [{5: 0.9}] * 4)
+    labels = probs.argmax(axis=1)
+    offers = vote_offers(line(200), np.zeros(200, np.int64), 1, labels, probs, cell_size=0.3)
+    by_cell = offers.features[:, FEATURES.index("offer is the segment's label")] == 0
+    # the window points are offered the segment's wall; the speck is offered its cell's window
+    assert set(offers.point[~by_cell].tolist()) == set(range(170, 195)) | {196, 197, 198, 199}
+    assert offers.point[by_cell].tolist() == [195]
+    assert offers.label[by_cell].tolist() == [5]
+    i = FEATURES.index("logit cell soft share of offer")
+    assert offers.features[by_cell, i][0] > 0  # the cell is mostly window
 
 
-def test_an_unsure_point_follows_a_confident_segment() -> None:
-    xyz, probs, labels = wall_with([{5: 0.45, 2: 0.4}] * 3)
-    result = fuse(xyz, np.zeros(len(xyz), int), labels, probs, LEARNED)
-    assert (labels[-3:] == 5).all()
-    assert (result.labels == 2).all()
+def test_main_plane_share_reaches_the_features() -> None:
+    probs = probs_for([{2: 0.9}] * 8 + [{5: 0.6, 2: 0.3}] * 2)
+    labels = probs.argmax(axis=1)
+    plane = np.r_[np.ones(6, bool), np.zeros(4, bool)]
+    offers = vote_offers(line(10), np.zeros(10, np.int64), 1, labels, probs, main_plane=plane)
+    np.testing.assert_allclose(offers.features[:, FEATURES.index("segment main-plane share")], 0.6)
+    assert (offers.features[:, FEATURES.index("own label is structural")] == 0).all()
+    assert (offers.features[:, FEATURES.index("offer is structural")] == 1).all()
+
+
+def test_main_plane_of_the_wrong_shape_is_a_config_error() -> None:
+    probs = probs_for([{2: 0.9}] * 10)
+    with pytest.raises(ConfigError, match="main_plane"):
+        fuse(line(10), np.zeros(10, int), probs.argmax(1), probs, main_plane=np.zeros(3, bool))
+
+
+def scene(first: list[dict[int, float]]) -> tuple[np.ndarray, ...]:
+    """Points on a line 1 cm apart: segment 0 is ``first``, then nine 200-point ceiling
+    segments, so segment 0 is a tenth of the scan as an object in a room is. Probabilities are
+    as soft as a real network's (DGCNN on S3DIS gives its own label about 0.4-0.6)."""
+    probs = probs_for(first + [{0: 0.6}] * 1800)
+    seg = np.r_[np.zeros(len(first), np.int64), 1 + np.arange(1800) // 200]
+    return line(len(probs)), seg, probs, probs.argmax(axis=1)
+
+
+def test_unsure_specks_follow_a_confident_segment() -> None:
+    rows = [{7: 0.6, 8: 0.05}] * 200
+    for i in (50, 100, 150):
+        rows[i] = {8: 0.35, 7: 0.3}  # chair specks on a table
+    xyz, seg, probs, labels = scene(rows)
+    result = fuse(xyz, seg, labels, probs, LEARNED)
+    assert (labels[[50, 100, 150]] == 8).all()
+    assert (result.labels[:200] == 7).all()
+    # with the specks as sure of themselves as the table is of itself, they stay
+    for i in (50, 100, 150):
+        rows[i] = {8: 0.97, 7: 0.01}
+    xyz, seg, probs, labels = scene(rows)
+    assert (fuse(xyz, seg, labels, probs, LEARNED).labels[[50, 100, 150]] == 8).all()
 
 
 def test_a_confident_object_inside_a_plane_keeps_its_label() -> None:
-    # a board the network is sure of (0.97), a fifth of its wall segment
-    xyz, probs, labels = wall_with([{11: 0.97, 2: 0.02}] * 50)
-    result = fuse(xyz, np.zeros(len(xyz), int), labels, probs, LEARNED)
-    assert (result.labels[-50:] == 11).all()
-    assert (result.labels[:-50] == 2).all()
+    # a board the network is sure of (0.97), a fifth of its wall segment, in one piece
+    xyz, seg, probs, labels = scene([{2: 0.6, 11: 0.05}] * 200 + [{11: 0.97, 2: 0.02}] * 50)
+    plane = seg == 0
+    result = fuse(xyz, seg, labels, probs, LEARNED, main_plane=plane)
+    assert (result.labels[200:250] == 11).all()
+    assert (result.labels[:200] == 2).all()
 
 
 def test_the_shipped_model_never_saw_a_judging_room(shared_file) -> None:
