@@ -31,7 +31,14 @@ from pathlib import Path
 import numpy as np
 from sklearn.ensemble import HistGradientBoostingClassifier
 
-from jointseg.fusion.learned import DEFAULT_CELL_SIZE, FEATURES, MODEL_PATH, Offers, vote_offers
+from jointseg.fusion.learned import (
+    DEFAULT_CELL_SIZE,
+    FEATURES,
+    MODEL_PATH,
+    Offers,
+    best_offers,
+    vote_offers,
+)
 from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
 from jointseg.synth import make_floor, make_room
@@ -98,10 +105,7 @@ def load_room(item: fr.Item, spec: str, predictors: dict, min_support: float) ->
         probs,
         cell_size=DEFAULT_CELL_SIZE,
         main_plane=g["plane_id"] >= 0,
-    )
-    keep = probs[offers.point, offers.label] >= min_support
-    offers = Offers(
-        offers.point[keep], offers.label[keep], offers.features[keep], offers.segment_label
+        min_support=min_support,
     )
     truth = gt[offers.point]
     freq = np.bincount(gt[gt >= 0], minlength=13) / max(int((gt >= 0).sum()), 1)
@@ -115,13 +119,7 @@ def load_room(item: fr.Item, spec: str, predictors: dict, min_support: float) ->
 
 def fused_labels(room: Room, p: np.ndarray, threshold: float) -> np.ndarray:
     """The room's labels after taking each point's most probable offer above ``threshold``."""
-    fused = room.labels.copy()
-    take = np.flatnonzero(p > threshold)
-    order = take[np.lexsort((-p[take], room.offers.point[take]))]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = room.offers.point[order][1:] != room.offers.point[order][:-1]
-    fused[room.offers.point[order[first]]] = room.offers.label[order[first]]
-    return fused
+    return best_offers(room.labels, room.offers.point, room.offers.label, p, threshold)
 
 
 def fit(rooms: list[Room], args: argparse.Namespace) -> HistGradientBoostingClassifier:

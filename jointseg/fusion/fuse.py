@@ -205,7 +205,7 @@ def _learned_vote(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment and cell offers."""
     p = evidence.point_probs(labels, probs)
-    fused, _ = learned.learned_labels(
+    fused, seg_votes = learned.learned_labels(
         xyz,
         seg,
         n_seg,
@@ -215,7 +215,6 @@ def _learned_vote(
         min_support=params.min_support if probs is not None else 0.0,
         main_plane=main_plane,
     )
-    seg_votes = learned.segment_label_sums(seg, n_seg, p)
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])
     none = np.zeros(n_seg, dtype=bool)

@@ -88,19 +88,25 @@ class Offers:
     features : ndarray of shape (M, len(FEATURES)), float64
     segment_label : ndarray of shape (N,), int64
         The segment's soft-majority label at every point.
+    segment_votes : ndarray of shape (S, C), float64
+        Summed probabilities per segment and class (the soft vote of eq. 6).
     """
 
     point: np.ndarray
     label: np.ndarray
     features: np.ndarray
     segment_label: np.ndarray
+    segment_votes: np.ndarray
 
 
-def _shares(unit: np.ndarray, n_units: int, probs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Points per unit and each unit's mean probabilities (soft shares), (U,) and (U, C)."""
+def _shares(
+    unit: np.ndarray, n_units: int, probs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points per unit, summed probabilities and mean probabilities (soft shares):
+    (U,), (U, C) and (U, C)."""
     size = np.bincount(unit, minlength=n_units).astype(np.float64)
-    soft = segment_label_sums(unit, n_units, probs) / np.maximum(size, 1)[:, None]
-    return size, soft
+    sums = segment_label_sums(unit, n_units, probs)
+    return size, sums, sums / np.maximum(size, 1)[:, None]
 
 
 def vote_offers(
@@ -112,8 +118,10 @@ def vote_offers(
     *,
     cell_size: float = DEFAULT_CELL_SIZE,
     main_plane: np.ndarray | None = None,
+    min_support: float = 0.0,
 ) -> Offers:
-    """Every offer of a segment or cell label to a point whose network label differs.
+    """Every offer of a segment or cell label to a point whose network label differs, except
+    offers of a class the network gave the point less than ``min_support`` probability.
 
     Parameters
     ----------
@@ -129,6 +137,8 @@ def vote_offers(
         Side (m) of the cubic cells that cut segments into local voting units.
     main_plane : ndarray of shape (N,), bool, optional
         Points on the geometry's main planes (walls, floor, ceiling); none when not given.
+    min_support : float
+        Least probability of the offered class at the point (0 keeps every offer).
 
     Returns
     -------
@@ -138,14 +148,15 @@ def vote_offers(
     labels = np.asarray(labels, dtype=np.int64)
     if n == 0:
         none = np.zeros(0, dtype=np.int64)
-        return Offers(none, none, np.zeros((0, len(FEATURES))), none)
-    seg_size, seg_soft = _shares(seg, n_seg, probs)
+        votes = np.zeros((n_seg, n_classes))
+        return Offers(none, none, np.zeros((0, len(FEATURES))), none, votes)
+    seg_size, seg_votes, seg_soft = _shares(seg, n_seg, probs)
     seg_hard = (
         np.bincount(seg * n_classes + labels, minlength=n_seg * n_classes).reshape(n_seg, n_classes)
         / np.maximum(seg_size, 1)[:, None]
     )
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
-    cell_size_pts, cell_soft = _shares(cell, n_cells, probs)
+    cell_size_pts, _, cell_soft = _shares(cell, n_cells, probs)
     entropy = -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = (
@@ -160,6 +171,10 @@ def vote_offers(
     by_cell = np.flatnonzero((cell_label != labels) & (cell_label != seg_label))
     point = np.concatenate([by_segment, by_cell])
     offer = np.concatenate([seg_label[by_segment], cell_label[by_cell]])
+    from_segment = np.arange(len(point)) < len(by_segment)
+    if min_support > 0:
+        supported = probs[point, offer] >= min_support
+        point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
     s, c, own = seg[point], cell[point], labels[point]
     features = np.column_stack(
         [
@@ -177,11 +192,11 @@ def vote_offers(
             plane_share[s],
             STRUCTURAL[own],
             STRUCTURAL[offer],
-            np.arange(len(point)) < len(by_segment),
+            from_segment,
             np.full(len(point), entropy.mean()),
         ]
     ).astype(np.float64)
-    return Offers(point, offer, features, seg_label.astype(np.int64))
+    return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
 
 
 @dataclass(frozen=True)
@@ -288,6 +303,22 @@ def shipped_model() -> TreeEnsemble:
     return TreeEnsemble.from_json(MODEL_PATH)
 
 
+def best_offers(
+    labels: np.ndarray, point: np.ndarray, label: np.ndarray, p: np.ndarray, threshold: float
+) -> np.ndarray:
+    """``labels`` (copied, int64) with each point's most probable offer above ``threshold``
+    taken; ``point``, ``label`` and ``p`` describe the offers."""
+    fused = np.asarray(labels, dtype=np.int64).copy()
+    take = np.flatnonzero(p > threshold)
+    # a point with two accepted offers takes the more probable one
+    order = take[np.lexsort((-p[take], point[take]))]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = point[order][1:] != point[order][:-1]
+    best = order[first]
+    fused[point[best]] = label[best]
+    return fused
+
+
 def learned_labels(
     xyz: np.ndarray,
     seg: np.ndarray,
@@ -307,23 +338,19 @@ def learned_labels(
     Returns
     -------
     labels : ndarray of shape (N,), int64
-    segment_label : ndarray of shape (N,), int64
-        The segment's soft-majority label at every point.
+    segment_votes : ndarray of shape (n_seg, C), float64
+        Summed probabilities per segment and class.
     """
     model = model or shipped_model()
     offers = vote_offers(
-        xyz, seg, n_seg, labels, probs, cell_size=model.cell_size, main_plane=main_plane
+        xyz,
+        seg,
+        n_seg,
+        labels,
+        probs,
+        cell_size=model.cell_size,
+        main_plane=main_plane,
+        min_support=min_support,
     )
-    fused = np.asarray(labels, dtype=np.int64).copy()
-    if len(offers.point):
-        supported = np.flatnonzero(probs[offers.point, offers.label] >= min_support)
-        p = np.zeros(len(offers.point))
-        p[supported] = model.probability(offers.features[supported])
-        take = np.flatnonzero(p > threshold)
-        # a point with two accepted offers takes the more probable one
-        order = take[np.lexsort((-p[take], offers.point[take]))]
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = offers.point[order][1:] != offers.point[order][:-1]
-        best = order[first]
-        fused[offers.point[best]] = offers.label[best]
-    return fused, offers.segment_label
+    p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
+    return best_offers(labels, offers.point, offers.label, p, threshold), offers.segment_votes
