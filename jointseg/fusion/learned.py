@@ -225,6 +225,9 @@ class TreeEnsemble:
             trees = body["trees"]
             if body["features"] != list(FEATURES):
                 raise ConfigError(f"{path}: features {body['features']} are not {list(FEATURES)}")
+            cell_size = float(body.get("cell_size", DEFAULT_CELL_SIZE))
+            if not np.isfinite(cell_size) or cell_size < 0:
+                raise ConfigError(f"{path}: cell_size must be a length >= 0 (m), got {cell_size}")
             return cls(
                 base=float(body["base"]),
                 feature=[np.asarray(t["feature"], np.int64) for t in trees],
@@ -234,7 +237,7 @@ class TreeEnsemble:
                 value=[np.asarray(t["value"], np.float64) for t in trees],
                 leaf=[np.asarray(t["leaf"], bool) for t in trees],
                 card=dict(body.get("card", {})),
-                cell_size=float(body.get("cell_size", DEFAULT_CELL_SIZE)),
+                cell_size=cell_size,
             )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"vote model {path}: {exc}") from exc

@@ -53,6 +53,14 @@ def test_tree_evaluator_follows_the_splits(tmp_path) -> None:
         ("{not json", "vote model"),
         (json.dumps({"features": ["a"], "base": 0, "trees": []}), "features"),
         (json.dumps({"features": list(FEATURES), "trees": []}), "base"),
+        (
+            json.dumps({"features": list(FEATURES), "base": 0, "trees": [], "cell_size": -1}),
+            "cell_size",
+        ),
+        (
+            json.dumps({"features": list(FEATURES), "base": 0, "trees": [], "cell_size": "x"}),
+            "vote model",
+        ),
     ],
 )
 def test_a_broken_model_file_is_a_config_error(tmp_path, body, message) -> None:
