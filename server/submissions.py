@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
 from jointseg.io import ScanInfo, probe_scan, read_scan
+from jointseg.network import published
 from jointseg.network.registry import BACKENDS
 from jointseg.pipeline import PipelineConfig
 from server import jobs
@@ -63,6 +64,14 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
 
 
 def _check_weights(weights: Path, settings: Settings) -> None:
+    name = str(weights)
+    if not weights.exists() and name in published.catalogue():  # published weights by name
+        if published.pulled_path(name) is None:
+            raise ConfigError(
+                f"config.network.weights: {name} is not pulled on this service "
+                f"(`jointseg models pull {name}` on its machines)"
+            )
+        return
     path = weights.expanduser().resolve()
     if settings.weights_dirs and not any(
         path.is_relative_to(d.expanduser().resolve()) for d in settings.weights_dirs

@@ -18,6 +18,21 @@ from jointseg.network.training import TrainConfig
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """Pulled weights go to a throw-away cache: no test reads or fills the user's own."""
+    import os
+    import tempfile
+
+    os.environ["JOINTSEG_CACHE"] = tempfile.mkdtemp(prefix="jointseg-cache-")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    import os
+    import shutil
+
+    shutil.rmtree(os.environ.get("JOINTSEG_CACHE", ""), ignore_errors=True)
+
+
 @pytest.fixture(scope="session")
 def shared_file() -> Callable[[str], Path]:
     """``shared_file("data/x.ply")``: a path under ../shared; skips when it is absent."""

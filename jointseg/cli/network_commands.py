@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import typer
 from rich.console import Console
-from rich.table import Table
+from rich.table import Column, Table
 
 from jointseg.cli.progress_bar import progress_bar
 from jointseg.io import DEFAULT_MAX_POINTS, read_scan, write_scan
@@ -144,6 +144,41 @@ def list_models() -> None:
     for info in backends:
         if not info.available:  # unwrapped, so links and paths stay whole
             typer.echo(f"{info.name}: no weights installed; {info.where_to_get}")
+    from jointseg.network import published
+
+    pulled = Table("backend", "pulled", "checksum", "trained on")
+    pulled.columns.insert(0, Column("published weights", no_wrap=True))
+    for entry in published.catalogue().values():
+        path = published.pulled_path(entry.name)
+        pulled.add_row(
+            entry.name,
+            entry.backend,
+            "no" if path is None else str(path),
+            "SHA-256 pinned" if entry.sha256 else "none published",
+            entry.description,
+        )
+    Console().print(pulled)
+    typer.echo(
+        f"`jointseg models pull NAME` fetches one into {published.cache_dir()} "
+        f"(${published.CACHE_ENV}); use it with --weights NAME"
+    )
+
+
+@models_app.command("pull")
+def pull_weights(
+    name: str = typer.Argument(..., help="Published weights, e.g. dgcnn-s3dis-5."),
+    unverified: bool = typer.Option(
+        False, help="Accept a file whose publisher gives no SHA-256 (its hash is logged)."
+    ),
+    force: bool = typer.Option(False, help="Download again even when already pulled."),
+    retries: int = typer.Option(3, min=0, help="Resumed attempts after a broken connection."),
+) -> None:
+    """Download published weights into the cache, resuming a broken download, SHA-256 checked."""
+    from jointseg.network.published import pull
+
+    with progress_bar() as progress:
+        path = pull(name, progress=progress, retries=retries, unverified=unverified, force=force)
+    typer.echo(f"{name}: {path}; use it with --weights {name}", err=True)
 
 
 @models_app.command("import")

@@ -1,8 +1,9 @@
 """Network backends by name, where their weights come from, and one loader for all of them.
 
-A backend's weights are, in this order: the path the caller gives, the path in the backend's
-environment variable, the weights bundled with the package. DGCNN has no bundled weights (the
-published ones are a separate download), so it needs ``--weights`` or ``JOINTSEG_DGCNN_WEIGHTS``.
+A backend's weights are, in this order: the path the caller gives (or the name of pulled
+published weights, see :mod:`jointseg.network.published`), the path in the backend's environment
+variable, the weights bundled with the package. DGCNN has no bundled weights (the published ones
+are a separate download): ``jointseg models pull dgcnn-s3dis-5`` fetches the default ones.
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from jointseg.exceptions import ConfigError
+from jointseg.network import published
 from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.dgcnn_predict import (
-    WEIGHTS_SOURCE,
     DGCNNParams,
     DGCNNPredictor,
     load_dgcnn_state,
@@ -24,6 +25,8 @@ from jointseg.network.predict import RandLANetPredictor
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 BACKENDS = ("randlanet", "dgcnn")
 DEFAULT_WEIGHTS = {"randlanet": WEIGHTS_DIR / "randlanet_synth.pt"}
+#: Published weights a backend without bundled ones uses once they are pulled.
+DEFAULT_PULLED = {"dgcnn": published.DEFAULT_DGCNN}
 WEIGHTS_ENV = {"randlanet": "JOINTSEG_RANDLANET_WEIGHTS", "dgcnn": "JOINTSEG_DGCNN_WEIGHTS"}
 WHERE_TO_GET = {
     "randlanet": (
@@ -31,8 +34,8 @@ WHERE_TO_GET = {
         "randlanet_s3dis_202201071330utc.pth with `jointseg models import open3d-ml FILE`"
     ),
     "dgcnn": (
-        f"download the S3DIS weights from {WEIGHTS_SOURCE} and pass one with --weights "
-        f"or set {WEIGHTS_ENV['dgcnn']}"
+        f"run `jointseg models pull {published.DEFAULT_DGCNN}` (or dgcnn-s3dis-1 ... -6: model N "
+        f"leaves S3DIS Area N out), or pass a file with --weights or set {WEIGHTS_ENV['dgcnn']}"
     ),
 }
 #: Weight file suffixes that name their backend when a path is given instead of a name.
@@ -64,11 +67,27 @@ def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) ->
     """The weights file backend ``name`` would use: ``weights``, else its environment
     variable, else the bundled file; None when there is none of them."""
     if weights is not None:
-        return Path(weights)
+        return _named_or_path(str(weights))
     env = os.environ.get(WEIGHTS_ENV.get(name, ""), "")
     if env:
-        return Path(env)
+        return _named_or_path(env)
+    if name in DEFAULT_PULLED:
+        return published.pulled_path(DEFAULT_PULLED[name])
     return DEFAULT_WEIGHTS.get(name)
+
+
+def _named_or_path(weights: str) -> Path:
+    """A weights path, or the cached file of published weights called so (a file of that name in
+    the working folder wins); a published name not pulled yet says how to pull it."""
+    path = Path(weights)
+    if path.exists() or os.sep in weights or weights not in published.catalogue():
+        return path
+    pulled = published.pulled_path(weights)
+    if pulled is None:
+        raise ConfigError(
+            f"weights {weights!r} are not pulled yet: run `jointseg models pull {weights}`"
+        )
+    return pulled
 
 
 def _trained_on(name: str, path: Path) -> str:
@@ -86,7 +105,12 @@ def available_backends() -> list[BackendInfo]:
     for name in BACKENDS:
         path = resolve_weights(name)
         env = WEIGHTS_ENV[name]
-        source = f"${env}" if os.environ.get(env) else "bundled" if path is not None else "none"
+        if os.environ.get(env):
+            source = f"${env}"
+        elif path is None:
+            source = "none"
+        else:
+            source = "pulled" if name in DEFAULT_PULLED else "bundled"
         present = path is not None and path.is_file()
         trained_on = _trained_on(name, path) if present and path is not None else "-"
         out.append(BackendInfo(name, path, present, trained_on, source, WHERE_TO_GET[name]))

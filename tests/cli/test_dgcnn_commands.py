@@ -68,7 +68,7 @@ def test_dgcnn_without_weights_says_where_to_get_them(one_column: Path, tmp_path
     out = tmp_path / "pred.ply"
     result = run_cli("predict", str(one_column), "-o", str(out), "--network", "dgcnn")
     assert result.returncode == 2
-    assert "antao97/dgcnn.pytorch" in result.stderr and ENV in result.stderr
+    assert "jointseg models pull dgcnn-s3dis-5" in result.stderr and ENV in result.stderr
     assert "Traceback" not in result.stderr and not out.exists()
 
 

@@ -96,13 +96,14 @@ def test_room_size_places_every_block_in_the_middle_of_a_room(dgcnn_random_weigh
 
 def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
     monkeypatch.delenv(WEIGHTS_ENV["dgcnn"], raising=False)
-    with pytest.raises(ConfigError, match="antao97/dgcnn.pytorch"):
+    monkeypatch.setenv("JOINTSEG_CACHE", str(tmp_path / "empty-cache"))
+    with pytest.raises(ConfigError, match="jointseg models pull dgcnn-s3dis-5"):
         load("dgcnn")
     with pytest.raises(ConfigError, match="JOINTSEG_DGCNN_WEIGHTS"):
         load("dgcnn", tmp_path / "model_1.t7")
     info = {b.name: b for b in available_backends()}["dgcnn"]
     assert not info.available and info.weights is None and info.source == "none"
-    assert "antao97/dgcnn.pytorch" in info.where_to_get
+    assert "jointseg models pull dgcnn-s3dis-5" in info.where_to_get
 
 
 def test_weights_from_the_environment_and_by_suffix(

@@ -144,6 +144,10 @@ def test_bad_scan_gets_4xx_with_the_readers_message(locked, bad_files, case) -> 
         (json.dumps({"seed": [1]}), "config.seed"),
         (json.dumps({"network": {"name": "pointnet"}}), "config.network.name"),
         (json.dumps({"network": {"weights": "/nonexistent/w.pt"}}), "config.network.weights"),
+        (
+            json.dumps({"network": {"name": "dgcnn", "weights": "dgcnn-s3dis-6"}}),
+            "dgcnn-s3dis-6 is not pulled on this service",
+        ),
         (json.dumps([1, 2]), "config"),
     ],
 )
