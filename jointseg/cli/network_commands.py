@@ -90,6 +90,12 @@ def train(
     channels: float = typer.Option(
         1.0, min=0.1, max=1.0, help="Scale of the channel widths (1 = official configuration)."
     ),
+    elastic: float = typer.Option(
+        0.3, min=0.0, max=1.0, help="Share of crops given an elastic distortion."
+    ),
+    prefetch: bool = typer.Option(
+        True, help="Build the next batch in a background thread while the network runs."
+    ),
     threads: int | None = typer.Option(None, min=1, help="CPU threads for torch."),
     seed: int = typer.Option(0),
     init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
@@ -119,6 +125,8 @@ def train(
         balanced_crops=balanced,
         num_channels_scale=channels,
         threads=threads,
+        elastic=elastic,
+        prefetch=prefetch,
     )
     with progress_bar() as progress:
         path = run_training(cfg, progress=progress)

@@ -2,7 +2,8 @@
 or real scans mixed with synthetic rooms.
 
 Weighted cross-entropy, Adam with exponential decay, augmentation (rotation about z, mirror,
-anisotropic scaling, jitter, colour jitter and drop, point drop), class-balanced crop centres,
+anisotropic scaling, elastic distortion, jitter, colour jitter and drop, point drop),
+class-balanced crop centres, batches built a step ahead in a background thread,
 validation mIoU per epoch, resumable checkpoints with a model card.
 """
 
@@ -10,19 +11,24 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
+from contextlib import nullcontext
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
+from scipy import ndimage
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
+from jointseg.network.batches import Prefetcher, sequential
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.crops import (
     MIN_CROP,
+    Batch,
     GridCloud,
     build_batch,
     crop_indices,
@@ -79,6 +85,12 @@ class TrainConfig(BaseModel):
     threads: int | None = None
     num_channels_scale: float = Field(
         1.0, gt=0, le=1, description="scale RandLA-Net's channel widths (lighter network)"
+    )
+    elastic: float = Field(
+        0.3, ge=0, le=1, description="share of training crops given an elastic distortion"
+    )
+    prefetch: bool = Field(
+        True, description="build the next batch in a background thread while the network runs"
     )
 
 
@@ -179,12 +191,38 @@ def _load_s3dis(
     return train, val, f"S3DIS at {root}, Area_{test_area} held out ({len(train)} rooms)"
 
 
+#: Elastic distortion: a random displacement field on a grid of this pitch (m), smoothed over
+#: neighbouring grid cells, scaled to about this many metres of displacement.
+ELASTIC_PITCH = 0.4
+ELASTIC_MAGNITUDE = 0.02
+
+
+def elastic_distortion(
+    xyz: np.ndarray,
+    rng: np.random.Generator,
+    pitch: float = ELASTIC_PITCH,
+    magnitude: float = ELASTIC_MAGNITUDE,
+) -> np.ndarray:
+    """Points moved by a smooth random field: walls bow and tables tilt a little, as in real
+    scans whose registration is not perfect (grid noise, box-smoothed, trilinearly sampled)."""
+    lo = xyz.min(axis=0) - pitch
+    shape = tuple(int(n) for n in np.ceil((xyz.max(axis=0) - lo) / pitch) + 3)
+    moved = xyz.astype(np.float32).copy()
+    coords = ((xyz - lo) / pitch).T
+    for axis in range(3):
+        field = ndimage.uniform_filter(rng.normal(0, 1, shape), size=3, mode="nearest")
+        field *= magnitude / max(float(field.std()), 1e-6)
+        moved[:, axis] += ndimage.map_coordinates(field, coords, order=1, mode="nearest")
+    return moved
+
+
 def augment(
-    xyz: np.ndarray, rgb: np.ndarray, rng: np.random.Generator
+    xyz: np.ndarray, rgb: np.ndarray, rng: np.random.Generator, *, elastic: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation about z, a mirror half of the time, scaling 0.9-1.1 per axis, 1 mm jitter,
-    brightness, per-channel gain and colour noise; one crop in ten loses its colour (grey),
-    so a scan with poor colour does not throw the network."""
+    """Rotation about z, a mirror half of the time, scaling 0.9-1.1 per axis, an elastic
+    distortion for a share ``elastic`` of the crops, 1 mm jitter, brightness, per-channel gain
+    and colour noise; one crop in ten loses its colour (grey), so a scan with poor colour does
+    not throw the network."""
     theta = rng.uniform(0, 2 * np.pi)
     c, s = np.cos(theta), np.sin(theta)
     centre = xyz.mean(axis=0)
@@ -193,6 +231,8 @@ def augment(
     if rng.random() < 0.5:
         scale[0] = -scale[0]
     xyz = (xyz - centre) @ rot.T * scale.astype(np.float32) + centre
+    if elastic and rng.random() < elastic:
+        xyz = elastic_distortion(xyz, rng)
     xyz = xyz + rng.normal(0, 0.001, xyz.shape).astype(np.float32)
     rgb = rgb * rng.uniform(0.8, 1.2) * rng.uniform(0.95, 1.05, 3) + rng.normal(0, 0.02, rgb.shape)
     if rng.random() < 0.1:
@@ -207,6 +247,7 @@ def random_crop(
     *,
     train: bool,
     centre_p: np.ndarray | None = None,
+    elastic: float = 0.0,
 ):
     """A shuffled crop around a random point (drawn with ``centre_p`` when given), augmented
     for training, where up to a tenth of its points are also dropped (then re-padded)."""
@@ -221,7 +262,7 @@ def random_crop(
     idx = rng.permutation(pad_to(idx, min(num_points, max(len(idx), MIN_CROP)), rng))
     xyz, rgb = cloud.xyz[idx], cloud.rgb[idx]
     if train:
-        xyz, rgb = augment(xyz, rgb, rng)
+        xyz, rgb = augment(xyz, rgb, rng, elastic=elastic)
     assert cloud.labels is not None
     return xyz, rgb, cloud.labels[idx], idx
 
@@ -290,19 +331,73 @@ def train(
     ]
     loss_fn = torch.nn.CrossEntropyLoss(weight=weights, ignore_index=-1)
     model.train()
+
+    def make() -> Batch:
+        return draw_batch(train_clouds, draw_p, centre_p, cfg, model_cfg, rng)
+
+    count = (cfg.epochs - start_epoch) * cfg.steps_per_epoch
+    batches = Prefetcher(make, count) if cfg.prefetch else nullcontext(sequential(make, count))
+    with batches as stream:
+        _train_epochs(
+            cfg,
+            model,
+            optimiser,
+            scheduler,
+            loss_fn,
+            stream,
+            val_clouds,
+            data_text,
+            history,
+            start_epoch,
+            progress,
+            cancel,
+        )
+    return cfg.out
+
+
+def draw_batch(
+    clouds: list[GridCloud],
+    draw_p: np.ndarray,
+    centre_p: list[np.ndarray | None],
+    cfg: TrainConfig,
+    model_cfg: RandLANetConfig,
+    rng: np.random.Generator,
+) -> Batch:
+    """One training batch: ``cfg.batch_size`` augmented crops from rooms drawn by ``draw_p``,
+    cut to a common size, with their per-layer neighbour indices."""
+    picks = rng.choice(len(clouds), size=cfg.batch_size, p=draw_p)
+    crops = [
+        random_crop(
+            clouds[k], cfg.num_points, rng, train=True, centre_p=centre_p[k], elastic=cfg.elastic
+        )
+        for k in picks
+    ]
+    size = min(len(c[0]) for c in crops)
+    crops = [(x[:size], r[:size], lab[:size], i[:size]) for x, r, lab, i in crops]
+    return build_batch(crops, model_cfg)
+
+
+def _train_epochs(
+    cfg: TrainConfig,
+    model: RandLANet,
+    optimiser: torch.optim.Optimizer,
+    scheduler: torch.optim.lr_scheduler.LRScheduler,
+    loss_fn: torch.nn.Module,
+    batches: Iterator[Batch],
+    val_clouds: list[GridCloud],
+    data_text: str,
+    history: list[dict],
+    start_epoch: int,
+    progress: ProgressFn | None,
+    cancel: CancelToken | None,
+) -> None:
+    """The epochs from ``start_epoch``: steps on ``batches``, validation, a checkpoint each."""
     total_steps = cfg.epochs * cfg.steps_per_epoch
     for epoch in range(start_epoch, cfg.epochs):
         started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
-            picks = rng.choice(len(train_clouds), size=cfg.batch_size, p=draw_p)
-            crops = [
-                random_crop(train_clouds[k], cfg.num_points, rng, train=True, centre_p=centre_p[k])
-                for k in picks
-            ]
-            size = min(len(c[0]) for c in crops)
-            crops = [(x[:size], r[:size], lab[:size], i[:size]) for x, r, lab, i in crops]
-            batch = build_batch(crops, model_cfg)
+            batch = next(batches)
             logits = model(
                 batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
             )
@@ -350,4 +445,3 @@ def train(
             "epoch": epoch + 1,
         }
         save_checkpoint(cfg.out, model, card, extra=extra)
-    return cfg.out

@@ -73,3 +73,60 @@ def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
     resumed = train(tiny_training(epochs=2, out=tmp_path / "again.pt", resume=packed))
     _, card, body = load_checkpoint(resumed)
     assert body["epoch"] == 2 and [h["epoch"] for h in card["history"]] == [1, 2]
+
+
+def test_elastic_distortion_is_smooth_and_small() -> None:
+    import numpy as np
+
+    from jointseg.network.training import ELASTIC_MAGNITUDE, elastic_distortion
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(0, 3, (20_000, 3)).astype(np.float32)
+    moved = elastic_distortion(xyz, rng)
+    shift = np.linalg.norm(moved - xyz, axis=1)
+    assert 0.2 * ELASTIC_MAGNITUDE < shift.mean() < 3 * ELASTIC_MAGNITUDE
+    assert shift.max() < 10 * ELASTIC_MAGNITUDE
+    # a smooth field: two points 1 cm apart move almost alike, points metres apart do not
+    near = xyz[:1000] + np.float32(0.01)
+    d_near = elastic_distortion(np.vstack([xyz[:1000], near]), np.random.default_rng(5))
+    d_near -= np.vstack([xyz[:1000], near])
+    gap = np.linalg.norm(d_near[:1000] - d_near[1000:], axis=1)
+    assert np.median(gap) < 0.1 * np.median(np.linalg.norm(d_near[:1000], axis=1))
+
+
+def test_prefetched_training_is_the_same_training(tmp_path, tiny_training) -> None:
+    """The background thread draws the same batches in the same order: same weights."""
+    torch.manual_seed(0)
+    ahead = train(tiny_training(out=tmp_path / "ahead.pt", prefetch=True, elastic=0.5))
+    torch.manual_seed(0)
+    plain = train(tiny_training(out=tmp_path / "plain.pt", prefetch=False, elastic=0.5))
+    a, card_a, _ = load_checkpoint(ahead)
+    b, card_b, _ = load_checkpoint(plain)
+    for (key, x), y in zip(a.state_dict().items(), b.state_dict().values(), strict=True):
+        assert torch.equal(x, y), key
+    assert card_a["history"][0]["loss"] == card_b["history"][0]["loss"]
+
+
+def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None:
+    from jointseg.network.batches import Prefetcher
+
+    made: list[int] = []
+
+    def make() -> int:
+        made.append(len(made))
+        if len(made) == 3:
+            raise ValueError("room 3 is broken")
+        return made[-1]
+
+    stream = Prefetcher(make, 10, depth=2)
+    assert [next(stream), next(stream)] == [0, 1]
+    with pytest.raises(ValueError, match="room 3"):
+        next(stream)
+    with pytest.raises(StopIteration):
+        next(stream)
+    stream.close()
+    assert len(made) == 3  # nothing built after the failure
+    slow = Prefetcher(lambda: 1, 1000, depth=1)
+    next(slow)
+    slow.close()  # the producer, blocked on a full queue, notices and ends
+    assert not slow._thread.is_alive()
