@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shlex
+import sys
 import time
 from enum import StrEnum
 from pathlib import Path
@@ -127,6 +129,7 @@ def train(
         threads=threads,
         elastic=elastic,
         prefetch=prefetch,
+        command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )
     with progress_bar() as progress:
         path = run_training(cfg, progress=progress)
@@ -152,6 +155,8 @@ def list_models() -> None:
     for info in backends:
         if not info.available:  # unwrapped, so links and paths stay whole
             typer.echo(f"{info.name}: no weights installed; {info.where_to_get}")
+        elif info.card:
+            typer.echo(f"{info.name} card: {info.card}")
     from jointseg.network import published
 
     pulled = Table("backend", "pulled", "checksum", "trained on")
@@ -212,11 +217,14 @@ def pack_weights(
     source: Path = typer.Argument(..., help="A training checkpoint (jointseg train --out)."),
     output: Path = typer.Option(..., "-o", "--output", help="Checkpoint to ship."),
     half: bool = typer.Option(True, help="Store float16 weights (half the size)."),
+    command: str | None = typer.Option(
+        None, help="The training command, for a card written without one."
+    ),
 ) -> None:
     """Strip optimiser state from a training checkpoint and store its weights compactly."""
     from jointseg.network.checkpoint import pack_checkpoint
 
-    path = pack_checkpoint(source, output, half=half)
+    path = pack_checkpoint(source, output, half=half, command=command)
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
 
 

@@ -106,7 +106,11 @@ def load_checkpoint(path: str | os.PathLike[str]) -> tuple[RandLANet, dict[str, 
 
 
 def pack_checkpoint(
-    source: str | os.PathLike[str], target: str | os.PathLike[str], *, half: bool = True
+    source: str | os.PathLike[str],
+    target: str | os.PathLike[str],
+    *,
+    half: bool = True,
+    command: str | None = None,
 ) -> Path:
     """Write a shippable copy of a training checkpoint: weights and card only, no optimiser or
     scheduler state, float16 weights by default (halves the size; predictions barely move),
@@ -120,6 +124,17 @@ def pack_checkpoint(
     model, card, body = load_checkpoint(source)
     card = {**card, "weights_dtype": "float16" if half else "float32"}
     card.pop("input_conventions", None)
+    if "train_config" in card:  # cards written before these facts existed get them now
+        from jointseg.network.training import TrainConfig, card_facts
+
+        facts = card_facts(
+            TrainConfig.model_validate(card["train_config"]), list(card.get("history", []))
+        )
+        if "hardware" not in card:
+            facts["hardware"] = f"{facts['hardware']} (recorded when packed)"
+        card = {**facts, **{k: v for k, v in card.items() if v is not None}}
+    if command and not card.get("command"):
+        card["command"] = command
     Path(target).parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(Path(target), model, card, half=half, compress=True)
     return Path(target)

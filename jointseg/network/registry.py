@@ -61,6 +61,7 @@ class BackendInfo:
     trained_on: str
     source: str
     where_to_get: str
+    card: str = ""
 
 
 def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) -> Path | None:
@@ -90,13 +91,32 @@ def _named_or_path(weights: str) -> Path:
     return pulled
 
 
-def _trained_on(name: str, path: Path) -> str:
+def card_summary(card: dict) -> str:
+    """One line of a model card: epochs, validation score, hardware, command, terms."""
+    parts = []
+    if card.get("epochs"):
+        parts.append(f"{card['epochs']} epochs")
+    val = card.get("validation") or {}
+    if val.get("best_miou") is not None:
+        parts.append(
+            f"validation mIoU {val['last_miou']:.3f} (best {val['best_miou']:.3f}, epoch "
+            f"{val['best_epoch']})"
+        )
+    for key in ("hardware", "command", "terms"):
+        if card.get(key):
+            parts.append(f"{key}: {card[key]}")
+    return "; ".join(parts)
+
+
+def _card(name: str, path: Path) -> tuple[str, str]:
+    """What the weights were trained on, and the rest of their card in one line."""
     try:
         if name == "dgcnn":
-            return str(load_dgcnn_state(path)[1]["data"])
-        return str(load_checkpoint(path)[1].get("data", "-"))
+            return str(load_dgcnn_state(path)[1]["data"]), ""
+        card = load_checkpoint(path)[1]
+        return str(card.get("data", "-")), card_summary(card)
     except ConfigError as exc:
-        return f"unreadable: {exc}"
+        return f"unreadable: {exc}", ""
 
 
 def available_backends() -> list[BackendInfo]:
@@ -112,8 +132,8 @@ def available_backends() -> list[BackendInfo]:
         else:
             source = "pulled" if name in DEFAULT_PULLED else "bundled"
         present = path is not None and path.is_file()
-        trained_on = _trained_on(name, path) if present and path is not None else "-"
-        out.append(BackendInfo(name, path, present, trained_on, source, WHERE_TO_GET[name]))
+        trained_on, card = _card(name, path) if present and path is not None else ("-", "")
+        out.append(BackendInfo(name, path, present, trained_on, source, WHERE_TO_GET[name], card))
     return out
 
 

@@ -60,6 +60,7 @@ def test_models_list_shows_randlanet() -> None:
     result = run_cli("models", "list")
     assert result.returncode == 0, result.stderr
     assert "randlanet" in result.stdout
+    assert "randlanet card: " in result.stdout and " epochs" in result.stdout
 
 
 def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:

@@ -130,3 +130,31 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
     next(slow)
     slow.close()  # the producer, blocked on a full queue, notices and ends
     assert not slow._thread.is_alive()
+
+
+def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
+    from jointseg.network.checkpoint import pack_checkpoint
+    from jointseg.network.registry import card_summary
+    from jointseg.network.training import S3DIS_TERMS, SYNTH_TERMS
+
+    path = train(tiny_training(epochs=2, command="jointseg train --data synth --out m.pt"))
+    _, card, _ = load_checkpoint(path)
+    assert "CPU" in card["hardware"] and torch.__version__ in card["hardware"]
+    assert card["command"] == "jointseg train --data synth --out m.pt"
+    scores = [h["val_miou"] for h in card["history"]]
+    assert card["validation"]["best_miou"] == max(scores)
+    assert card["validation"]["last_miou"] == scores[-1]
+    assert card["terms"] == SYNTH_TERMS and card["synthetic_share"] == 1.0
+    # a card written without these facts (older runs) gets them when packed
+    model, _, _ = load_checkpoint(path)
+    from jointseg.network.checkpoint import save_checkpoint
+
+    old = {k: v for k, v in card.items() if k not in ("hardware", "command", "terms")}
+    old["train_config"] = {**old["train_config"], "data": "rooms/", "command": None}
+    save_checkpoint(tmp_path / "old.pt", model, old)
+    packed = pack_checkpoint(tmp_path / "old.pt", tmp_path / "ship.pt", command="jointseg x")
+    _, shipped, _ = load_checkpoint(packed)
+    assert shipped["terms"] == S3DIS_TERMS and shipped["command"] == "jointseg x"
+    assert shipped["hardware"].endswith("(recorded when packed)")
+    line = card_summary(shipped)
+    assert "2 epochs" in line and "validation mIoU" in line and "S3DIS" in line
