@@ -99,6 +99,9 @@ def train(
         True, help="Build the next batch in a background thread while the network runs."
     ),
     threads: int | None = typer.Option(None, min=1, help="CPU threads for torch."),
+    device: str | None = typer.Option(
+        None, help="cpu or cuda (default: cuda when present); crops stay on the CPU."
+    ),
     seed: int = typer.Option(0),
     init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
@@ -129,6 +132,7 @@ def train(
         threads=threads,
         elastic=elastic,
         prefetch=prefetch,
+        device=device,
         command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )
     with progress_bar() as progress:

@@ -35,6 +35,7 @@ from jointseg.network.crops import (
     grid_subsample,
     pad_to,
 )
+from jointseg.network.predict import pick_device
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
 from jointseg.network.train_data import (
     centre_weights,
@@ -91,6 +92,11 @@ class TrainConfig(BaseModel):
     )
     prefetch: bool = Field(
         True, description="build the next batch in a background thread while the network runs"
+    )
+    device: str | None = Field(
+        None,
+        description="'cpu' or 'cuda' (default: cuda when present); crops and neighbour search "
+        "stay on the CPU, a step ahead in the batch thread",
     )
     command: str | None = Field(
         None, description="the command line that started the run, kept in the model card"
@@ -274,16 +280,17 @@ def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> flo
     """mIoU on deterministic crops of each validation cloud (about twice its points)."""
     rng = np.random.default_rng(12345)
     gts, preds = [], []
+    device = next(model.parameters()).device
     model.eval()
     with torch.no_grad():
         for cloud in clouds:
             for _ in range(max(2, int(np.ceil(2 * len(cloud.xyz) / cfg.num_points)))):
                 xyz, rgb, lab, idx = random_crop(cloud, cfg.num_points, rng, train=False)
-                batch = build_batch([(xyz, rgb, lab, idx)], model.config)
+                batch = build_batch([(xyz, rgb, lab, idx)], model.config).to(device)
                 logits = model(
                     batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
                 )
-                preds.append(logits.argmax(-1).numpy().ravel())
+                preds.append(logits.argmax(-1).cpu().numpy().ravel())
                 gts.append(lab)
     model.train()
     return evaluate(np.concatenate(gts), np.concatenate(preds)).miou
@@ -316,6 +323,10 @@ def train(
     else:
         model = RandLANet(_model_config(cfg))
     model_cfg = model.config
+    device = pick_device(cfg.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {cfg.device!r}: this machine's torch sees no CUDA device")
+    model.to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
     if body is not None and "optimizer" in body:
@@ -332,11 +343,11 @@ def train(
         else None
         for c in train_clouds
     ]
-    loss_fn = torch.nn.CrossEntropyLoss(weight=weights, ignore_index=-1)
+    loss_fn = torch.nn.CrossEntropyLoss(weight=weights.to(device), ignore_index=-1)
     model.train()
 
     def make() -> Batch:
-        return draw_batch(train_clouds, draw_p, centre_p, cfg, model_cfg, rng)
+        return draw_batch(train_clouds, draw_p, centre_p, cfg, model_cfg, rng).to(device)
 
     count = (cfg.epochs - start_epoch) * cfg.steps_per_epoch
     batches = Prefetcher(make, count) if cfg.prefetch else nullcontext(sequential(make, count))
@@ -378,10 +389,12 @@ def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
     scores = [(h["val_miou"], h["epoch"]) for h in history if h.get("val_miou") is not None]
     best = max(scores) if scores else None
     real = cfg.data != "synth"
+    device = pick_device(cfg.device)
+    gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else "no GPU"
     return {
         "hardware": (
             f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, "
-            f"{torch.get_num_threads()} torch threads, no GPU"
+            f"{torch.get_num_threads()} torch threads, {gpu}"
         ),
         "command": cfg.command,
         "validation": {

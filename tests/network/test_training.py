@@ -60,6 +60,12 @@ def test_augment_keeps_shapes_and_ranges() -> None:
     assert np.corrcoef(x2[:, 2], xyz[:, 2])[0, 1] > 0.99
 
 
+@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without CUDA")
+def test_cuda_without_cuda_is_a_clear_error(tiny_training) -> None:
+    with pytest.raises(ConfigError, match="sees no CUDA device"):
+        train(tiny_training(device="cuda"))
+
+
 def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path, tiny_training) -> None:
     with pytest.raises(ConfigError, match="Annotations"):
         train(tiny_training(data=str(tmp_path)))
