@@ -7,6 +7,7 @@ switching jobs does not pile up memory.
 
 from __future__ import annotations
 
+import gc
 import socket
 import time
 import tracemalloc
@@ -207,6 +208,18 @@ def test_an_unknown_job_is_reported_not_shown(browser: Any, viewer: Viewer) -> N
         page.close()
 
 
+def resting_memory(samples: int = 5, pause: float = 0.2) -> int:
+    """Traced bytes once the server has sent what it queued: the least of a few samples after a
+    collection, so a message still in the websocket's send buffer under a loaded machine is not
+    counted as kept (it is sent and freed a moment later)."""
+    gc.collect()
+    least = tracemalloc.get_traced_memory()[0]
+    for _ in range(samples - 1):
+        time.sleep(pause)
+        least = min(least, tracemalloc.get_traced_memory()[0])
+    return least
+
+
 def test_switching_jobs_replaces_the_clouds_without_growing_memory(
     browser: Any, viewer: Viewer
 ) -> None:
@@ -223,8 +236,8 @@ def test_switching_jobs_replaces_the_clouds_without_growing_memory(
                 settled(page)
                 nodes[job] = len(view.nodes)
                 if i == 1:
-                    baseline = tracemalloc.get_traced_memory()[0]
-            grown = tracemalloc.get_traced_memory()[0] - baseline
+                    baseline = resting_memory()
+            grown = resting_memory() - baseline
         finally:
             tracemalloc.stop()
         shown = view.data
