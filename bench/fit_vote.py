@@ -5,8 +5,9 @@ or, where that differs, its cell label, wherever the network labelled the point 
 the offer or the network's label is the truth; the target is "the offer is right". Each room
 weighs the same, and inside a room an offer weighs by the inverse frequency of its true class
 (mIoU counts every class alike). The real tuning rooms are labelled twice, by DGCNN model_6 (a
-strong network that never saw Area_6) and by the bundled RandLA-Net (a weak one), and synthetic
-calibration rooms (seeds 7000+, never a benchmark's held-out seed) by the bundled RandLA-Net, so
+strong network that never saw Area_6) and by the synthetic-only RandLA-Net (bench/checkpoints,
+a weak one), and synthetic calibration rooms (seeds 7000+, never a benchmark's held-out seed) by
+that RandLA-Net, so
 the rule sees strong and weak networks on impure real segments and a weak one on clean synthetic
 segments. The rule is constrained to be monotone in the support of the offer and of the point's
 own label (--no-monotonic lifts that). The judging rooms of bench/fusion_real.py are never read;
@@ -47,6 +48,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 import fusion_real as fr  # noqa: E402
 
 M6 = f"dgcnn:{fr.SHARED / 'models' / 'dgcnn_s3dis' / 'model_6.t7'}"
+#: The weak network the shipped vote model was fitted with: the synthetic-only RandLA-Net that
+#: was bundled then (the bundled one now was trained on rooms the vote tunes on).
+WEAK = f"randlanet:{Path(__file__).parent / 'checkpoints' / 'randlanet_synth.pt'}"
 CALIBRATION_SEED = 7000
 #: The rule may only grow more willing to relabel as the offered label gains support (at the
 #: point, in the segment, in the cell) and less as the point's own label does: a prior that
@@ -198,7 +202,7 @@ def main() -> None:
         "--real-network",
         action="append",
         help="networks that label the real tuning rooms; repeat (default DGCNN model_6 and the "
-        "bundled RandLA-Net: a strong and a weak network on the same impure real segments)",
+        "synthetic-only RandLA-Net: a strong and a weak network on the same impure real segments)",
     )
     parser.add_argument("--trees", type=int, default=50)
     parser.add_argument("--depth", type=int, default=2)
@@ -215,14 +219,14 @@ def main() -> None:
     parser.add_argument("--cv", type=int, default=0, help="only cross-validate, in this many folds")
     parser.add_argument("--out", type=Path, default=MODEL_PATH)
     args = parser.parse_args()
-    args.real_network = args.real_network or [M6, "randlanet"]
+    args.real_network = args.real_network or [M6, WEAK]
     logging.basicConfig(level=logging.WARNING)
     real = [i for i in fr.load_items([str(fr.AREA6)], args.judge, (0, 0, 0)) if i.split == "tune"]
     synth = calibration_rooms(args.synth_rooms, args.synth_floors, args.synth_points)
     predictors: dict = {}
     support = FusionParams().min_support
     rooms = [load_room(i, spec, predictors, support) for spec in args.real_network for i in real]
-    rooms += [load_room(i, "randlanet", predictors, support) for i in synth]
+    rooms += [load_room(i, WEAK, predictors, support) for i in synth]
     if args.cv:
         cross_validate(rooms, args, args.cv)
         return
@@ -239,7 +243,7 @@ def main() -> None:
                 "real": [i.name for i in real],
                 "real_networks": [n.rpartition("/")[2] for n in args.real_network],
                 "synthetic": [i.name for i in synth],
-                "synthetic_network": "bundled RandLA-Net",
+                "synthetic_network": "synthetic-only RandLA-Net (bench/checkpoints)",
                 "synthetic_points": args.synth_points,
                 "geometry": "GeometryParams() defaults",
             },

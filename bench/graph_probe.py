@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).parent))
 import fusion_real as fr  # noqa: E402
-from fit_vote import M6, calibration_rooms  # noqa: E402
+from fit_vote import M6, WEAK, calibration_rooms  # noqa: E402
 
 from jointseg.fusion import FusionParams, fuse  # noqa: E402
 from jointseg.fusion.evidence import EPS  # noqa: E402
@@ -151,7 +151,7 @@ def graph_labels(
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--networks", nargs="+", default=[M6, "randlanet"])
+    parser.add_argument("--networks", nargs="+", default=[M6, WEAK])
     parser.add_argument("--segment-weight", type=float, nargs="+", default=[0.0, 2.0, 4.0, 8.0])
     parser.add_argument("--neighbour-weight", type=float, nargs="+", default=[0.0, 1.0, 2.0])
     parser.add_argument("--point-weight", type=float, nargs="+", default=[0.4, 0.7, 1.0])
@@ -163,7 +163,7 @@ def main() -> None:
     synth = calibration_rooms(10, 2, 100_000)
     predictors: dict = {}
     groups = {n.rpartition("/")[2]: [(i, n) for i in real] for n in args.networks}
-    groups["synthetic"] = [(i, "randlanet") for i in synth]
+    groups["synthetic"] = [(i, WEAK) for i in synth]
     data = {}
     for gname, pairs in groups.items():
         rows = []

@@ -24,7 +24,7 @@ from jointseg.network.predict import RandLANetPredictor
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 BACKENDS = ("randlanet", "dgcnn")
-DEFAULT_WEIGHTS = {"randlanet": WEIGHTS_DIR / "randlanet_synth.pt"}
+DEFAULT_WEIGHTS = {"randlanet": WEIGHTS_DIR / "randlanet_s3dis_area6.pt"}
 #: Published weights a backend without bundled ones uses once they are pulled.
 DEFAULT_PULLED = {"dgcnn": published.DEFAULT_DGCNN}
 WEIGHTS_ENV = {"randlanet": "JOINTSEG_RANDLANET_WEIGHTS", "dgcnn": "JOINTSEG_DGCNN_WEIGHTS"}
