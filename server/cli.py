@@ -1,17 +1,24 @@
 """`jointseg serve` and `jointseg worker`, added to the jointseg CLI through the entry-point
-group ``jointseg.commands`` (jointseg itself never imports server)."""
+group ``jointseg.commands`` (jointseg itself never imports server).
+
+This module is imported by every ``jointseg`` command (to register these two), so everything
+the service needs (FastAPI, SQLAlchemy, Huey, uvicorn) is imported only when one of them runs.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
 from jointseg.exceptions import ConfigError
 
+if TYPE_CHECKING:
+    from server.settings import Settings
 
-def load_settings(**overrides: Any) -> Any:
+
+def load_settings(**overrides: Any) -> Settings:
     """Settings from the environment / JOINTSEG_CONFIG with the command line's options on top.
 
     Raises
@@ -19,6 +26,7 @@ def load_settings(**overrides: Any) -> Any:
     ConfigError
         Naming the setting that is invalid.
     """
+    # deferred: pydantic-settings is only needed once serve or worker runs (see module doc)
     from pydantic import ValidationError
 
     from server.settings import Settings
@@ -28,8 +36,7 @@ def load_settings(**overrides: Any) -> Any:
         return Settings(**given)
     except ValidationError as exc:
         problems = "; ".join(
-            f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {e['msg']}"
-            for e in exc.errors()
+            f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {e['msg']}" for e in exc.errors()
         )
         raise ConfigError(f"invalid settings: {problems}") from exc
     except ValueError as exc:  # e.g. JOINTSEG_CONFIG names a missing file
@@ -48,20 +55,12 @@ def serve(
     settings = load_settings(
         host=host, port=port, viewer_port=viewer_port, data_dir=data_dir, workers=workers
     )
+    # deferred: the API stack (FastAPI, uvicorn, SQLAlchemy, Huey); see the module doc
+    from server.serve_parts import ServeParts, load_serve_parts
     from server.service import run_service
 
-    routers, processes = _viewer_parts() if viewer else ([], [])
-    run_service(settings, extra_routers=routers, extra_processes=processes)
-
-
-def _viewer_parts() -> tuple[list[Any], list[Any]]:
-    """The viewer's routers and processes, when web/ provides them (the viewer issue)."""
-    try:
-        from web import service_parts
-    except ImportError:
-        return [], []
-    routers, processes = service_parts()
-    return list(routers), list(processes)
+    parts = load_serve_parts() if viewer else ServeParts([], [])
+    run_service(settings, extra_routers=parts.routers, extra_processes=parts.processes)
 
 
 def worker(
@@ -69,6 +68,7 @@ def worker(
 ) -> None:
     """Run one worker process (any number, on any machine sharing the data directory)."""
     settings = load_settings(data_dir=data_dir)
+    # deferred: the worker stack (SQLAlchemy, Huey, the pipeline); see the module doc
     from server.worker import worker_main
 
     worker_main(settings)

@@ -1,20 +1,19 @@
 """What the routes (and the viewer) do with jobs: create, list, look up, cancel, delete.
 
-Functions take a SQLAlchemy session and return :class:`JobView`, the pydantic model the API
-answers with, so callers never hold ORM objects.
+Functions take a SQLAlchemy session and return :class:`server.schemas.JobView`, the pydantic
+model the API answers with, so callers never hold ORM objects.
 """
 
 from __future__ import annotations
 
-from datetime import datetime
-from typing import Any, Literal
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
 from server.models import FINAL_STATUSES, Job, utcnow
+from server.schemas import JobStatus, JobView
 from server.storage import check_job_id
 
 __all__ = [
@@ -28,34 +27,6 @@ __all__ = [
     "get_job",
     "list_jobs",
 ]
-
-JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-
-
-class JobView(BaseModel):
-    """A job as the API shows it."""
-
-    model_config = ConfigDict(from_attributes=True)
-
-    id: str = Field(description="32 hex digits.")
-    filename: str = Field(description="The uploaded file's name (no folders).")
-    format: str = Field(description="Scan format read from the extension (ply, las, ...).")
-    status: JobStatus
-    stage: str | None = Field(None, description="Current stage: read, network, geometry, ...")
-    progress: float = Field(0.0, ge=0, le=1, description="Overall progress, 0 to 1.")
-    points: int | None = Field(None, description="Points in the scan (from the upload's header).")
-    timings: dict[str, float] | None = Field(None, description="Seconds per stage and total.")
-    error: str | None = Field(None, description="Why the job failed or was cancelled.")
-    network: str = Field(description="Network backend (randlanet, dgcnn).")
-    attempts: int = Field(0, description="Times a worker started the job.")
-    created_at: datetime
-    started_at: datetime | None = None
-    finished_at: datetime | None = None
-
-    @property
-    def finished(self) -> bool:
-        """Whether the job reached a final status."""
-        return self.status in FINAL_STATUSES
 
 
 def _view(job: Job) -> JobView:

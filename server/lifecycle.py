@@ -10,6 +10,7 @@ once for the same reason.
 from __future__ import annotations
 
 import logging
+import os
 import socket
 from dataclasses import dataclass
 from datetime import timedelta
@@ -36,8 +37,6 @@ class Claim:
 
 def worker_id() -> str:
     """This process's name in the job and worker rows: ``host:pid``."""
-    import os
-
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
@@ -240,6 +239,4 @@ def queued_before(session: Session, *, timeout_s: float) -> list[str]:
     """
     cutoff = utcnow() - timedelta(seconds=timeout_s)
     since = func.coalesce(Job.heartbeat_at, Job.created_at)
-    return list(
-        session.scalars(select(Job.id).where(Job.status == "queued", since < cutoff)).all()
-    )
+    return list(session.scalars(select(Job.id).where(Job.status == "queued", since < cutoff)).all())

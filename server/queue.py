@@ -59,6 +59,7 @@ def make_huey(settings: Settings) -> Huey:
 def _sql_huey(name: str, url: str, attempts: int = 5) -> Huey:
     """Huey's SQL storage; it creates its tables on start, and when the API and workers start
     at once PostgreSQL can refuse one of two concurrent ``CREATE TABLE``: try again."""
+    # deferred: peewee and Huey's SQL storage load only for the postgres queue
     import peewee
     from huey.contrib.sql_huey import SqlHuey
 

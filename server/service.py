@@ -14,7 +14,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from multiprocessing.process import BaseProcess
 from types import FrameType
 
@@ -23,8 +23,10 @@ from fastapi import APIRouter
 
 from server.app import create_app
 from server.db import init_db, make_engine
+from server.logs import configure_logging
+from server.serve_parts import ExtraProcess
 from server.settings import Settings
-from server.worker import configure_logging, worker_main
+from server.worker import worker_main
 
 log = logging.getLogger(__name__)
 
@@ -32,8 +34,6 @@ log = logging.getLogger(__name__)
 STOP_GRACE_S = 20.0
 #: Shortest time between two restarts of the same worker slot.
 RESTART_BACKOFF_S = 1.0
-
-ExtraProcess = Callable[[Settings], None]
 
 
 def _run_extra(target: ExtraProcess, settings: Settings) -> None:
@@ -121,8 +121,8 @@ def run_service(
     ----------
     settings : Settings
     extra_routers : sequence of APIRouter
-        Added to the API app (e.g. the viewer's job pages); they can depend on
-        :func:`server.auth.require_api_key`.
+        Added to the API app (e.g. the job page, from :func:`server.serve_parts.load_serve_parts`);
+        they can depend on :func:`server.auth.require_api_key`.
     extra_processes : sequence of callables
         Each runs as ``target(settings)`` in its own spawned process (e.g. the viewer); it
         must be a module-level function and should exit on SIGTERM.

@@ -8,6 +8,7 @@ so the documentation cannot drift from the code.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -150,8 +151,6 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             text = value.strip()
             if text.startswith("["):
-                import json
-
                 return json.loads(text)
             return [k.strip() for k in text.split(",") if k.strip()]
         return value

@@ -19,8 +19,9 @@ from jointseg.network import published
 from jointseg.network.registry import BACKENDS
 from jointseg.pipeline import PipelineConfig
 from server import jobs
-from server.app import Services
+from server.deps import Services
 from server.lifecycle import fail_queued
+from server.messages import public_message
 from server.settings import Settings
 from server.uploads import ReceivedUpload
 
@@ -48,9 +49,7 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
         first = exc.errors()[0]
         if first["type"] == "json_invalid":
             raise ConfigError(f"config: not valid JSON: {first['msg']}") from exc
-        problems = "; ".join(
-            f"config.{_location(e['loc'])}: {e['msg']}" for e in exc.errors()[:5]
-        )
+        problems = "; ".join(f"config.{_location(e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
         raise ConfigError(problems) from exc
     network = config.network
     if network.name not in BACKENDS:
@@ -96,8 +95,7 @@ def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
         if upload.size <= settings.full_check_max_bytes:
             read_scan(upload.path, max_points=settings.max_points)
     except JointsegError as exc:
-        message = str(exc).replace(str(upload.path), upload.filename)
-        raise type(exc)(message) from exc
+        raise type(exc)(public_message(exc, upload.path, upload.filename)) from exc
     return info
 
 

@@ -11,18 +11,18 @@ import json
 import logging
 import math
 import os
-from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
-from threading import Lock
 from typing import Any
 
 import numpy as np
 
 from jointseg.classes import NUM_CLASSES, UNLABELLED, colourise
 from jointseg.exceptions import ScanFormatError
+from jointseg.grouping import cell_keys
 from jointseg.io import read_scan
 from jointseg.spacing import estimate_spacing
+from server.lru import LRUCache
 
 log = logging.getLogger(__name__)
 
@@ -164,10 +164,8 @@ def voxel_downsample(xyz: np.ndarray, max_points: int) -> tuple[np.ndarray, floa
     area = 2.0 * (span[0] * span[1] + span[0] * span[2] + span[1] * span[2])
     voxel = math.sqrt(area / max_points)
     for _ in range(32):
-        keys = np.floor((xyz - lo) / voxel).astype(np.int64)
-        dims = keys.max(axis=0) + 1
-        flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
-        _, first = np.unique(flat, return_index=True)
+        keys, _ = cell_keys(xyz, voxel, origin=lo)
+        _, first = np.unique(keys, return_index=True)
         if first.size <= max_points:
             return np.sort(first).astype(np.int64), float(voxel)
         # occupied cells scale about as 1 / voxel^2 on surfaces
@@ -304,8 +302,7 @@ class SceneCache:
     def __init__(self, size: int = 2, *, max_points: int = MAX_PANEL_POINTS) -> None:
         self.size = size
         self.max_points = max_points
-        self._entries: OrderedDict[tuple[Any, ...], SceneData] = OrderedDict()
-        self._lock = Lock()
+        self._entries: LRUCache[tuple[Any, ...], SceneData] = LRUCache(size)
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -314,13 +311,9 @@ class SceneCache:
         """``load_scene`` through the cache."""
         stat = result_path.stat()
         key = (str(result_path), stat.st_size, stat.st_mtime_ns, str(report_path))
-        with self._lock:
-            if key in self._entries:
-                self._entries.move_to_end(key)
-                return self._entries[key]
+        cached = self._entries.get(key)
+        if cached is not None:
+            return cached
         data = load_scene(result_path, report_path, max_points=self.max_points)
-        with self._lock:
-            self._entries[key] = data
-            while len(self._entries) > self.size:
-                self._entries.popitem(last=False)
+        self._entries.put(key, data)
         return data

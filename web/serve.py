@@ -1,8 +1,9 @@
 """The viewer's part of ``jointseg serve``: the job page router and the viewer process.
 
-``server.cli.serve`` asks :func:`web.service_parts` for them and hands them to
-:func:`server.service.run_service`, which mounts the router on the API and runs
-:func:`run_viewer` in its own spawned process.
+:func:`service_parts` is registered in the entry-point group ``jointseg.serve_parts``
+(pyproject.toml); ``jointseg serve`` loads it through :func:`server.serve_parts.load_serve_parts`
+and hands the parts to :func:`server.service.run_service`, which mounts the router on the API
+and runs :func:`run_viewer` in its own spawned process. server never imports web.
 """
 
 from __future__ import annotations
@@ -12,13 +13,10 @@ import logging
 import os
 import signal
 import threading
-from collections.abc import Callable
 from types import FrameType
-from typing import Any
-
-from fastapi import APIRouter
 
 from jointseg.io.atomic import atomic_open
+from server.serve_parts import ServeParts
 from server.settings import Settings
 from web.page import VIEWER_FILE, job_page_router
 
@@ -31,6 +29,8 @@ def run_viewer(settings: Settings) -> None:
     The port actually used (viser moves to the next free one when the configured port is
     taken) is recorded in ``data_dir/viewer.json`` for the job page's links.
     """
+    # deferred: viser (and the scene code) load only in the viewer's own process, not in the
+    # API process that imports this module for the job page router
     from web.service_source import ServiceSource
     from web.viewer import Viewer
 
@@ -57,6 +57,6 @@ def run_viewer(settings: Settings) -> None:
         log.info("viewer stopped")
 
 
-def service_parts() -> tuple[list[APIRouter], list[Callable[[Any], None]]]:
-    """The routers to mount on the API and the processes to run beside it."""
-    return [job_page_router()], [run_viewer]
+def service_parts() -> ServeParts:
+    """The ``jointseg.serve_parts`` entry point: the job page router and the viewer process."""
+    return ServeParts(routers=[job_page_router()], processes=[run_viewer])

@@ -11,6 +11,8 @@ from sqlalchemy import update
 from server import jobs, lifecycle
 from server.db import init_db, make_engine, make_sessions
 from server.models import Job, utcnow
+from server.queue import JobQueue
+from server.reaper import reap_and_requeue
 from server.settings import Settings
 
 
@@ -118,9 +120,6 @@ def test_workers_are_alive_while_they_beat(sessions) -> None:
 
 
 def test_a_queued_job_without_a_queue_entry_is_enqueued_once(tmp_path, sessions) -> None:
-    from server.queue import JobQueue
-    from server.worker import reap_and_requeue
-
     settings = Settings(data_dir=tmp_path, heartbeat_interval_s=1, heartbeat_timeout_s=5)
     queue = JobQueue(settings)
     try:

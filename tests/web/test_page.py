@@ -10,9 +10,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from server.app import create_app
+from server.serve_parts import load_serve_parts
 from server.settings import Settings
-from web import service_parts
 from web.page import VIEWER_FILE, job_page_router
+from web.serve import service_parts
 
 
 @pytest.fixture
@@ -67,3 +68,12 @@ def test_service_parts_give_the_page_router_and_the_viewer_process() -> None:
     paths = {route.path for router in routers for route in router.routes}  # type: ignore[attr-defined]
     assert {"/", "/web/config.json", "/web/{name}"} <= paths
     assert [p.__name__ for p in processes] == ["run_viewer"]
+
+
+def test_serve_finds_the_viewer_through_its_entry_point() -> None:
+    """`jointseg serve` gets web's parts from the installed entry point, never by importing web
+    from server (pip install -e . registers it)."""
+    parts = load_serve_parts()
+    paths = {route.path for router in parts.routers for route in router.routes}  # type: ignore[attr-defined]
+    assert {"/", "/web/config.json"} <= paths
+    assert [p.__module__ + "." + p.__name__ for p in parts.processes] == ["web.serve.run_viewer"]

@@ -1,0 +1,156 @@
+"""Running one job id in a worker process: claim, pipeline, result files, final status.
+
+Loaded networks are kept between jobs (a few configurations, least recently used dropped), so
+a stream of jobs with the same network pays the loading once per process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pydantic import ValidationError
+
+from jointseg.exceptions import Cancelled, ConfigError, JointsegError
+from jointseg.io import read_scan, write_scan
+from jointseg.pipeline import PipelineConfig, annotate, load_predictor, report_body, run
+from server import lifecycle
+from server.db import SessionFactory
+from server.lru import LRUCache
+from server.messages import public_message
+from server.queue import JobQueue
+from server.settings import Settings
+from server.storage import Storage
+from server.tokens import RowCancelToken, RowProgress
+
+if TYPE_CHECKING:  # only for annotations: jointseg.network imports torch
+    from jointseg.network import Predictor
+
+log = logging.getLogger(__name__)
+
+#: Networks kept loaded per process (one per configuration).
+MAX_PREDICTORS = 2
+
+
+class JobRunner:
+    """Runs one job id at a time in this process, keeping loaded networks between jobs."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        sessions: SessionFactory,
+        storage: Storage,
+        queue: JobQueue,
+        stopping: threading.Event,
+    ) -> None:
+        self.settings = settings
+        self.sessions = sessions
+        self.storage = storage
+        self.queue = queue
+        self.stopping = stopping
+        self.worker = lifecycle.worker_id()
+        self.current: lifecycle.Claim | None = None
+        self.predictors: LRUCache[str, Predictor] = LRUCache(MAX_PREDICTORS)
+
+    def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
+        """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""
+        key = json.dumps(config.network.model_dump(mode="json"), sort_keys=True)
+        kept = self.predictors.get(key)
+        if kept is not None:
+            return kept, 0.0
+        started = time.perf_counter()
+        predictor = load_predictor(config.network)
+        self.predictors.put(key, predictor)
+        return predictor, time.perf_counter() - started
+
+    def __call__(self, job_id: str) -> None:
+        """Run job ``job_id`` unless it was cancelled or claimed meanwhile."""
+        with self.sessions() as session:
+            claim = lifecycle.claim_job(session, job_id, self.worker)
+        if claim is None:
+            log.info("job %s: not queued any more, skipped", job_id)
+            return
+        self.current = claim
+        log.info("job %s: attempt %d started by %s", job_id, claim.attempt, self.worker)
+        try:
+            self._run(claim)
+        finally:
+            self.current = None
+
+    def _run(self, claim: lifecycle.Claim) -> None:
+        token = RowCancelToken(self.sessions, claim, self.stopping)
+        progress = RowProgress(self.sessions, claim)
+        upload = self.storage.upload_path(claim.job_id, f".{claim.format}")
+        try:
+            points, timings = self._pipeline(claim, upload, progress, token)
+        except Cancelled:
+            self._stopped(claim, token)
+            return
+        except (JointsegError, ValidationError) as exc:
+            message = _failure_message(exc, upload, claim.filename)
+            log.info("job %s failed: %s", claim.job_id, message)
+            self._finish(claim, "failed", error=message)
+            return
+        except Exception as exc:
+            log.exception("job %s: internal error", claim.job_id)
+            self._finish(claim, "failed", error=f"internal error: {type(exc).__name__}: {exc}")
+            return
+        self._finish(claim, "succeeded", points=points, timings=timings)
+        log.info("job %s succeeded: %d points in %.1f s", claim.job_id, points, timings["total"])
+
+    def _pipeline(
+        self,
+        claim: lifecycle.Claim,
+        upload: Path,
+        progress: RowProgress,
+        token: RowCancelToken,
+    ) -> tuple[int, dict[str, float]]:
+        config = PipelineConfig.model_validate(claim.config)
+        progress("read", 0.0)
+        progress.flush()
+        predictor, load_s = self.predictor(config)
+        started = time.perf_counter()
+        scan = read_scan(upload, max_points=self.settings.max_points, progress=progress)
+        read_s = time.perf_counter() - started
+        result = run(scan, config, progress, token, predictor=predictor)
+        if token.is_set():
+            raise Cancelled("cancelled by request")
+        started = time.perf_counter()
+        write_scan(annotate(scan, result), self.storage.result_path(claim.job_id, "ply"))
+        write_s = time.perf_counter() - started
+        extra = {"load_network": load_s, "read": read_s, "write": write_s}
+        body: dict[str, Any] = {"input": claim.filename, "output": "result.ply"}
+        body.update(report_body(scan, result, extra_timings=extra))
+        self.storage.write_bytes(
+            self.storage.report_path(claim.job_id), json.dumps(body, indent=2).encode()
+        )
+        return len(scan), {k: round(float(v), 4) for k, v in body["timings_s"].items()}
+
+    def _stopped(self, claim: lifecycle.Claim, token: RowCancelToken) -> None:
+        """A cancel request, or this worker's shutdown: cancelled, or back to the queue."""
+        if self.stopping.is_set() and not token.requested:
+            with self.sessions() as session:
+                released = lifecycle.release_job(session, claim)
+            if released:
+                log.info("job %s: worker stopping, job re-queued", claim.job_id)
+                self.queue.enqueue(claim.job_id)
+                return
+        self._finish(claim, "cancelled", error="cancelled by request")
+        log.info("job %s cancelled", claim.job_id)
+
+    def _finish(self, claim: lifecycle.Claim, status: str, **values: Any) -> None:
+        with self.sessions() as session:
+            if not lifecycle.finish_job(session, claim, status, **values):
+                log.warning("job %s: attempt %d no longer ours", claim.job_id, claim.attempt)
+
+
+def _failure_message(exc: BaseException, upload: Path, filename: str) -> str:
+    """Why the job failed, as the client sees it (a stored config that no longer validates is
+    a ConfigError; every other message names the user's file, not the stored upload)."""
+    if isinstance(exc, ValidationError):
+        return str(ConfigError(f"config: {exc}"))
+    return public_message(exc, upload, filename)

@@ -1,0 +1,99 @@
+"""The API's request and response bodies (pydantic), apart from the tables in
+:mod:`server.models`: what clients see never leaks an ORM object or a column they should not.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from server.models import FINAL_STATUSES
+
+JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+class JobView(BaseModel):
+    """A job as the API shows it (built from a job row)."""
+
+    model_config = ConfigDict(from_attributes=True)
+
+    id: str = Field(description="32 hex digits.")
+    filename: str = Field(description="The uploaded file's name (no folders).")
+    format: str = Field(description="Scan format read from the extension (ply, las, ...).")
+    status: JobStatus
+    stage: str | None = Field(None, description="Current stage: read, network, geometry, ...")
+    progress: float = Field(0.0, ge=0, le=1, description="Overall progress, 0 to 1.")
+    points: int | None = Field(None, description="Points in the scan (from the upload's header).")
+    timings: dict[str, float] | None = Field(None, description="Seconds per stage and total.")
+    error: str | None = Field(None, description="Why the job failed or was cancelled.")
+    network: str = Field(description="Network backend (randlanet, dgcnn).")
+    attempts: int = Field(0, description="Times a worker started the job.")
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+
+    @property
+    def finished(self) -> bool:
+        """Whether the job reached a final status."""
+        return self.status in FINAL_STATUSES
+
+
+class JobLinks(BaseModel):
+    """Where to find a job and its outputs."""
+
+    self: str
+    result: str
+    report: str
+
+
+class JobResponse(JobView):
+    """A job with links to itself, its result and its report."""
+
+    links: JobLinks
+
+    @classmethod
+    def from_view(cls, view: JobView) -> JobResponse:
+        """``view`` with its links (``/v1/jobs/<id>``, ``.../result``, ``.../report``)."""
+        base = f"/v1/jobs/{view.id}"
+        links = JobLinks(self=base, result=f"{base}/result", report=f"{base}/report")
+        return cls(**view.model_dump(), links=links)
+
+
+class JobList(BaseModel):
+    """One page of jobs, newest first."""
+
+    items: list[JobResponse]
+    total: int = Field(description="Jobs matching the filter, on every page.")
+    limit: int
+    offset: int
+
+
+class ErrorBody(BaseModel):
+    """Every error's body."""
+
+    detail: str
+    error: str = Field(description="Error class, e.g. ScanFormatError.")
+
+
+class WorkerView(BaseModel):
+    """A worker process seen recently."""
+
+    id: str
+    hostname: str
+    pid: int
+    started_at: datetime
+    seen_at: datetime
+    job_id: str | None
+
+
+class Health(BaseModel):
+    """Whether the database, the queue and the workers are alive."""
+
+    status: str = Field(description="ok, degraded (no live worker) or unavailable.")
+    database: bool
+    queue: bool
+    queue_kind: str
+    pending: int | None = Field(None, description="Job ids waiting in the queue.")
+    workers: list[WorkerView]
