@@ -10,6 +10,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
+from jointseg.grouping import compact_ids, majority_label
 
 
 class SegmentationMetrics(BaseModel):
@@ -136,13 +137,8 @@ def segment_majority(labels: np.ndarray, segments: np.ndarray) -> np.ndarray:
         return np.empty(0, dtype=np.int32)
     if segments.min() < 0:
         raise ValueError("segment ids must be non-negative")
-    _, seg = np.unique(segments, return_inverse=True)
-    n_seg = int(seg.max()) + 1
-    n_cls = int(max(labels.max(), 0)) + 1
-    valid = labels >= 0
-    counts = np.bincount(seg[valid] * n_cls + labels[valid], minlength=n_seg * n_cls)
-    counts = counts.reshape(n_seg, n_cls)
-    majority = np.where(counts.sum(axis=1) > 0, counts.argmax(axis=1), -1)
+    _, seg = compact_ids(segments)
+    majority = majority_label(seg, int(seg.max()) + 1, labels)
     return majority[seg].astype(np.int32)
 
 

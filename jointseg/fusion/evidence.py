@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.classes import NUM_CLASSES
-from jointseg.fusion.learned import segment_label_sums
+from jointseg.grouping import group_sums
 
 #: Floor under probabilities before the logarithm: a class the network gave nothing is very
 #: unlikely, not impossible.
@@ -40,7 +40,7 @@ def point_probs(labels: np.ndarray, probs: np.ndarray | None) -> np.ndarray:
 
 def unit_means(unit: np.ndarray, n_units: int, probs: np.ndarray) -> np.ndarray:
     """Mean probability per voting unit, shape (n_units, C)."""
-    sums = segment_label_sums(unit, n_units, probs)
+    sums = group_sums(unit, n_units, probs)
     counts = np.bincount(unit, minlength=n_units)
     return sums / np.maximum(counts, 1)[:, None]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,6 +19,7 @@ from jointseg.exceptions import ConfigError
 from jointseg.fusion import evidence, guard, learned
 from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
 from jointseg.fusion.transfer import transfer_labels
+from jointseg.grouping import compact_ids, group_sums, label_histogram
 
 log = logging.getLogger(__name__)
 
@@ -115,72 +117,118 @@ def fuse(
     xyz, segments, network_labels, network_probs, network_xyz = _validated(
         xyz, segments, network_labels, network_probs, network_xyz, params
     )
-    n = len(xyz)
-    if main_plane is not None:
-        main_plane = np.asarray(main_plane, dtype=bool)
-        if main_plane.shape != (n,):
-            raise ConfigError(f"main_plane must have shape ({n},) like xyz, got {main_plane.shape}")
+    main_plane = _checked_main_plane(main_plane, len(xyz))
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    if network_xyz is not None:
-        labels, probs = transfer_labels(
-            xyz, network_xyz, network_labels, network_probs, neighbours=params.neighbours
-        )
-    else:
-        labels, probs = network_labels.astype(np.int64), network_probs
+    labels, probs = _labels_at_points(xyz, network_xyz, network_labels, network_probs, params)
     timings["transfer"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    segment_ids, seg = guard.compact_ids(segments)
-    n_seg = len(segment_ids)
-    if params.mode == "evidence":
-        fused, confidence, seg_votes, split, kept_units, replace = _evidence_vote(
-            xyz, seg, n_seg, labels, probs, params
+    segment_ids, seg = compact_ids(segments)
+    ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params)
+    vote = _vote(ballot, main_plane, timings, t)
+    return _result(vote, labels, segment_ids, params, timings)
+
+
+class _Ballot(NamedTuple):
+    """What every mode votes on: the points, their segment 0..S-1, S, the network's labels
+    and probabilities at the points, and the parameters."""
+
+    xyz: np.ndarray
+    seg: np.ndarray
+    n_seg: int
+    labels: np.ndarray
+    probs: np.ndarray | None
+    params: FusionParams
+
+
+class _Vote(NamedTuple):
+    """What a mode's vote decided, per point and per segment (the modes' common return)."""
+
+    fused: np.ndarray
+    confidence: np.ndarray
+    segment_votes: np.ndarray
+    split: np.ndarray
+    kept: np.ndarray
+    replace: np.ndarray
+
+
+def _checked_main_plane(main_plane: np.ndarray | None, n: int) -> np.ndarray | None:
+    """The main-plane mask as booleans, refused when it does not match the points."""
+    if main_plane is None:
+        return None
+    main_plane = np.asarray(main_plane, dtype=bool)
+    if main_plane.shape != (n,):
+        raise ConfigError(f"main_plane must have shape ({n},) like xyz, got {main_plane.shape}")
+    return main_plane
+
+
+def _labels_at_points(
+    xyz: np.ndarray,
+    network_xyz: np.ndarray | None,
+    network_labels: np.ndarray,
+    network_probs: np.ndarray | None,
+    params: FusionParams,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Network labels and probabilities at the segmented points (transferred when the network
+    labelled another point set)."""
+    if network_xyz is not None:
+        return transfer_labels(
+            xyz, network_xyz, network_labels, network_probs, neighbours=params.neighbours
         )
-        timings["vote"] = time.perf_counter() - t
-    elif params.mode == "learned":
-        fused, confidence, seg_votes, split, kept_units, replace = _learned_vote(
-            xyz, seg, n_seg, labels, probs, params, main_plane
-        )
-        timings["vote"] = time.perf_counter() - t
+    return network_labels.astype(np.int64), network_probs
+
+
+def _vote(
+    ballot: _Ballot, main_plane: np.ndarray | None, timings: dict[str, float], t: float
+) -> _Vote:
+    """Run the mode's vote, timed from ``t`` as 'vote' (the majority modes add 'relabel')."""
+    if ballot.params.mode == "evidence":
+        vote = _evidence_vote(ballot)
+    elif ballot.params.mode == "learned":
+        vote = _learned_vote(ballot, main_plane)
     else:
-        fused, confidence, seg_votes, split, kept_units, replace = _majority_vote(
-            xyz, seg, n_seg, labels, probs, params, timings, t
-        )
-    seg_shares, seg_first, _ = guard.top_two_shares(seg_votes)
-    seg_kept = kept_units & ~split
+        return _majority_vote(ballot, timings, t)
+    timings["vote"] = time.perf_counter() - t
+    return vote
+
+
+def _result(
+    vote: _Vote,
+    labels: np.ndarray,
+    segment_ids: np.ndarray,
+    params: FusionParams,
+    timings: dict[str, float],
+) -> FusionResult:
+    """The vote summarised per segment and logged once, as the caller's result."""
+    seg_shares, seg_first, _ = guard.top_two_shares(vote.segment_votes)
+    seg_kept = vote.kept & ~vote.split
     log.info(
         "fusion (%s): %d points, %d segments, %d relabelled, %d segments kept, %d split",
         params.mode,
-        n,
-        n_seg,
-        int(np.count_nonzero(replace & (fused != labels))),
+        len(labels),
+        len(segment_ids),
+        int(np.count_nonzero(vote.replace & (vote.fused != labels))),
         int(seg_kept.sum()),
-        int(split.sum()),
+        int(vote.split.sum()),
     )
     return FusionResult(
-        labels=fused.astype(np.int32),
-        confidence=confidence,
+        labels=vote.fused.astype(np.int32),
+        confidence=vote.confidence,
         network_labels=labels.astype(np.int32),
         segment_ids=segment_ids,
         segment_label=seg_shares.argmax(axis=1).astype(np.int32),
         segment_share=seg_first.astype(np.float32),
         segment_kept=seg_kept,
-        segment_split=split,
+        segment_split=vote.split,
         params=params,
         timings=timings,
     )
 
 
-def _evidence_vote(
-    xyz: np.ndarray,
-    seg: np.ndarray,
-    n_seg: int,
-    labels: np.ndarray,
-    probs: np.ndarray | None,
-    params: FusionParams,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _evidence_vote(ballot: _Ballot) -> _Vote:
     """The 'evidence' mode (see :mod:`jointseg.fusion.evidence`) over segment cells."""
+    xyz, seg, n_seg, labels, probs, params = ballot
     p = evidence.point_probs(labels, probs)
     split = np.ones(n_seg, dtype=bool) if params.vote_cell_size > 0 else np.zeros(n_seg, bool)
     if split.any():
@@ -191,19 +239,12 @@ def _evidence_vote(
     unit_share = means[unit, fused]
     confidence = _confidence(fused, labels, probs, unit_share)
     seg_votes = _votes(seg, n_seg, labels, p if probs is not None else None)
-    return fused, confidence, seg_votes, split, np.zeros(n_seg, bool), fused != labels
+    return _Vote(fused, confidence, seg_votes, split, np.zeros(n_seg, bool), fused != labels)
 
 
-def _learned_vote(
-    xyz: np.ndarray,
-    seg: np.ndarray,
-    n_seg: int,
-    labels: np.ndarray,
-    probs: np.ndarray | None,
-    params: FusionParams,
-    main_plane: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
     """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment and cell offers."""
+    xyz, seg, n_seg, labels, probs, params = ballot
     p = evidence.point_probs(labels, probs)
     fused, seg_votes = learned.learned_labels(
         xyz,
@@ -218,20 +259,12 @@ def _learned_vote(
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])
     none = np.zeros(n_seg, dtype=bool)
-    return fused, confidence, seg_votes, none, none, fused != labels
+    return _Vote(fused, confidence, seg_votes, none, none, fused != labels)
 
 
-def _majority_vote(
-    xyz: np.ndarray,
-    seg: np.ndarray,
-    n_seg: int,
-    labels: np.ndarray,
-    probs: np.ndarray | None,
-    params: FusionParams,
-    timings: dict[str, float],
-    t: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _majority_vote(ballot: _Ballot, timings: dict[str, float], t: float) -> _Vote:
     """Eq. 6-7 (hard or soft votes), with the impure-segment guard in the guarded modes."""
+    xyz, seg, n_seg, labels, probs, params = ballot
     n = len(xyz)
     soft = params.mode in SOFT_MODES
     vote_probs = probs if soft else None
@@ -271,7 +304,7 @@ def _majority_vote(
     fused = np.where(replace, majority[unit], labels)
     confidence = _confidence(fused, labels, probs, shares[unit, fused])
     timings["relabel"] = time.perf_counter() - t
-    return fused, confidence, seg_votes, split, kept_units[:n_seg], replace
+    return _Vote(fused, confidence, seg_votes, split, kept_units[:n_seg], replace)
 
 
 def _votes(
@@ -279,12 +312,8 @@ def _votes(
 ) -> np.ndarray:
     """Label histogram (eq. 6) per unit: point counts, or summed probabilities when given."""
     if probs is None:
-        keys = unit * NUM_CLASSES + labels
-        counts = np.bincount(keys, minlength=n_units * NUM_CLASSES)
-        return counts.reshape(n_units, NUM_CLASSES).astype(np.float64)
-    return np.column_stack(
-        [np.bincount(unit, weights=probs[:, c], minlength=n_units) for c in range(NUM_CLASSES)]
-    ).reshape(n_units, NUM_CLASSES)
+        return label_histogram(unit, n_units, labels, NUM_CLASSES).astype(np.float64)
+    return group_sums(unit, n_units, probs)
 
 
 def _confidence(

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.fusion.params import FusionParams
+from jointseg.grouping import cell_keys, compact_ids
 
 
 def top_two_shares(votes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -95,13 +96,9 @@ def split_into_cells(
     members = np.flatnonzero(split[seg])
     if len(members) == 0:
         return unit, n_seg
-    pts = xyz[members]
-    cells = np.floor((pts - pts.min(axis=0)) / cell_size).astype(np.int64)
-    dims = cells.max(axis=0) + 1
-    flat = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-    # sorting only the split points: one (segment, cell) pair per part
-    key = seg[members].astype(np.int64) * int(dims.prod()) + flat
-    _, part = np.unique(key, return_inverse=True)
+    cells, n_cells = cell_keys(xyz[members], cell_size)
+    # renumbering only the split points: one (segment, cell) pair per part
+    _, part = compact_ids(seg[members].astype(np.int64) * n_cells + cells)
     unit[members] = n_seg + part
     return unit, n_seg + int(part.max()) + 1
 
@@ -115,22 +112,6 @@ def segment_cells(xyz: np.ndarray, seg: np.ndarray, cell_size: float) -> tuple[n
         Unit 0..U-1 of every point.
     n_units : int
     """
-    cells = np.floor((xyz - xyz.min(axis=0)) / cell_size).astype(np.int64)
-    dims = cells.max(axis=0) + 1
-    flat = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-    ids, unit = compact_ids(seg.astype(np.int64) * int(dims.prod()) + flat)
+    cells, n_cells = cell_keys(xyz, cell_size)
+    ids, unit = compact_ids(seg.astype(np.int64) * n_cells + cells)
     return unit, len(ids)
-
-
-def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The distinct non-negative ids (sorted) and every id renumbered to 0..S-1 (linear time
-    unless the ids are very sparse)."""
-    if len(ids) == 0:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    top = int(ids.max())
-    if top > 16 * len(ids):
-        distinct, inverse = np.unique(ids, return_inverse=True)
-        return distinct.astype(np.int64), inverse.astype(np.int64)
-    present = np.bincount(ids, minlength=top + 1) > 0
-    lookup = np.cumsum(present) - 1
-    return np.flatnonzero(present).astype(np.int64), lookup[ids].astype(np.int64)

@@ -29,6 +29,7 @@ import numpy as np
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.guard import segment_cells
+from jointseg.grouping import group_sums, label_histogram
 
 #: The model shipped with the library.
 MODEL_PATH = Path(__file__).with_name("vote_model.json")
@@ -68,11 +69,9 @@ def _logit(x: np.ndarray) -> np.ndarray:
     return np.log(x / (1 - x))
 
 
-def segment_label_sums(seg: np.ndarray, n_seg: int, weights: np.ndarray) -> np.ndarray:
-    """Per-segment column sums of ``weights`` (N, C): shape (n_seg, C)."""
-    return np.column_stack(
-        [np.bincount(seg, weights=weights[:, c], minlength=n_seg) for c in range(weights.shape[1])]
-    )
+#: Per-segment column sums of weights (N, C), shape (n_seg, C); the old name of
+#: :func:`jointseg.grouping.group_sums`, kept for ``bench/graph_probe.py``.
+segment_label_sums = group_sums
 
 
 @dataclass(frozen=True)
@@ -105,7 +104,7 @@ def _shares(
     """Points per unit, summed probabilities and mean probabilities (soft shares):
     (U,), (U, C) and (U, C)."""
     size = np.bincount(unit, minlength=n_units).astype(np.float64)
-    sums = segment_label_sums(unit, n_units, probs)
+    sums = group_sums(unit, n_units, probs)
     return size, sums, sums / np.maximum(size, 1)[:, None]
 
 
@@ -151,10 +150,7 @@ def vote_offers(
         votes = np.zeros((n_seg, n_classes))
         return Offers(none, none, np.zeros((0, len(FEATURES))), none, votes)
     seg_size, seg_votes, seg_soft = _shares(seg, n_seg, probs)
-    seg_hard = (
-        np.bincount(seg * n_classes + labels, minlength=n_seg * n_classes).reshape(n_seg, n_classes)
-        / np.maximum(seg_size, 1)[:, None]
-    )
+    seg_hard = label_histogram(seg, n_seg, labels, n_classes) / np.maximum(seg_size, 1)[:, None]
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
     cell_size_pts, _, cell_soft = _shares(cell, n_cells, probs)
     entropy = -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from jointseg.classes import NUM_CLASSES
+from jointseg.grouping import majority_label
 
 #: Rows per chunk when counting neighbour votes (bounds the (rows, K, 13) temporaries).
 CHUNK = 131_072
@@ -59,11 +60,13 @@ def transfer_labels(
     for start in range(0, len(xyz), CHUNK):
         block = idx[start : start + CHUNK]
         rows = len(block)
-        keys = np.repeat(np.arange(rows), k) * NUM_CLASSES + network_labels[block].reshape(-1)
-        counts = np.bincount(
-            keys, weights=np.tile(rank_weight, rows), minlength=rows * NUM_CLASSES
-        ).reshape(rows, NUM_CLASSES)
-        labels[start : start + rows] = counts.argmax(axis=1)
+        labels[start : start + rows] = majority_label(
+            np.repeat(np.arange(rows), k),
+            rows,
+            network_labels[block].reshape(-1),
+            NUM_CLASSES,
+            weights=np.tile(rank_weight, rows),
+        )
         if probs_out is not None and network_probs is not None:
             probs_out[start : start + rows] = network_probs[block].mean(axis=1)
     return labels, probs_out

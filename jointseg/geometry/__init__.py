@@ -1,7 +1,30 @@
 """Geometric segmentation (§2.2): multi-level plane extraction, Euclidean clustering and
-colour region growing, without semantics."""
+colour region growing, without semantics.
+
+``segment`` and its result types are imported on first use (PEP 562), so ``GeometryParams``
+alone (configuration files, the CLI, the service's request checks) does not load open3d. The
+implementation lives in ``segmentation``, not in a module called ``segment``, so the submodule
+never shadows the ``segment`` function on this package.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
-from jointseg.geometry.segment import GeometryResult, PlaneInfo, segment
+
+if TYPE_CHECKING:
+    from jointseg.geometry.segmentation import GeometryResult, PlaneInfo, segment
+
+_LAZY = ("GeometryResult", "PlaneInfo", "segment")
 
 __all__ = ["GeometryParams", "GeometryResult", "PlaneInfo", "ResolvedGeometryParams", "segment"]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module("jointseg.geometry.segmentation"), name)
+    globals()[name] = value
+    return value

@@ -17,6 +17,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from jointseg.grouping import compact_ids
 from jointseg.voxels import cell_means
 
 
@@ -69,10 +70,9 @@ def neighbour_graph(tree: cKDTree, xyz: np.ndarray, *, k: int, radius: float) ->
 
 
 def compact(labels: np.ndarray) -> np.ndarray:
-    """Renumber non-negative labels to 0..L-1 keeping their order, in O(N) without sorting."""
-    present = np.zeros(int(labels.max()) + 1 if len(labels) else 0, dtype=bool)
-    present[labels] = True
-    return (np.cumsum(present) - 1)[labels]
+    """Renumber labels to 0..L-1 keeping their order (:func:`jointseg.grouping.compact_ids`),
+    so region and cluster ids stay dense after merges."""
+    return compact_ids(labels)[1]
 
 
 def components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:

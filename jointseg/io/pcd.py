@@ -55,6 +55,18 @@ _TYPES = {
     ("F", 8): "f8",
 }
 _DATA_KINDS = ("ascii", "binary", "binary_compressed")
+_HEADER_KEYWORDS = (
+    "VERSION",
+    "FIELDS",
+    "SIZE",
+    "TYPE",
+    "COUNT",
+    "WIDTH",
+    "HEIGHT",
+    "VIEWPOINT",
+    "POINTS",
+    "DATA",
+)
 _PACKED_COLOUR = ("rgb", "rgba")
 
 
@@ -102,9 +114,38 @@ def parse_header(head: bytes, path: Path) -> PcdHeader:
     ScanFormatError
         On a missing or inconsistent entry, an unknown type or DATA kind, or missing x/y/z.
     """
+    entries, body_offset, data_line = _header_entries(head, path)
+    fields, sizes, counts, width, height, points = _header_layout(entries, path)
+    types = _field_types(fields, entries["TYPE"], sizes, counts, path)
+    if points != width * height:
+        raise ScanFormatError(
+            f"{path}: PCD header says POINTS {points} but WIDTH × HEIGHT = {width} × {height} = "
+            f"{width * height}"
+        )
+    data = entries["DATA"][0].lower() if entries["DATA"] else ""
+    if data not in _DATA_KINDS:
+        raise ScanFormatError(
+            f"{path}: PCD DATA {data!r} is not supported (expected ascii, binary or "
+            f"binary_compressed)"
+        )
+    missing = [a for a in "xyz" if a not in fields or counts[fields.index(a)] != 1]
+    if missing:
+        raise ScanFormatError(
+            f"{path}: PCD has no scalar {'/'.join(missing)} field (fields: {' '.join(fields)})"
+        )
+    viewpoint = entries.get("VIEWPOINT")
+    if viewpoint and viewpoint != ["0", "0", "0", "1", "0", "0", "0"]:
+        logger.debug("%s: PCD VIEWPOINT %s is not applied", path, " ".join(viewpoint))
+    return PcdHeader(fields, types, counts, width, height, points, data, body_offset, data_line)
+
+
+def _header_entries(head: bytes, path: Path) -> tuple[dict[str, list[str]], int, int]:
+    """The header's keyword lines up to DATA, so anything else at the top is refused early.
+
+    Returns the values of each keyword, the byte offset of the body and the DATA line number.
+    """
     entries: dict[str, list[str]] = {}
     pos, line_no = 0, 0
-    data_line = None
     while pos < len(head):
         nl = head.find(b"\n", pos)
         if nl < 0:
@@ -121,28 +162,22 @@ def parse_header(head: bytes, path: Path) -> PcdHeader:
             continue
         word, *values = line.split()
         key = word.upper()
-        if key not in (
-            "VERSION",
-            "FIELDS",
-            "SIZE",
-            "TYPE",
-            "COUNT",
-            "WIDTH",
-            "HEIGHT",
-            "VIEWPOINT",
-            "POINTS",
-            "DATA",
-        ):
+        if key not in _HEADER_KEYWORDS:
             raise ScanFormatError(
                 f"{path}: not a PCD file or bad header: line {line_no} starts with {word!r}, "
                 f"expected a PCD header keyword (VERSION, FIELDS, ..., DATA)"
             )
         entries[key] = values
         if key == "DATA":
-            data_line = line_no
-            break
-    if data_line is None:
-        raise ScanFormatError(f"{path}: PCD header has no DATA line (not a PCD file, or truncated)")
+            return entries, pos, line_no
+    raise ScanFormatError(f"{path}: PCD header has no DATA line (not a PCD file, or truncated)")
+
+
+def _header_layout(
+    entries: dict[str, list[str]], path: Path
+) -> tuple[list[str], list[int], list[int], int, int, int]:
+    """Field names, sizes and counts, WIDTH, HEIGHT and POINTS, checked for presence,
+    agreement in length and integer values: (fields, sizes, counts, width, height, points)."""
     for key in ("FIELDS", "SIZE", "TYPE", "WIDTH"):
         if key not in entries:
             raise ScanFormatError(f"{path}: PCD header has no {key} line")
@@ -164,8 +199,15 @@ def parse_header(head: bytes, path: Path) -> PcdHeader:
         raise ScanFormatError(
             f"{path}: PCD header has a non-integer SIZE/COUNT/WIDTH/HEIGHT/POINTS value"
         ) from exc
+    return fields, sizes, counts, width, height, points
+
+
+def _field_types(
+    fields: list[str], type_codes: list[str], sizes: list[int], counts: list[int], path: Path
+) -> list[str]:
+    """Numpy type code of every field (refusing types numpy cannot read and repeated names)."""
     types = []
-    for name, typ, size, count in zip(fields, entries["TYPE"], sizes, counts, strict=True):
+    for name, typ, size, count in zip(fields, type_codes, sizes, counts, strict=True):
         code = _TYPES.get((typ.upper(), size))
         if code is None or count < 1:
             raise ScanFormatError(
@@ -176,26 +218,7 @@ def parse_header(head: bytes, path: Path) -> PcdHeader:
     named = [f for f in fields if f != "_"]
     if len(set(named)) != len(named):
         raise ScanFormatError(f"{path}: PCD header repeats a field name: {' '.join(fields)}")
-    if points != width * height:
-        raise ScanFormatError(
-            f"{path}: PCD header says POINTS {points} but WIDTH × HEIGHT = {width} × {height} = "
-            f"{width * height}"
-        )
-    data = entries["DATA"][0].lower() if entries["DATA"] else ""
-    if data not in _DATA_KINDS:
-        raise ScanFormatError(
-            f"{path}: PCD DATA {data!r} is not supported (expected ascii, binary or "
-            f"binary_compressed)"
-        )
-    missing = [a for a in "xyz" if a not in fields or counts[fields.index(a)] != 1]
-    if missing:
-        raise ScanFormatError(
-            f"{path}: PCD has no scalar {'/'.join(missing)} field (fields: {' '.join(fields)})"
-        )
-    viewpoint = entries.get("VIEWPOINT")
-    if viewpoint and viewpoint != ["0", "0", "0", "1", "0", "0", "0"]:
-        logger.debug("%s: PCD VIEWPOINT %s is not applied", path, " ".join(viewpoint))
-    return PcdHeader(fields, types, counts, width, height, points, data, pos, data_line)
+    return types
 
 
 def _scalar_fields(header: PcdHeader) -> list[str]:
@@ -338,7 +361,29 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     check_max_points(header.points, max_points, path)
     _check_size(path, header, os.path.getsize(path))
     report(progress, "read", 0.0)
-    first_line = 0
+    rec, first_line = _read_records(path, header, progress)
+    xyz = np.stack([rec[a].astype(np.float64) for a in "xyz"], axis=1)
+    index = np.arange(len(rec))
+    if header.height > 1:
+        keep = _valid_pixels(xyz, header, path)
+        if keep is not None:
+            rec, xyz, index = rec[keep], xyz[keep], index[keep]
+    rgb, labels, fields = _colour_labels_fields(rec, header, path)
+    report(progress, "read", 1.0)
+
+    def locate(i: int) -> str:
+        if first_line:
+            return f"line {first_line + int(index[i])}"
+        return f"record {int(index[i])}"
+
+    return build_scan(path, "pcd", xyz, rgb, labels, fields, locate=locate)
+
+
+def _read_records(
+    path: Path, header: PcdHeader, progress: ProgressFn | None
+) -> tuple[np.ndarray, int]:
+    """The body as records of the header's dtype, whatever the DATA kind, and the file line of
+    the first record (0 for binary bodies, whose records have no line)."""
     if header.data == "binary":
         with open(path, "rb") as fh:
             fh.seek(header.body_offset)
@@ -347,27 +392,35 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
             raise ScanFormatError(
                 f"{path}: truncated PCD: read {rec.shape[0]:,} of {header.points:,} points"
             )
-    elif header.data == "binary_compressed":
-        rec = _read_compressed(path, header)
-    else:
-        rec, first_line = _read_ascii(path, header, progress)
-    names = [n for n in header.fields if n != "_"]
+        return rec, 0
+    if header.data == "binary_compressed":
+        return _read_compressed(path, header), 0
+    return _read_ascii(path, header, progress)
+
+
+def _valid_pixels(xyz: np.ndarray, header: PcdHeader, path: Path) -> np.ndarray | None:
+    """Mask of the points of an organised cloud that are not missing pixels (NaN), None when
+    none is missing: missing pixels are dropped, not an error."""
+    nan = np.isnan(xyz).any(axis=1)
+    if not nan.any():
+        return None
+    logger.info(
+        "%s: dropped %d invalid (NaN) points of the organised %d×%d cloud",
+        path,
+        int(nan.sum()),
+        header.width,
+        header.height,
+    )
+    return ~nan
+
+
+def _colour_labels_fields(
+    rec: np.ndarray, header: PcdHeader, path: Path
+) -> tuple[np.ndarray | None, np.ndarray | None, dict[str, np.ndarray]]:
+    """Colour (packed or per channel), labels and every other field of the records, so each
+    PCD field lands in exactly one place of the scan."""
     scalar = _scalar_fields(header)
     kinds = dict(zip(header.fields, header.types, strict=True))
-    xyz = np.stack([rec[a].astype(np.float64) for a in "xyz"], axis=1)
-    index = np.arange(len(rec))
-    if header.height > 1:
-        nan = np.isnan(xyz).any(axis=1)
-        if nan.any():
-            logger.info(
-                "%s: dropped %d invalid (NaN) points of the organised %d×%d cloud",
-                path,
-                int(nan.sum()),
-                header.width,
-                header.height,
-            )
-            keep = ~nan
-            rec, xyz, index = rec[keep], xyz[keep], index[keep]
     used = {"x", "y", "z"}
     rgb = None
     packed = next((n for n in scalar if n.lower() in _PACKED_COLOUR and kinds[n][1] == "4"), None)
@@ -384,17 +437,10 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     if label_name is not None:
         used.add(label_name)
         labels, fields = normalise_labels(rec[label_name], path=path, source=label_name)
-    for name in names:
-        if name not in used:
+    for name in header.fields:
+        if name != "_" and name not in used:
             fields[name] = np.ascontiguousarray(rec[name])
-    report(progress, "read", 1.0)
-
-    def locate(i: int) -> str:
-        if first_line:
-            return f"line {first_line + int(index[i])}"
-        return f"record {int(index[i])}"
-
-    return build_scan(path, "pcd", xyz, rgb, labels, fields, locate=locate)
+    return rgb, labels, fields
 
 
 def probe_pcd(path: Path, *, max_points: int) -> ScanInfo:
@@ -458,25 +504,7 @@ def write_pcd(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> 
     ScanFormatError
         On a field name or dtype PCD cannot store.
     """
-    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
-    if scan.rgb is not None:
-        rgb = scan.rgb.astype(np.uint32)
-        columns["rgb"] = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).view(np.float32)
-    if scan.labels is not None:
-        columns["label"] = scan.labels
-    for raw_name, values in scan.fields.items():
-        name = safe_field_name(raw_name, path=path)
-        if name in columns or name == "_":
-            raise ScanFormatError(
-                f"{path}: field {raw_name!r} cannot be written to PCD: the name {name!r} is "
-                f"taken; rename the field"
-            )
-        cols = values.reshape(len(values), -1)
-        narrowed = [narrow_dtype(cols[:, i], name=name, path=path) for i in range(cols.shape[1])]
-        common = np.result_type(*narrowed)
-        columns[name] = (
-            np.stack(narrowed, axis=1).astype(common) if values.ndim == 2 else (narrowed[0])
-        )
+    columns = _pcd_columns(scan, path)
     spec, sizes, types, counts = [], [], [], []
     for name, col in columns.items():
         base = col.dtype.newbyteorder("<")
@@ -506,3 +534,28 @@ def write_pcd(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> 
         fh.write("\n".join(lines).encode("ascii"))
         fh.write(record.tobytes())
     report(progress, "write", 1.0)
+
+
+def _pcd_columns(scan: Scan, path: Path) -> dict[str, np.ndarray]:
+    """The columns PCD stores, by field name: x y z, packed rgb, label and the scan's fields
+    narrowed to a type PCD has (refusing names that clash)."""
+    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
+    if scan.rgb is not None:
+        rgb = scan.rgb.astype(np.uint32)
+        columns["rgb"] = ((rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]).view(np.float32)
+    if scan.labels is not None:
+        columns["label"] = scan.labels
+    for raw_name, values in scan.fields.items():
+        name = safe_field_name(raw_name, path=path)
+        if name in columns or name == "_":
+            raise ScanFormatError(
+                f"{path}: field {raw_name!r} cannot be written to PCD: the name {name!r} is "
+                f"taken; rename the field"
+            )
+        cols = values.reshape(len(values), -1)
+        narrowed = [narrow_dtype(cols[:, i], name=name, path=path) for i in range(cols.shape[1])]
+        common = np.result_type(*narrowed)
+        columns[name] = (
+            np.stack(narrowed, axis=1).astype(common) if values.ndim == 2 else (narrowed[0])
+        )
+    return columns

@@ -7,6 +7,8 @@ colours. Builders follow :mod:`jointseg.synth.furniture`: draw parameters first,
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from jointseg.classes import CLASS_INDEX
@@ -68,125 +70,152 @@ def make_floor_item(rng: np.random.Generator) -> Item:
             p=[0.3, 0.2, 0.18, 0.1, 0.07, 0.07, 0.08],
         )
     )
-    if kind == "boxes":
-        n = int(rng.integers(1, 4))
-        sizes = np.stack(
-            [rng.uniform(0.3, 0.6, n), rng.uniform(0.25, 0.5, n), rng.uniform(0.2, 0.45, n)], 1
-        )
-        sizes = sizes[np.argsort(-sizes[:, 0] * sizes[:, 1])]
-        offs = rng.uniform(-0.04, 0.04, (n, 2))
-        offs[0] = 0.0
-        cols = ap.sample_colour(rng, "cardboard", n)
-        w, d, h = float(sizes[0, 0]) + 0.1, float(sizes[0, 1]) + 0.1, float(sizes[:, 2].sum())
-    elif kind == "bin":
-        r, h = float(rng.uniform(0.13, 0.2)), float(rng.uniform(0.3, 0.5))
-        w = d = 2 * r
-        col = ap.sample_colour(rng, "any")
-    elif kind == "plant":
-        pr, ph = float(rng.uniform(0.12, 0.2)), float(rng.uniform(0.2, 0.4))
-        fr = float(rng.uniform(0.25, 0.45))
-        stem = float(rng.uniform(0.0, 0.8))
-        w = d = 2 * fr * 1.2
-        h = ph + stem + 2 * fr
-        pot_col, leaf_col = ap.sample_colour(rng, "pot"), ap.sample_colour(rng, "plant")
-    elif kind == "printer":
-        w, d, h = float(rng.uniform(0.45, 0.65)), float(rng.uniform(0.4, 0.55)), 0.0
-        ph = float(rng.uniform(0.3, 0.5))
-        stand = float(rng.uniform(0.0, 0.7)) if rng.random() < 0.5 else 0.0
-        h = stand + ph
-        col = ap.sample_colour(rng, "cabinet")
-    elif kind == "lamp":
-        w = d = 0.45
-        h = float(rng.uniform(1.5, 1.85))
-        col = ap.sample_colour(rng, "metal")
-    elif kind == "fridge":
-        w, d = float(rng.uniform(0.35, 0.6)), float(rng.uniform(0.35, 0.6))
-        h = float(rng.uniform(0.85, 1.6))
-        col = ap.sample_colour(rng, "paper")
-    else:
-        w, d, h = float(rng.uniform(0.3, 0.5)), float(rng.uniform(0.2, 0.35)), 0.0
-        h = float(rng.uniform(0.25, 0.45))
-        col = ap.sample_colour(rng, "any")
+    return _FLOOR_ITEMS[kind](rng)
+
+
+def _box_stack(rng: np.random.Generator) -> Item:
+    """One to three cardboard boxes stacked, largest footprint at the bottom."""
+    n = int(rng.integers(1, 4))
+    sizes = np.stack(
+        [rng.uniform(0.3, 0.6, n), rng.uniform(0.25, 0.5, n), rng.uniform(0.2, 0.45, n)], 1
+    )
+    sizes = sizes[np.argsort(-sizes[:, 0] * sizes[:, 1])]
+    offs = rng.uniform(-0.04, 0.04, (n, 2))
+    offs[0] = 0.0
+    cols = ap.sample_colour(rng, "cardboard", n)
+    w, d, h = float(sizes[0, 0]) + 0.1, float(sizes[0, 1]) + 0.1, float(sizes[:, 2].sum())
 
     def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
-        if kind == "boxes":
-            z = 0.0
-            for i in range(sizes.shape[0]):
-                c = [[offs[i, 0], offs[i, 1], z + sizes[i, 2] / 2]]
-                mb.add_local_boxes(
-                    pose,
-                    c,
-                    sizes[i],
-                    label=CLUTTER,
-                    instance=ids(),
-                    colour=cols[i],
-                    material=ap.PLAIN,
-                )
-                z += sizes[i, 2]
-            return
-        attrs = {"label": CLUTTER, "instance": ids()}
-        base = pose.world([[0.0, 0.0, 0.0]])
-        if kind == "bin":
-            mb.add_prisms(base, r * 0.85, h, top_radii=r, sides=12, colour=col, **attrs)
-        elif kind == "plant":
-            mb.add_prisms(base, pr * 0.8, ph, top_radii=pr, sides=12, colour=pot_col, **attrs)
-            if stem > 0:
-                mb.add_prisms(
-                    base + [0, 0, ph],
-                    0.02,
-                    stem + fr * 0.5,
-                    sides=6,
-                    colour=leaf_col * 0.6,
-                    **attrs,
-                )
-            centre = base[0] + [0.0, 0.0, ph + stem + fr]
-            mb.add_blob(
-                centre,
-                [fr, fr, fr * 1.1],
-                rng,
-                roughness=0.3,
-                colour=leaf_col,
-                material=ap.FABRIC,
-                **attrs,
-            )
-        elif kind == "printer":
-            if stand > 0:
-                mb.add_local_boxes(
-                    pose,
-                    [[0.0, 0.0, stand / 2]],
-                    [w, d, stand],
-                    colour=ap.sample_colour(rng, "cabinet"),
-                    **attrs,
-                )
+        z = 0.0
+        for i in range(sizes.shape[0]):
+            c = [[offs[i, 0], offs[i, 1], z + sizes[i, 2] / 2]]
             mb.add_local_boxes(
-                pose, [[0.0, 0.0, stand + ph / 2]], [w * 0.95, d * 0.95, ph], colour=col, **attrs
+                pose, c, sizes[i], label=CLUTTER, instance=ids(), colour=cols[i], material=ap.PLAIN
             )
-        elif kind == "lamp":
-            mb.add_prisms(base, 0.18, 0.03, sides=12, colour=col, material=ap.METAL, **attrs)
-            mb.add_prisms(base, 0.015, h - 0.3, sides=6, colour=col, material=ap.METAL, **attrs)
-            mb.add_prisms(
-                base + [0, 0, h - 0.3],
-                0.12,
-                0.3,
-                top_radii=0.2,
-                sides=12,
-                colour=ap.sample_colour(rng, "lamp") * 0.95,
-                **attrs,
-            )
-        elif kind == "fridge":
-            mb.add_local_boxes(pose, [[0.0, 0.0, h / 2]], [w, d, h], colour=col, **attrs)
-        else:
-            mb.add_blob(
-                base[0] + [0.0, 0.0, h / 2],
-                [w / 2, d / 2, h / 2],
-                rng,
-                roughness=0.12,
-                colour=col,
-                material=ap.FABRIC,
-                **attrs,
-            )
+            z += sizes[i, 2]
 
-    return Item(kind, w, d, h, build)
+    return Item("boxes", w, d, h, build)
+
+
+def _bin(rng: np.random.Generator) -> Item:
+    """A round waste bin, wider at the top."""
+    r, h = float(rng.uniform(0.13, 0.2)), float(rng.uniform(0.3, 0.5))
+    col = ap.sample_colour(rng, "any")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        base = pose.world([[0.0, 0.0, 0.0]])
+        mb.add_prisms(base, r * 0.85, h, top_radii=r, sides=12, colour=col, **_clutter(ids))
+
+    return Item("bin", 2 * r, 2 * r, h, build)
+
+
+def _plant(rng: np.random.Generator) -> Item:
+    """A pot with a leafy blob, on a stem for the taller ones."""
+    pr, ph = float(rng.uniform(0.12, 0.2)), float(rng.uniform(0.2, 0.4))
+    fr = float(rng.uniform(0.25, 0.45))
+    stem = float(rng.uniform(0.0, 0.8))
+    pot_col, leaf_col = ap.sample_colour(rng, "pot"), ap.sample_colour(rng, "plant")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        attrs = _clutter(ids)
+        base = pose.world([[0.0, 0.0, 0.0]])
+        mb.add_prisms(base, pr * 0.8, ph, top_radii=pr, sides=12, colour=pot_col, **attrs)
+        if stem > 0:
+            top = base + [0, 0, ph]
+            mb.add_prisms(top, 0.02, stem + fr * 0.5, sides=6, colour=leaf_col * 0.6, **attrs)
+        centre = base[0] + [0.0, 0.0, ph + stem + fr]
+        shape = [fr, fr, fr * 1.1]
+        mb.add_blob(centre, shape, rng, roughness=0.3, colour=leaf_col, material=ap.FABRIC, **attrs)
+
+    return Item("plant", 2 * fr * 1.2, 2 * fr * 1.2, ph + stem + 2 * fr, build)
+
+
+def _printer(rng: np.random.Generator) -> Item:
+    """A printer or copier, on a stand half the time."""
+    w, d = float(rng.uniform(0.45, 0.65)), float(rng.uniform(0.4, 0.55))
+    ph = float(rng.uniform(0.3, 0.5))
+    stand = float(rng.uniform(0.0, 0.7)) if rng.random() < 0.5 else 0.0
+    col = ap.sample_colour(rng, "cabinet")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        attrs = _clutter(ids)
+        if stand > 0:
+            stand_col = ap.sample_colour(rng, "cabinet")
+            mb.add_local_boxes(
+                pose, [[0.0, 0.0, stand / 2]], [w, d, stand], colour=stand_col, **attrs
+            )
+        mb.add_local_boxes(
+            pose, [[0.0, 0.0, stand + ph / 2]], [w * 0.95, d * 0.95, ph], colour=col, **attrs
+        )
+
+    return Item("printer", w, d, stand + ph, build)
+
+
+def _floor_lamp(rng: np.random.Generator) -> Item:
+    """A floor lamp: round foot, thin pole, shade."""
+    h = float(rng.uniform(1.5, 1.85))
+    col = ap.sample_colour(rng, "metal")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        attrs = _clutter(ids)
+        base = pose.world([[0.0, 0.0, 0.0]])
+        mb.add_prisms(base, 0.18, 0.03, sides=12, colour=col, material=ap.METAL, **attrs)
+        mb.add_prisms(base, 0.015, h - 0.3, sides=6, colour=col, material=ap.METAL, **attrs)
+        shade = ap.sample_colour(rng, "lamp") * 0.95
+        top = base + [0, 0, h - 0.3]
+        mb.add_prisms(top, 0.12, 0.3, top_radii=0.2, sides=12, colour=shade, **attrs)
+
+    return Item("lamp", 0.45, 0.45, h, build)
+
+
+def _fridge(rng: np.random.Generator) -> Item:
+    """A small fridge or similar box appliance."""
+    w, d = float(rng.uniform(0.35, 0.6)), float(rng.uniform(0.35, 0.6))
+    h = float(rng.uniform(0.85, 1.6))
+    col = ap.sample_colour(rng, "paper")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        mb.add_local_boxes(pose, [[0.0, 0.0, h / 2]], [w, d, h], colour=col, **_clutter(ids))
+
+    return Item("fridge", w, d, h, build)
+
+
+def _bag(rng: np.random.Generator) -> Item:
+    """A soft bag or backpack: a rough fabric blob."""
+    w, d = float(rng.uniform(0.3, 0.5)), float(rng.uniform(0.2, 0.35))
+    h = float(rng.uniform(0.25, 0.45))
+    col = ap.sample_colour(rng, "any")
+
+    def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
+        centre = pose.world([[0.0, 0.0, 0.0]])[0] + [0.0, 0.0, h / 2]
+        mb.add_blob(
+            centre,
+            [w / 2, d / 2, h / 2],
+            rng,
+            roughness=0.12,
+            colour=col,
+            material=ap.FABRIC,
+            **_clutter(ids),
+        )
+
+    return Item("bag", w, d, h, build)
+
+
+def _clutter(ids: Ids) -> dict[str, int]:
+    """Mesh attributes of one new clutter object (a fresh instance id)."""
+    return {"label": CLUTTER, "instance": ids()}
+
+
+#: Floor item builders by kind; each draws its parameters in a fixed order (reproducible rooms).
+_FLOOR_ITEMS: dict[str, Callable[[np.random.Generator], Item]] = {
+    "boxes": _box_stack,
+    "bin": _bin,
+    "plant": _plant,
+    "printer": _printer,
+    "lamp": _floor_lamp,
+    "fridge": _fridge,
+    "bag": _bag,
+}
 
 
 def make_table_item(rng: np.random.Generator) -> Item:
@@ -223,20 +252,9 @@ def make_table_item(rng: np.random.Generator) -> Item:
         w, d, h = 0.2, 0.18, 0.08
 
     def build(mb: MeshBuilder, pose: Pose, ids: Ids) -> None:
-        attrs = {"label": CLUTTER, "instance": ids()}
+        attrs = _clutter(ids)
         if kind == "monitor":
-            dark = ap.sample_colour(rng, "screen")
-            c = [[0.0, 0.02, 0.008], [0.0, -0.03, lift / 2 + 0.01], [0.0, -0.05, lift + sh / 2]]
-            s = [[0.22, 0.18, 0.016], [0.05, 0.03, lift], [w, 0.035, sh]]
-            mb.add_local_boxes(pose, c, s, colour=dark * 1.4, material=ap.PLAIN, **attrs)
-            mb.add_local_boxes(
-                pose,
-                [[0.0, -0.03, lift + sh / 2]],
-                [w - 0.03, 0.006, sh - 0.03],
-                colour=dark,
-                material=ap.SCREEN,
-                **attrs,
-            )
+            _add_monitor(mb, pose, attrs, rng, width=w, lift=lift, screen_height=sh)
         elif kind == "laptop":
             mb.add_local_boxes(
                 pose,
@@ -249,16 +267,57 @@ def make_table_item(rng: np.random.Generator) -> Item:
         elif kind in ("mug", "bottle"):
             mb.add_prisms(pose.world([[0.0, 0.0, 0.0]]), w / 2, h, sides=10, colour=col, **attrs)
         elif kind == "books":
-            z = np.concatenate([[0.0], np.cumsum(th)[:-1]]) + th / 2
-            jitter = rng.uniform(-0.02, 0.02, (th.size, 2))
-            centres = np.column_stack([jitter, z])
-            cols = ap.sample_colour(rng, "book", th.size)
-            sizes = np.stack([np.full(th.size, w - 0.05), np.full(th.size, d - 0.05), th], 1)
-            mb.add_local_boxes(pose, centres, sizes, colour=cols, **attrs)
+            _add_books(mb, pose, attrs, rng, thickness=th, width=w, depth=d)
         else:
             mb.add_local_boxes(pose, [[0.0, 0.0, h / 2]], [w, d, h], colour=col, **attrs)
 
     return Item(kind, w, d, h, build)
+
+
+def _add_monitor(
+    mb: MeshBuilder,
+    pose: Pose,
+    attrs: dict[str, int],
+    rng: np.random.Generator,
+    *,
+    width: float,
+    lift: float,
+    screen_height: float,
+) -> None:
+    """A monitor's foot, neck and housing, and its screen a little in front of the housing."""
+    sh = screen_height
+    dark = ap.sample_colour(rng, "screen")
+    c = [[0.0, 0.02, 0.008], [0.0, -0.03, lift / 2 + 0.01], [0.0, -0.05, lift + sh / 2]]
+    s = [[0.22, 0.18, 0.016], [0.05, 0.03, lift], [width, 0.035, sh]]
+    mb.add_local_boxes(pose, c, s, colour=dark * 1.4, material=ap.PLAIN, **attrs)
+    mb.add_local_boxes(
+        pose,
+        [[0.0, -0.03, lift + sh / 2]],
+        [width - 0.03, 0.006, sh - 0.03],
+        colour=dark,
+        material=ap.SCREEN,
+        **attrs,
+    )
+
+
+def _add_books(
+    mb: MeshBuilder,
+    pose: Pose,
+    attrs: dict[str, int],
+    rng: np.random.Generator,
+    *,
+    thickness: np.ndarray,
+    width: float,
+    depth: float,
+) -> None:
+    """A pile of books of the given thicknesses, each a little askew and of its own colour."""
+    th = thickness
+    z = np.concatenate([[0.0], np.cumsum(th)[:-1]]) + th / 2
+    jitter = rng.uniform(-0.02, 0.02, (th.size, 2))
+    centres = np.column_stack([jitter, z])
+    cols = ap.sample_colour(rng, "book", th.size)
+    sizes = np.stack([np.full(th.size, width - 0.05), np.full(th.size, depth - 0.05), th], 1)
+    mb.add_local_boxes(pose, centres, sizes, colour=cols, **attrs)
 
 
 def make_wall_item(rng: np.random.Generator, height: float) -> tuple[Item, float]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from jointseg.classes import CLASS_INDEX
 from jointseg.synth import appearance as ap
-from jointseg.synth.layout import Box3, Opening, Plan
+from jointseg.synth.layout import Box3, Opening, Plan, Space
 from jointseg.synth.meshes import MeshBuilder, Pose
 
 WALL, FLOOR, CEILING = CLASS_INDEX["wall"], CLASS_INDEX["floor"], CLASS_INDEX["ceiling"]
@@ -93,74 +93,13 @@ def build_shell(
     rng: np.random.Generator,
 ) -> None:
     """Add walls, floors and ceilings of every space (one instance per wall plane)."""
-    h = plan.height
-    ox0, oy0, ox1, oy1 = plan.outline
-    rects = [(s.index, r) for s in plan.spaces for r in s.rects]
-    xs = np.unique([ox0, ox1, *[v for _, r in rects for v in (r[0], r[2])]])
-    ys = np.unique([oy0, oy1, *[v for _, r in rects for v in (r[1], r[3])]])
     holes = np.array([o.box() for o in plan.openings]).reshape(-1, 6)
-    boxes: list[Box3] = []
-    for (xa, xb), (ya, yb) in itertools.product(
-        zip(xs[:-1], xs[1:], strict=True), zip(ys[:-1], ys[1:], strict=True)
-    ):
-        cx, cy = 0.5 * (xa + xb), 0.5 * (ya + yb)
-        if any(bool(s.contains(cx, cy)) for s in plan.spaces):
-            continue
-        boxes.extend(_carve((xa, ya, 0.0, xb, yb, h), holes))
-    b = np.array(boxes)
+    b = _wall_boxes(plan, holes)
     lo, hi = b[:, :3], b[:, 3:]
-    centre = 0.5 * (lo + hi)
-    k = b.shape[0]
-    face_inst = np.zeros((k, 6), dtype=np.int64)
-    face_col = np.zeros((k, 6, 3))
-    mask = np.zeros((k, 6), dtype=bool)
-    plane_ids: dict[tuple[int, int, int, float, int], int] = {}
-    plane_col: dict[int, np.ndarray] = {}
-
-    def plane(space: int, axis: int, sign: int, coord: float, reveal: int = -1) -> int:
-        key = (space, axis, sign, round(float(coord), 4), reveal)
-        if key not in plane_ids:
-            plane_ids[key] = ids()
-            if reveal >= 0:
-                face_key = (space, axis, sign, round(float(coord), 4), -1)
-                if face_key in plane_ids:
-                    plane_col[plane_ids[key]] = plane_col[plane_ids[face_key]]
-                    return plane_ids[key]
-            base = looks[space].wall
-            if rng.random() < 0.07:  # the odd accent wall
-                base = ap.sample_colour(rng, "wall") * rng.uniform(0.8, 1.0)
-            plane_col[plane_ids[key]] = base * rng.uniform(0.97, 1.03)
-        return plane_ids[key]
-
-    for f in range(6):
-        axis, sign = f // 2, (1 if f % 2 == 0 else -1)
-        plane_coord = (hi if sign > 0 else lo)[:, axis]
-        probe = centre.copy()
-        probe[:, axis] = plane_coord + sign * 1e-3
-        hole_idx = np.full(k, -1)
-        if holes.shape[0]:
-            in_hole = np.all(
-                (holes[None, :, :3] < probe[:, None, :]) & (probe[:, None, :] < holes[None, :, 3:]),
-                axis=2,
-            )
-            hole_idx = np.where(in_hole.any(axis=1), np.argmax(in_hole, axis=1), -1)
-        z_ok = (probe[:, 2] > 0.0) & (probe[:, 2] < h)
-        space_idx = np.full(k, -1)
-        for sp in plan.spaces:
-            hit = (space_idx < 0) & z_ok & sp.contains(probe[:, 0], probe[:, 1])
-            space_idx[hit] = sp.index
-        for i in np.flatnonzero((hole_idx >= 0) | (space_idx >= 0)):
-            if hole_idx[i] >= 0:  # a reveal: its own plane, painted like face A
-                fa = plan.openings[hole_idx[i]].face
-                inst = plane(fa.space, fa.axis, fa.sign, fa.coord, reveal=int(hole_idx[i]))
-            else:
-                inst = plane(int(space_idx[i]), axis, sign, plane_coord[i])
-            mask[i, f] = True
-            face_inst[i, f] = inst
-            face_col[i, f] = plane_col[inst]
+    face_inst, face_col, mask = _wall_faces(plan, lo, hi, holes, _WallPlanes(ids, looks, rng))
     keep = mask.any(axis=1)
     mb.add_boxes(
-        centre[keep],
+        (0.5 * (lo + hi))[keep],
         (hi - lo)[keep],
         0.0,
         label=WALL,
@@ -171,39 +110,138 @@ def build_shell(
         face_colour=face_col[keep],
         face_mask=mask[keep],
     )
-    for s in plan.spaces:
-        look = looks[s.index]
-        fl, ce = ids(), ids()
-        for x0, y0, x1, y1 in s.rects:
-            c = [(x0 + x1) / 2, (y0 + y1) / 2]
-            size = [x1 - x0, y1 - y0, SLAB]
+    for space in plan.spaces:
+        _add_slabs(plan, space, mb, ids, looks[space.index])
+
+
+def _wall_boxes(plan: Plan, holes: np.ndarray) -> np.ndarray:
+    """Solid wall boxes (k, 6): the outline minus the spaces on the grid of all space edges,
+    carved around the openings so reveals, lintels and sills exist."""
+    ox0, oy0, ox1, oy1 = plan.outline
+    rects = [(s.index, r) for s in plan.spaces for r in s.rects]
+    xs = np.unique([ox0, ox1, *[v for _, r in rects for v in (r[0], r[2])]])
+    ys = np.unique([oy0, oy1, *[v for _, r in rects for v in (r[1], r[3])]])
+    boxes: list[Box3] = []
+    for (xa, xb), (ya, yb) in itertools.product(
+        zip(xs[:-1], xs[1:], strict=True), zip(ys[:-1], ys[1:], strict=True)
+    ):
+        cx, cy = 0.5 * (xa + xb), 0.5 * (ya + yb)
+        if any(bool(s.contains(cx, cy)) for s in plan.spaces):
+            continue
+        boxes.extend(_carve((xa, ya, 0.0, xb, yb, plan.height), holes))
+    return np.array(boxes)
+
+
+class _WallPlanes:
+    """One instance id and colour per wall plane, so every face of a plane (and the reveals
+    painted like it) share them; colours are drawn when a plane is first seen."""
+
+    def __init__(self, ids: Ids, looks: list[SpaceLook], rng: np.random.Generator) -> None:
+        self.ids, self.looks, self.rng = ids, looks, rng
+        self.plane_ids: dict[tuple[int, int, int, float, int], int] = {}
+        self.colour: dict[int, np.ndarray] = {}
+
+    def instance(self, space: int, axis: int, sign: int, coord: float, reveal: int = -1) -> int:
+        """The instance of the plane of ``space`` facing ``sign`` along ``axis`` at ``coord``
+        (or of the reveal of opening ``reveal`` on it)."""
+        key = (space, axis, sign, round(float(coord), 4), reveal)
+        if key not in self.plane_ids:
+            self.plane_ids[key] = self.ids()
+            if reveal >= 0:
+                face_key = (space, axis, sign, round(float(coord), 4), -1)
+                if face_key in self.plane_ids:
+                    self.colour[self.plane_ids[key]] = self.colour[self.plane_ids[face_key]]
+                    return self.plane_ids[key]
+            base = self.looks[space].wall
+            if self.rng.random() < 0.07:  # the odd accent wall
+                base = ap.sample_colour(self.rng, "wall") * self.rng.uniform(0.8, 1.0)
+            self.colour[self.plane_ids[key]] = base * self.rng.uniform(0.97, 1.03)
+        return self.plane_ids[key]
+
+
+def _wall_faces(
+    plan: Plan, lo: np.ndarray, hi: np.ndarray, holes: np.ndarray, planes: _WallPlanes
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which faces of the wall boxes look into a space or an opening, and the instance and
+    colour of each: (k, 6) ids, (k, 6, 3) colours and the (k, 6) mask."""
+    centre = 0.5 * (lo + hi)
+    k = lo.shape[0]
+    face_inst = np.zeros((k, 6), dtype=np.int64)
+    face_col = np.zeros((k, 6, 3))
+    mask = np.zeros((k, 6), dtype=bool)
+    for f in range(6):
+        axis, sign = f // 2, (1 if f % 2 == 0 else -1)
+        plane_coord = (hi if sign > 0 else lo)[:, axis]
+        probe = centre.copy()
+        probe[:, axis] = plane_coord + sign * 1e-3
+        hole_idx, space_idx = _face_targets(plan, probe, holes)
+        for i in np.flatnonzero((hole_idx >= 0) | (space_idx >= 0)):
+            if hole_idx[i] >= 0:  # a reveal: its own plane, painted like face A
+                fa = plan.openings[hole_idx[i]].face
+                inst = planes.instance(fa.space, fa.axis, fa.sign, fa.coord, int(hole_idx[i]))
+            else:
+                inst = planes.instance(int(space_idx[i]), axis, sign, plane_coord[i])
+            mask[i, f] = True
+            face_inst[i, f] = inst
+            face_col[i, f] = planes.colour[inst]
+    return face_inst, face_col, mask
+
+
+def _face_targets(
+    plan: Plan, probe: np.ndarray, holes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The opening (else -1) and the space (else -1) each probe point just outside a face lies
+    in: a face is seen only from there."""
+    k = probe.shape[0]
+    hole_idx = np.full(k, -1)
+    if holes.shape[0]:
+        in_hole = np.all(
+            (holes[None, :, :3] < probe[:, None, :]) & (probe[:, None, :] < holes[None, :, 3:]),
+            axis=2,
+        )
+        hole_idx = np.where(in_hole.any(axis=1), np.argmax(in_hole, axis=1), -1)
+    z_ok = (probe[:, 2] > 0.0) & (probe[:, 2] < plan.height)
+    space_idx = np.full(k, -1)
+    for sp in plan.spaces:
+        hit = (space_idx < 0) & z_ok & sp.contains(probe[:, 0], probe[:, 1])
+        space_idx[hit] = sp.index
+    return hole_idx, space_idx
+
+
+def _add_slabs(plan: Plan, space: Space, mb: MeshBuilder, ids: Ids, look: SpaceLook) -> None:
+    """A space's floor and ceiling slabs, and the floor under its doors (one instance each)."""
+    h = plan.height
+    fl, ce = ids(), ids()
+    for x0, y0, x1, y1 in space.rects:
+        c = [(x0 + x1) / 2, (y0 + y1) / 2]
+        size = [x1 - x0, y1 - y0, SLAB]
+        mb.add_boxes(
+            [[*c, -SLAB / 2]],
+            size,
+            label=FLOOR,
+            instance=fl,
+            colour=look.floor,
+            material=look.floor_material,
+        )
+        mb.add_boxes(
+            [[*c, h + SLAB / 2]],
+            size,
+            label=CEILING,
+            instance=ce,
+            colour=look.ceiling,
+            material=look.ceiling_material,
+        )
+    for o in plan.openings:
+        if o.face.space == space.index and o.kind == "door":
+            ob = o.box()
             mb.add_boxes(
-                [[*c, -SLAB / 2]],
-                size,
+                [[(ob[0] + ob[3]) / 2, (ob[1] + ob[4]) / 2, -SLAB / 2]],
+                [ob[3] - ob[0], ob[4] - ob[1], SLAB],
                 label=FLOOR,
                 instance=fl,
                 colour=look.floor,
                 material=look.floor_material,
             )
-            mb.add_boxes(
-                [[*c, h + SLAB / 2]],
-                size,
-                label=CEILING,
-                instance=ce,
-                colour=look.ceiling,
-                material=look.ceiling_material,
-            )
-        for o in plan.openings:
-            if o.face.space == s.index and o.kind == "door":
-                ob = o.box()
-                mb.add_boxes(
-                    [[(ob[0] + ob[3]) / 2, (ob[1] + ob[4]) / 2, -SLAB / 2]],
-                    [ob[3] - ob[0], ob[4] - ob[1], SLAB],
-                    label=FLOOR,
-                    instance=fl,
-                    colour=look.floor,
-                    material=look.floor_material,
-                )
 
 
 def _opening_pose(o: Opening) -> Pose:
@@ -227,17 +265,9 @@ def build_door(o: Opening, mb: MeshBuilder, ids: Ids, rng: np.random.Generator) 
     attrs = {"label": DOOR, "instance": inst}
     jt = float(rng.uniform(0.02, 0.035))  # lining thickness in the reveal
     cw, cp = float(rng.uniform(0.05, 0.08)), float(rng.uniform(0.03, 0.045))  # casing width, proud
-    c, s = [], []
-    c += [[-w / 2 + jt / 2, -depth / 2, hd / 2], [w / 2 - jt / 2, -depth / 2, hd / 2]]
-    s += [[jt, depth, hd], [jt, depth, hd]]
-    c += [[0.0, -depth / 2, hd - jt / 2]]
-    s += [[w - 2 * jt, depth, jt]]
     sides = [1.0] + ([-1.0] if o.face.other is not None else [])
-    for side in sides:
-        y = cp / 2 if side > 0 else -depth - cp / 2
-        c += [[-w / 2 - cw / 2, y, hd / 2], [w / 2 + cw / 2, y, hd / 2], [0.0, y, hd + cw / 2]]
-        s += [[cw, cp, hd], [cw, cp, hd], [w + 2 * cw, cp, cw]]
-    mb.add_local_boxes(pose, np.array(c), np.array(s), colour=frame_col, material=ap.PLAIN, **attrs)
+    c, s = _door_frame(w, hd, depth, lining=jt, casing=(cw, cp), sides=sides)
+    mb.add_local_boxes(pose, c, s, colour=frame_col, material=ap.PLAIN, **attrs)
     inner = w - 2 * jt - 0.006
     lt = 0.04
     n_leaves = 2 if w > 1.4 else 1
@@ -278,6 +308,29 @@ def build_door(o: Opening, mb: MeshBuilder, ids: Ids, rng: np.random.Generator) 
                 material=ap.METAL,
                 **attrs,
             )
+
+
+def _door_frame(
+    w: float,
+    hd: float,
+    depth: float,
+    *,
+    lining: float,
+    casing: tuple[float, float],
+    sides: list[float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Centres and sizes of a door's lining (in the reveal) and of its casings on each side
+    that faces a space (+1: face A, -1: the other): boxes in the opening's local frame."""
+    jt, (cw, cp) = lining, casing
+    c = [[-w / 2 + jt / 2, -depth / 2, hd / 2], [w / 2 - jt / 2, -depth / 2, hd / 2]]
+    s = [[jt, depth, hd], [jt, depth, hd]]
+    c += [[0.0, -depth / 2, hd - jt / 2]]
+    s += [[w - 2 * jt, depth, jt]]
+    for side in sides:
+        y = cp / 2 if side > 0 else -depth - cp / 2
+        c += [[-w / 2 - cw / 2, y, hd / 2], [w / 2 + cw / 2, y, hd / 2], [0.0, y, hd + cw / 2]]
+        s += [[cw, cp, hd], [cw, cp, hd], [w + 2 * cw, cp, cw]]
+    return np.array(c), np.array(s)
 
 
 def build_window(o: Opening, mb: MeshBuilder, ids: Ids, rng: np.random.Generator) -> None:

@@ -114,57 +114,128 @@ def segment(
     if n < 10:
         raise ConfigError(f"geometry needs at least 10 points, the scan has {n}")
     rng = np.random.default_rng(seed)
-    timings: dict[str, float] = {}
-    clock = time.perf_counter()
-
-    def lap(name: str, fraction: float) -> None:
-        nonlocal clock
-        now = time.perf_counter()
-        timings[name] = now - clock
-        clock = now
-        report(progress, STAGE, fraction)
-        check_cancel(cancel)
-
+    laps = _Laps(progress, cancel)
     centre = scan.xyz.mean(axis=0)
     xyz = scan.xyz - centre
     spacing = estimate_spacing(xyz, rng=rng) or 1e-3
-    lap("spacing", 0.05)
+    laps.lap("spacing", 0.05)
+    work = _voxelise(xyz, scan.rgb, params.voxel_factor * spacing)
+    laps.lap("voxels", 0.1)
+    frame = _align(work.xyz, max(spacing, work.voxel), align=params.align)
+    laps.lap("alignment", 0.2)
+    graph, colours, p = _neighbours(work, params, n_points=n, spacing=spacing, yaw=frame.yaw)
+    laps.lap("neighbours", 0.4)
+    found, plane_id = _box_planes(frame.xyz, p, rng)
+    laps.lap("box_planes", 0.5)
+    found, plane_id = _further_planes(frame, plane_id, found, p, max(spacing, work.voxel), rng)
+    laps.lap("further_planes", 0.6)
+    groups = _groups(graph, plane_id, len(found), p)
+    laps.lap("clustering", 0.7)
+    regions = _regions(graph, work, colours, groups, frame.normals, p)
+    laps.lap("region_growing", 0.95)
+    segments = regions[work.inverse].astype(np.int32)
+    point_plane = plane_id[work.inverse].astype(np.int32)
+    laps.lap("map_back", 1.0)
+    infos = _plane_infos(found, frame.rotation.T, centre, point_plane)
+    log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
+    return GeometryResult(segments, point_plane, infos, p, laps.timings)
 
-    # Work on voxel centroids: a few points per voxel carry no extra geometry, and every
-    # later step then costs a fraction of the per-point version. Labels map back per voxel.
-    voxel = params.voxel_factor * spacing
+
+class _Laps:
+    """Times each step of :func:`segment`, reports progress and checks for cancellation
+    between steps (the keys of ``GeometryResult.timings``)."""
+
+    def __init__(self, progress: ProgressFn | None, cancel: CancelToken | None) -> None:
+        self.progress = progress
+        self.cancel = cancel
+        self.timings: dict[str, float] = {}
+        self._clock = time.perf_counter()
+
+    def lap(self, name: str, fraction: float) -> None:
+        """Record the time since the last lap as ``name``, report ``fraction`` done."""
+        now = time.perf_counter()
+        self.timings[name] = now - self._clock
+        self._clock = now
+        report(self.progress, STAGE, fraction)
+        check_cancel(self.cancel)
+
+
+@dataclass(frozen=True)
+class _WorkSet:
+    """The points every step works on (voxel centroids, or the scan itself) and the way back.
+
+    ``inverse`` maps scan points to work points, ``weights`` counts the scan points each work
+    point stands for, ``tree`` indexes ``xyz``.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray | None
+    inverse: np.ndarray
+    weights: np.ndarray
+    voxel: float
+    tree: cKDTree
+
+
+def _voxelise(xyz: np.ndarray, rgb: np.ndarray | None, voxel: float) -> _WorkSet:
+    """Voxel centroids (and mean colours) to work on: a few points per voxel carry no extra
+    geometry, and every later step then costs a fraction of the per-point version."""
+    n = len(xyz)
     if voxel > 0:
         inverse, work = voxel_index(xyz, voxel)
         weights = np.bincount(inverse).astype(np.float64)
         work_rgb = (
             None
-            if scan.rgb is None
-            else cell_means(scan.rgb.astype(np.float32), inverse, len(work)).astype(np.float32)
+            if rgb is None
+            else cell_means(rgb.astype(np.float32), inverse, len(work)).astype(np.float32)
         )
     else:
         inverse, work, weights = np.arange(n), xyz, np.ones(n)
-        work_rgb = None if scan.rgb is None else scan.rgb.astype(np.float32)
-    tree = cKDTree(work)
-    lap("voxels", 0.1)
+        work_rgb = None if rgb is None else rgb.astype(np.float32)
+    return _WorkSet(work, work_rgb, inverse, weights, voxel, cKDTree(work))
 
-    normals = alignment.point_normals(work, max(spacing, voxel), max_voxels=100_000)
-    yaw = alignment.dominant_yaw(normals) if params.align else 0.0
+
+@dataclass(frozen=True)
+class _Frame:
+    """Work points and normals rotated so the dominant walls are the x and y axes."""
+
+    xyz: np.ndarray
+    normals: np.ndarray
+    yaw: float
+    rotation: np.ndarray
+
+
+def _align(work: np.ndarray, spacing: float, *, align: bool) -> _Frame:
+    """Normals and the yaw rotation, so the box-face planes can be searched axis-aligned."""
+    normals = alignment.point_normals(work, spacing, max_voxels=100_000)
+    yaw = alignment.dominant_yaw(normals) if align else 0.0
     rot = alignment.rotation_z(-yaw)
-    aligned = work @ rot.T
-    normals = normals @ rot.T
-    lap("alignment", 0.2)
+    return _Frame(work @ rot.T, normals @ rot.T, yaw, rot)
 
-    provisional = resolve(params, n_points=n, spacing=spacing, colour_noise=None, yaw_deg=yaw)
-    radius = max(provisional.cluster_distance, 1.5 * voxel) * 4
-    graph = clustering.neighbour_graph(tree, work, k=params.neighbours, radius=radius)
-    colours = work_rgb
+
+def _neighbours(
+    work: _WorkSet, params: GeometryParams, *, n_points: int, spacing: float, yaw: float
+) -> tuple[clustering.NeighbourGraph, np.ndarray | None, ResolvedGeometryParams]:
+    """The shared neighbour graph, the (smoothed) colours and the thresholds resolved with the
+    colour noise they reveal."""
+    provisional = resolve(
+        params, n_points=n_points, spacing=spacing, colour_noise=None, yaw_deg=yaw
+    )
+    radius = max(provisional.cluster_distance, 1.5 * work.voxel) * 4
+    graph = clustering.neighbour_graph(work.tree, work.xyz, k=params.neighbours, radius=radius)
+    colours = work.rgb
     if colours is not None and params.colour_smoothing:
         near = graph.within(provisional.cluster_distance, adaptive=params.adaptive_radius)
         colours = clustering.smooth_colours(graph, colours, near)
     noise = colour_noise(graph, colours) if colours is not None else None
-    p = resolve(params, n_points=n, spacing=spacing, colour_noise=noise, yaw_deg=yaw)
-    lap("neighbours", 0.4)
+    p = resolve(params, n_points=n_points, spacing=spacing, colour_noise=noise, yaw_deg=yaw)
+    return graph, colours, p
 
+
+def _box_planes(
+    aligned: np.ndarray, p: ResolvedGeometryParams, rng: np.random.Generator
+) -> tuple[list[tuple[planes.Plane, np.ndarray]], np.ndarray]:
+    """The bounding-box face planes (floor, ceiling, four walls) of the aligned work points,
+    and the plane id of every work point (-1 off them)."""
     found = planes.box_face_planes(
         aligned,
         face_distance=p.face_distance,
@@ -175,17 +246,28 @@ def segment(
         min_points=p.min_face_points,
         rng=rng,
     )
-    plane_id = _assign_planes(aligned, found, len(work))
-    lap("box_planes", 0.5)
+    return found, _assign_planes(aligned, found, len(aligned))
 
+
+def _further_planes(
+    frame: _Frame,
+    plane_id: np.ndarray,
+    found: list[tuple[planes.Plane, np.ndarray]],
+    p: ResolvedGeometryParams,
+    spacing: float,
+    rng: np.random.Generator,
+) -> tuple[list[tuple[planes.Plane, np.ndarray]], np.ndarray]:
+    """Walls and floors beyond the box faces, then points leaning off their plane released:
+    all main planes and the plane id of every work point."""
+    found, plane_id = list(found), plane_id.copy()
     if p.extra_planes:
-        lo, hi = planes.robust_bounds(aligned)
+        lo, hi = planes.robust_bounds(frame.xyz)
         extra = planes.further_planes(
-            aligned,
-            normals,
+            frame.xyz,
+            frame.normals,
             np.flatnonzero(plane_id < 0),
             plane_distance=p.plane_distance,
-            spacing=max(spacing, voxel),
+            spacing=spacing,
             room_height=float(hi[2] - lo[2]),
             min_wall_area=p.min_wall_area,
             min_wall_height_ratio=p.min_wall_height_ratio,
@@ -197,16 +279,34 @@ def segment(
             plane_id[idx] = len(found)
             found.append((plane, idx))
     if p.plane_normal_deg < 90:
-        plane_id = _release_off_plane(plane_id, found, normals, p.plane_normal_deg)
-    lap("further_planes", 0.6)
+        plane_id = _release_off_plane(plane_id, found, frame.normals, p.plane_normal_deg)
+    return found, plane_id
 
+
+def _groups(
+    graph: clustering.NeighbourGraph,
+    plane_id: np.ndarray,
+    n_planes: int,
+    p: ResolvedGeometryParams,
+) -> np.ndarray:
+    """Main planes first, then Euclidean clusters of the rest, so region growing never crosses
+    from one to another: the group of every work point."""
     clusters = clustering.euclidean_clusters(
         graph, plane_id < 0, tolerance=p.cluster_distance, adaptive=p.adaptive_radius
     )
-    # groups: main planes first, then clusters, so region growing never crosses them
-    groups = np.where(plane_id >= 0, plane_id, len(found) + clusters)
-    lap("clustering", 0.7)
+    return np.where(plane_id >= 0, plane_id, n_planes + clusters)
 
+
+def _regions(
+    graph: clustering.NeighbourGraph,
+    work: _WorkSet,
+    colours: np.ndarray | None,
+    groups: np.ndarray,
+    normals: np.ndarray,
+    p: ResolvedGeometryParams,
+) -> np.ndarray:
+    """Colour regions inside each plane or cluster, small ones merged: the segment of every
+    work point."""
     regions = clustering.region_grow_rgb(
         graph,
         colours,
@@ -218,15 +318,18 @@ def segment(
         normals=normals,
         max_normal_deg=p.region_normal_deg,
     )
-    regions = clustering.merge_small_regions(
-        graph, work, regions, groups, weights, min_points=p.min_region_points
+    return clustering.merge_small_regions(
+        graph, work.xyz, regions, groups, work.weights, min_points=p.min_region_points
     )
-    lap("region_growing", 0.95)
 
-    segments = regions[inverse].astype(np.int32)
-    point_plane = plane_id[inverse].astype(np.int32)
-    lap("map_back", 1.0)
-    inverse_rot = rot.T
+
+def _plane_infos(
+    found: list[tuple[planes.Plane, np.ndarray]],
+    inverse_rot: np.ndarray,
+    centre: np.ndarray,
+    point_plane: np.ndarray,
+) -> list[PlaneInfo]:
+    """The main planes back in the scan's own frame (un-rotated, un-centred), with point counts."""
     infos = []
     for i, (plane, _) in enumerate(found):
         normal = inverse_rot @ plane.normal
@@ -240,14 +343,7 @@ def segment(
                 int(np.sum(point_plane == i)),
             )
         )
-    log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
-    return GeometryResult(
-        segments=segments,
-        plane_id=point_plane,
-        planes=infos,
-        params=p,
-        timings=timings,
-    )
+    return infos
 
 
 def _release_off_plane(

@@ -1,0 +1,188 @@
+"""Group-by kernels on integer ids, shared by the voxels, the fusion, the metrics, the
+clustering and the viewer.
+
+Every stage groups points (by voxel, segment, cell or region) and then renumbers the groups,
+counts labels per group or sums values per group. These few kernels do that once, in linear
+time with ``np.bincount`` and no Python loop over points, so the stages agree to the bit on
+what a voxel, a renumbering or a majority is. Numpy only: no torch, no scipy.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Ids spanning at most this many times their count are renumbered through a lookup table
+#: (linear); sparser ids are sorted (``np.unique``), which needs no table the size of the span.
+DENSE_SPAN_FACTOR = 16
+
+
+def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct ids and every id renumbered to 0..S-1, so groups can index arrays.
+
+    Same result as ``np.unique(ids, return_inverse=True)`` (ranks keep the ids' order), in
+    linear time unless the ids are very sparse.
+
+    Parameters
+    ----------
+    ids : ndarray of shape (N,), int
+        Any integers (negative ones too).
+
+    Returns
+    -------
+    distinct : ndarray of shape (S,), int64
+        The distinct ids, sorted.
+    inverse : ndarray of shape (N,), int64
+        Index into ``distinct`` of every id.
+    """
+    ids = np.asarray(ids)
+    if ids.ndim != 1:
+        raise ValueError(f"ids must be 1-D, got shape {ids.shape}")
+    if len(ids) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    if not np.issubdtype(ids.dtype, np.integer):
+        raise TypeError(f"ids must be integers, got dtype {ids.dtype}")
+    ids = ids.astype(np.int64, copy=False)
+    lo, hi = int(ids.min()), int(ids.max())
+    if hi - lo >= DENSE_SPAN_FACTOR * len(ids):
+        distinct, inverse = np.unique(ids, return_inverse=True)
+        return distinct.astype(np.int64), inverse.reshape(-1).astype(np.int64)
+    offset = ids - lo if lo else ids
+    present = np.zeros(hi - lo + 1, dtype=bool)
+    present[offset] = True
+    rank = np.cumsum(present, dtype=np.int64) - 1
+    return np.flatnonzero(present).astype(np.int64) + lo, rank[offset]
+
+
+def cell_keys(
+    xyz: np.ndarray, size: float, *, origin: np.ndarray | None = None
+) -> tuple[np.ndarray, int]:
+    """Flat key of the cubic cell of side ``size`` each point falls in, so points can be
+    grouped by cell with one integer per point.
+
+    Keys run row-major over the cells of the points' bounding box from ``origin``; combine them
+    with another id as ``other * n_keys + key``.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (N, D)
+        Coordinates (D = 3 for voxels).
+    size : float
+        Cell side, in the units of ``xyz``.
+    origin : ndarray of shape (D,), optional
+        Corner of cell 0; no coordinate may lie below it. Default: the per-axis minimum.
+
+    Returns
+    -------
+    keys : ndarray of shape (N,), int64
+    n_keys : int
+        Number of cells in the bounding box: every key is below it.
+    """
+    xyz = np.asarray(xyz)
+    if xyz.ndim != 2:
+        raise ValueError(f"xyz must have shape (N, D), got {xyz.shape}")
+    if len(xyz) == 0:
+        return np.zeros(0, dtype=np.int64), 0
+    lo = xyz.min(axis=0) if origin is None else origin
+    cells = np.floor((xyz - lo) / size).astype(np.int64)
+    if origin is not None and cells.min() < 0:
+        raise ValueError("origin must not lie above any point")
+    dims = cells.max(axis=0) + 1
+    keys = cells[:, 0]
+    for axis in range(1, cells.shape[1]):
+        keys = keys * dims[axis] + cells[:, axis]
+    return keys, int(dims.prod())
+
+
+def group_sums(group: np.ndarray, n_groups: int, values: np.ndarray) -> np.ndarray:
+    """Column sums of ``values`` per group (soft votes, colour or position totals).
+
+    Parameters
+    ----------
+    group : ndarray of shape (N,), int
+        Group 0..n_groups-1 of every row.
+    n_groups : int
+    values : ndarray of shape (N, C)
+
+    Returns
+    -------
+    ndarray of shape (n_groups, C), float64
+    """
+    values = np.asarray(values)
+    if values.ndim != 2:
+        raise ValueError(f"values must have shape (N, C), got {values.shape}")
+    if values.shape[1] == 0:
+        return np.zeros((n_groups, 0))
+    return np.column_stack(
+        [
+            np.bincount(group, weights=values[:, c], minlength=n_groups)
+            for c in range(values.shape[1])
+        ]
+    )
+
+
+def label_histogram(
+    group: np.ndarray,
+    n_groups: int,
+    labels: np.ndarray,
+    n_labels: int | None = None,
+    *,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """Count (or weigh) each label in each group: the vote behind every majority.
+
+    Negative labels are unlabelled points and are not counted.
+
+    Parameters
+    ----------
+    group : ndarray of shape (N,), int
+        Group 0..n_groups-1 of every point.
+    n_groups : int
+    labels : ndarray of shape (N,), int
+    n_labels : int, optional
+        Number of label columns; default: the largest label + 1 (1 when none is counted).
+    weights : ndarray of shape (N,), optional
+        Weight of each point's vote; default 1.
+
+    Returns
+    -------
+    ndarray of shape (n_groups, n_labels)
+        int64 counts, or float64 sums of ``weights``.
+    """
+    group = np.asarray(group).astype(np.int64, copy=False)
+    labels = np.asarray(labels)
+    if group.shape != labels.shape or group.ndim != 1:
+        raise ValueError(
+            f"group and labels must be 1-D of one length, got {group.shape}, {labels.shape}"
+        )
+    if len(labels) and labels.min() < 0:
+        valid = labels >= 0
+        group, labels = group[valid], labels[valid]
+        weights = None if weights is None else np.asarray(weights)[valid]
+    top = int(labels.max()) if len(labels) else -1
+    if n_labels is None:
+        n_labels = top + 1 if top >= 0 else 1
+    elif top >= n_labels:
+        raise ValueError(f"label {top} does not fit in {n_labels} label columns")
+    counts = np.bincount(group * n_labels + labels, weights=weights, minlength=n_groups * n_labels)
+    return counts.reshape(n_groups, n_labels)
+
+
+def majority_label(
+    group: np.ndarray,
+    n_groups: int,
+    labels: np.ndarray,
+    n_labels: int | None = None,
+    *,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """Most frequent (or heaviest) non-negative label of each group; ties go to the smaller label.
+
+    Parameters are those of :func:`label_histogram`.
+
+    Returns
+    -------
+    ndarray of shape (n_groups,), int64
+        -1 where a group has no counted vote.
+    """
+    counts = label_histogram(group, n_groups, labels, n_labels, weights=weights)
+    return np.where(counts.sum(axis=1) > 0, counts.argmax(axis=1), -1)

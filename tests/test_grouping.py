@@ -1,0 +1,223 @@
+"""The shared group-by kernels against plain-Python references, on random and edge-case input."""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+
+import numpy as np
+import pytest
+
+from jointseg import grouping
+from jointseg.fusion import guard
+from jointseg.geometry import clustering
+from jointseg.grouping import (
+    cell_keys,
+    compact_ids,
+    group_sums,
+    label_histogram,
+    majority_label,
+)
+from jointseg.metrics import segment_majority
+from jointseg.voxels import cell_majority, voxel_index
+
+
+def _naive_compact(ids: list[int]) -> tuple[list[int], list[int]]:
+    distinct = sorted(set(ids))
+    rank = {v: i for i, v in enumerate(distinct)}
+    return distinct, [rank[v] for v in ids]
+
+
+def _naive_histogram(
+    group: list[int], n_groups: int, labels: list[int], weights: list[float] | None = None
+) -> dict[tuple[int, int], float]:
+    out: dict[tuple[int, int], float] = defaultdict(float)
+    for i, (g, lab) in enumerate(zip(group, labels, strict=True)):
+        if lab >= 0:
+            out[(g, lab)] += 1.0 if weights is None else weights[i]
+    return out
+
+
+def _naive_majority(
+    group: list[int], n_groups: int, labels: list[int], weights: list[float] | None = None
+) -> list[int]:
+    hist = _naive_histogram(group, n_groups, labels, weights)
+    out = []
+    for g in range(n_groups):
+        votes = {lab: v for (gg, lab), v in hist.items() if gg == g}
+        if not votes or max(votes.values()) <= 0:
+            out.append(-1)
+            continue
+        best = max(votes.values())
+        out.append(min(lab for lab, v in votes.items() if v == best))  # ties: smaller label
+    return out
+
+
+@pytest.mark.parametrize(
+    ("n", "low", "high"),
+    [
+        (1, 5, 6),  # a single id
+        (50, 0, 10),  # dense
+        (500, 0, 3),  # few distinct ids
+        (300, -7, 8),  # negative ids
+        (200, 0, 10**9),  # sparse: the sorting path
+        (200, -(10**12), 10**12),  # sparse and negative, beyond int32
+        (1000, 10**6, 10**6 + 40),  # dense but far from zero
+    ],
+)
+def test_compact_ids_matches_a_sorted_renumbering(n: int, low: int, high: int) -> None:
+    rng = np.random.default_rng(n + low % 97)
+    ids = rng.integers(low, high, n)
+    distinct, inverse = compact_ids(ids)
+    want_distinct, want_inverse = _naive_compact(ids.tolist())
+    assert distinct.tolist() == want_distinct
+    assert inverse.tolist() == want_inverse
+    assert distinct.dtype == np.int64 and inverse.dtype == np.int64
+    np.testing.assert_array_equal(distinct[inverse], ids)
+
+
+@pytest.mark.parametrize("high", [3, 60, 10**7])
+def test_compact_ids_dense_and_sorting_paths_agree(
+    monkeypatch: pytest.MonkeyPatch, high: int
+) -> None:
+    ids = np.random.default_rng(high).integers(-2, high, 400)
+    results = []
+    for factor in (0, 10**9):  # 0: always sort; huge: always the lookup table
+        monkeypatch.setattr(grouping, "DENSE_SPAN_FACTOR", factor)
+        results.append(compact_ids(ids))
+    for got, want in zip(results[0], results[1], strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert results[0][1].tolist() == _naive_compact(ids.tolist())[1]
+
+
+def test_compact_ids_edge_cases() -> None:
+    distinct, inverse = compact_ids(np.zeros(0, dtype=np.int64))
+    assert distinct.shape == inverse.shape == (0,)
+    distinct, inverse = compact_ids(np.array([3, 3, 3], dtype=np.int32))
+    assert distinct.tolist() == [3] and inverse.tolist() == [0, 0, 0]
+    ids = np.array([4, 1, 4])
+    compact_ids(ids)
+    assert ids.tolist() == [4, 1, 4]  # input untouched
+    with pytest.raises(TypeError, match="integers"):
+        compact_ids(np.array([0.5, 1.0]))
+    with pytest.raises(ValueError, match="1-D"):
+        compact_ids(np.zeros((2, 2), dtype=np.int64))
+
+
+def test_old_renumbering_names_are_the_kernel() -> None:
+    ids = np.random.default_rng(2).integers(0, 40, 200)
+    np.testing.assert_array_equal(clustering.compact(ids), compact_ids(ids)[1])
+    for got, want in zip(guard.compact_ids(ids), compact_ids(ids), strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("size", [0.05, 0.3, 1.0, 7.0])
+def test_cell_keys_group_exactly_the_points_of_one_cell(size: float) -> None:
+    rng = np.random.default_rng(int(size * 100))
+    xyz = rng.normal(0.0, 2.0, (2000, 3)) + [100.0, -50.0, 3.0]
+    keys, n_keys = cell_keys(xyz, size)
+    lo = xyz.min(axis=0)
+    cells = [tuple(math.floor(v) for v in (p - lo) / size) for p in xyz]
+    by_cell: dict[tuple[int, ...], set[int]] = defaultdict(set)
+    for cell, key in zip(cells, keys.tolist(), strict=True):
+        by_cell[cell].add(key)
+    assert all(len(k) == 1 for k in by_cell.values())  # one key per cell ...
+    assert len({next(iter(k)) for k in by_cell.values()}) == len(by_cell)  # ... and per key
+    assert keys.dtype == np.int64 and keys.min() >= 0 and keys.max() < n_keys
+    spans = np.array(cells).max(axis=0) + 1
+    assert n_keys == int(np.prod(spans))
+
+
+def test_cell_keys_origin_edge_cases() -> None:
+    xyz = np.array([[0.1, 0.2, 0.3], [0.15, 0.2, 0.3], [2.0, 0.2, 0.3]])
+    keys, n_keys = cell_keys(xyz, 0.5)
+    assert keys[0] == keys[1] != keys[2]
+    same, _ = cell_keys(xyz, 0.5, origin=xyz.min(axis=0))
+    np.testing.assert_array_equal(same, keys)
+    shifted, _ = cell_keys(xyz, 0.5, origin=np.array([-0.35, 0.0, 0.0]))
+    assert shifted[0] != shifted[1]  # 0.45 and 0.5 from the origin: different cells now
+    with pytest.raises(ValueError, match="origin"):
+        cell_keys(xyz, 0.5, origin=np.array([1.0, 0.0, 0.0]))
+    empty, n_empty = cell_keys(np.zeros((0, 3)), 0.5)
+    assert empty.shape == (0,) and n_empty == 0
+    single, n_single = cell_keys(np.array([[5.0, 5.0, 5.0]]), 0.5)
+    assert single.tolist() == [0] and n_single == 1
+    flat, n_flat = cell_keys(np.array([[0.0, 0.0], [1.0, 3.0]]), 1.0)  # 2-D grids too
+    assert flat.tolist() == [0, 7] and n_flat == 8
+
+
+def test_group_sums_matches_a_loop() -> None:
+    rng = np.random.default_rng(3)
+    group = rng.integers(0, 7, 300)
+    values = rng.random((300, 4)).astype(np.float32)
+    sums = group_sums(group, 9, values)  # groups 7 and 8 are empty
+    want = np.zeros((9, 4))
+    for g, row in zip(group, values.astype(np.float64), strict=True):
+        want[g] += row
+    assert sums.shape == (9, 4) and sums.dtype == np.float64
+    np.testing.assert_allclose(sums, want, rtol=1e-12)
+    assert not sums[7:].any()
+    assert group_sums(group, 7, np.zeros((300, 0))).shape == (7, 0)
+    assert group_sums(np.zeros(0, np.int64), 2, np.zeros((0, 3))).tolist() == [[0.0] * 3] * 2
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_label_histogram_and_majority_match_a_loop(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, n_groups = int(rng.integers(1, 400)), int(rng.integers(1, 30))
+    group = rng.integers(0, n_groups, n)
+    labels = rng.integers(-1, 6, n)  # -1: unlabelled
+    hist = label_histogram(group, n_groups, labels, 6)
+    want = _naive_histogram(group.tolist(), n_groups, labels.tolist())
+    assert hist.shape == (n_groups, 6) and hist.dtype == np.int64
+    assert {k: v for k, v in np.ndenumerate(hist) if v} == dict(want)
+    majority = majority_label(group, n_groups, labels)
+    assert majority.tolist() == _naive_majority(group.tolist(), n_groups, labels.tolist())
+    weights = rng.random(n)
+    weighted = majority_label(group, n_groups, labels, 6, weights=weights)
+    naive = _naive_majority(group.tolist(), n_groups, labels.tolist(), weights.tolist())
+    assert weighted.tolist() == naive
+
+
+def test_majority_edge_cases() -> None:
+    # ties go to the smaller label; a group without labelled points gets -1
+    assert majority_label(np.array([0, 0, 1, 2]), 4, np.array([3, 1, -1, 0])).tolist() == [
+        1,
+        -1,
+        0,
+        -1,
+    ]
+    # nothing labelled at all, and nothing at all
+    assert majority_label(np.array([0, 1]), 2, np.array([-1, -1])).tolist() == [-1, -1]
+    assert majority_label(np.zeros(0, np.int64), 3, np.zeros(0, np.int64)).tolist() == [-1] * 3
+    # a single group
+    assert majority_label(np.zeros(5, np.int64), 1, np.array([2, 2, 7, 7, 7])).tolist() == [7]
+    # weights decide over counts
+    weights = np.array([1.0, 1.0, 5.0])
+    assert majority_label(np.zeros(3, np.int64), 1, np.array([0, 0, 1]), weights=weights) == [1]
+    with pytest.raises(ValueError, match="does not fit"):
+        label_histogram(np.zeros(2, np.int64), 1, np.array([0, 13]), 13)
+    with pytest.raises(ValueError, match="one length"):
+        label_histogram(np.zeros(2, np.int64), 1, np.array([0]))
+    labels = np.array([-1, 2, 2])
+    label_histogram(np.zeros(3, np.int64), 1, labels)
+    assert labels.tolist() == [-1, 2, 2]  # input untouched
+
+
+def test_callers_agree_with_the_kernel() -> None:
+    rng = np.random.default_rng(4)
+    xyz = rng.random((3000, 3)) * 4.0
+    labels = rng.integers(-1, 13, 3000)
+    inverse, centroids = voxel_index(xyz, 0.5)
+    np.testing.assert_array_equal(
+        cell_majority(labels, inverse, len(centroids)),
+        majority_label(inverse, len(centroids), labels),
+    )
+    for cell in range(0, len(centroids), 17):
+        np.testing.assert_allclose(centroids[cell], xyz[inverse == cell].mean(axis=0))
+    segments = rng.integers(0, 40, 3000) * 1000  # sparse ids
+    oracle = segment_majority(labels, segments)
+    _, seg = np.unique(segments, return_inverse=True)
+    per_segment = _naive_majority(seg.tolist(), int(seg.max()) + 1, labels.tolist())
+    assert oracle.tolist() == [per_segment[s] for s in seg]
+    assert oracle.dtype == np.int32
