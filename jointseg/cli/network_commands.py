@@ -15,13 +15,13 @@ from rich.table import Column, Table
 
 from jointseg.cli.progress_bar import progress_bar
 from jointseg.io import DEFAULT_MAX_POINTS, read_scan, write_scan
+from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND
 
 models_app = typer.Typer(help="Network backends and weights.", no_args_is_help=True)
 
-
-class Network(StrEnum):
-    randlanet = "randlanet"
-    dgcnn = "dgcnn"
+#: The registered backends as choices (the registry imports no torch, so --help stays quick);
+#: mypy cannot list members that come from the registry.
+Network = StrEnum("Network", {name: name for name in BACKENDS})  # type: ignore[misc]
 
 
 class ImportSource(StrEnum):
@@ -31,7 +31,7 @@ class ImportSource(StrEnum):
 def predict(
     source: Path = typer.Argument(..., help="Input scan."),
     output: Path = typer.Option(..., "-o", "--output", help="Output scan with network fields."),
-    network: Network = typer.Option(Network.randlanet, help="Network backend."),
+    network: Network = typer.Option(Network(DEFAULT_BACKEND), help="Network backend."),
     weights: Path | None = typer.Option(
         None,
         help="Weights file (default: $JOINTSEG_DGCNN_WEIGHTS for dgcnn, bundled for randlanet).",

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -19,21 +19,26 @@ from jointseg.cli.progress_bar import progress_bar
 from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan, write_scan
 from jointseg.io.atomic import atomic_open
-from jointseg.pipeline.config import PipelineConfig
-from jointseg.pipeline.tables import format_score
+from jointseg.network.registry import BACKENDS
+
+if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
+    from jointseg.pipeline.config import PipelineConfig
 
 #: Output formats that keep per-point fields (text formats would drop them).
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
 
 CONFIG_HELP = "PipelineConfig as JSON: network, geometry, fusion, seed (unknown keys rejected)."
-NETWORK_HELP = "Network backend, randlanet or dgcnn (overrides the config file)."
+NETWORK_HELP = f"Network backend: {', '.join(BACKENDS)} (overrides the config file)."
 WEIGHTS_HELP = (
-    "Network weights (overrides the config file; default: $JOINTSEG_DGCNN_WEIGHTS for dgcnn, "
-    "bundled weights for randlanet)."
+    "Network weights: a file or pulled published weights by name (overrides the config file; "
+    "default: the backend's environment variable, else its bundled or pulled weights; "
+    "`jointseg models list` shows them)."
 )
 
 
 def _config(config: Path | None, network: str | None, weights: Path | None) -> PipelineConfig:
+    from jointseg.pipeline.config import PipelineConfig
+
     return load_params_file(config, PipelineConfig).with_network(name=network, weights=weights)
 
 
@@ -62,6 +67,7 @@ def segment_scan(
 ) -> None:
     """Segment a scan semantically: network labels refined by geometric segments (the paper)."""
     from jointseg.pipeline import annotate, load_predictor, report_body, run
+    from jointseg.pipeline.tables import format_score
 
     cfg = _config(config, network, weights)
     if output.suffix.lower() not in FIELD_EXTENSIONS:

@@ -1,13 +1,41 @@
 """The network stage (§2.1): RandLA-Net and DGCNN in plain PyTorch, whole-scan inference,
-training (RandLA-Net)."""
+training (RandLA-Net).
 
-from jointseg.network.dgcnn import DGCNN
-from jointseg.network.dgcnn_predict import DGCNNParams, DGCNNPredictor
-from jointseg.network.predict import NetworkResult, RandLANetPredictor
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
-from jointseg.network.registry import Predictor, available_backends, load
+Names are imported on first use (PEP 562), so ``jointseg.network.registry``,
+``jointseg.network.published`` and the backend records (what the CLI, the configuration and the
+job service need) load without torch; ``from jointseg.network import load, DGCNN`` still works.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from jointseg.network.backends import Backend, Predictor
+    from jointseg.network.dgcnn import DGCNN
+    from jointseg.network.dgcnn_params import DGCNNParams
+    from jointseg.network.dgcnn_predict import DGCNNPredictor
+    from jointseg.network.predict import NetworkResult, RandLANetPredictor
+    from jointseg.network.randlanet import RandLANet, RandLANetConfig
+    from jointseg.network.registry import available_backends, load
+
+_HOME = {
+    "Backend": "jointseg.network.backends",
+    "DGCNN": "jointseg.network.dgcnn",
+    "DGCNNParams": "jointseg.network.dgcnn_params",
+    "DGCNNPredictor": "jointseg.network.dgcnn_predict",
+    "NetworkResult": "jointseg.network.predict",
+    "Predictor": "jointseg.network.backends",
+    "RandLANet": "jointseg.network.randlanet",
+    "RandLANetConfig": "jointseg.network.randlanet",
+    "RandLANetPredictor": "jointseg.network.predict",
+    "available_backends": "jointseg.network.registry",
+    "load": "jointseg.network.registry",
+}
 
 __all__ = [
+    "Backend",
     "DGCNN",
     "DGCNNParams",
     "DGCNNPredictor",
@@ -19,3 +47,11 @@ __all__ = [
     "available_backends",
     "load",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_HOME[name]), name)
+    globals()[name] = value
+    return value

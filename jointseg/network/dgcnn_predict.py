@@ -12,21 +12,31 @@ import logging
 import os
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field, PositiveFloat, model_validator
 from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
+from jointseg.network.backends import Predictor
 from jointseg.network.blocks import block_features, column_blocks, sample_columns
 from jointseg.network.checkpoint import read_torch_file
 from jointseg.network.dgcnn import DGCNN
+from jointseg.network.dgcnn_params import DGCNNParams
 from jointseg.network.predict import NetworkPredictor, NetworkResult
 from jointseg.network.room_frame import RoomFrame, room_frame, scan_frame
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
+
+__all__ = [
+    "WEIGHTS_SOURCE",
+    "DGCNNParams",
+    "DGCNNPredictor",
+    "load_dgcnn",
+    "load_dgcnn_state",
+    "read_dgcnn_card",
+]
 
 log = logging.getLogger(__name__)
 STAGE = "network"
@@ -34,53 +44,6 @@ WEIGHTS_SOURCE = (
     "https://github.com/antao97/dgcnn.pytorch (pretrained/semseg_s3dis/model_1.t7 ... "
     "model_6.t7, MIT; model_i was trained with S3DIS Area i left out)"
 )
-
-
-class DGCNNParams(BaseModel):
-    """How a scan is cut into blocks and normalised for DGCNN.
-
-    The block size and points per block are those the published weights were trained with;
-    ``stride``, ``coverage`` and ``frame`` are inference choices.
-    """
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    block_size: float = Field(1.0, gt=0, description="Column width, metres (training: 1 m).")
-    stride: float = Field(
-        0.5, gt=0, description="Distance between column corners, metres; < block_size overlaps."
-    )
-    num_points: int = Field(4096, ge=32, description="Points per sample (training: 4 096).")
-    min_block_points: int = Field(100, ge=1, description="Smaller columns are skipped.")
-    coverage: float | None = Field(
-        1.0,
-        gt=0,
-        description="Predictions per point, roughly (samples per column grow with its share "
-        "of points; points no sample holds take their nearest predicted neighbour's "
-        "probabilities); None: every point of every column is predicted. Lower is faster on "
-        "dense scans; columns sparser than one sample are unaffected.",
-    )
-    frame: Literal["room", "scan"] = Field(
-        "room",
-        description="'scan': the bounding box is the room (the reference); 'room': floor and "
-        "ceiling measured, a typical height when the scan has no ceiling.",
-    )
-    room_height: float | None = Field(
-        None, gt=0, description="Floor-to-ceiling height, metres ('room' frame; default measured)."
-    )
-    room_size: tuple[PositiveFloat, PositiveFloat] | None = Field(
-        None,
-        description="Room x and y size, metres, for scans larger than a room (whole floors): "
-        "every column is then placed in the middle of a room of this size.",
-    )
-
-    @model_validator(mode="after")
-    def _columns_touch(self) -> DGCNNParams:
-        if self.stride > self.block_size:
-            raise ValueError(
-                f"stride {self.stride} m exceeds block_size {self.block_size} m: columns would "
-                "leave gaps between them"
-            )
-        return self
 
 
 def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any]]:
@@ -114,6 +77,27 @@ def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any
     data = f"S3DIS, Area {area} held out" if area and area.isdigit() else "S3DIS (dgcnn.pytorch)"
     card = {"data": data, "source": WEIGHTS_SOURCE, "architecture": "DGCNN semseg, k=20"}
     return model, card
+
+
+def load_dgcnn(
+    path: Path, *, device: str | None, batch_size: int, params: DGCNNParams | None
+) -> Predictor:
+    """The DGCNN backend's loader (see :mod:`jointseg.network.dgcnn_backend`): a
+    :class:`DGCNNPredictor`.
+
+    Raises
+    ------
+    ConfigError
+        When the file is not readable DGCNN weights.
+    """
+    net, card = load_dgcnn_state(path)
+    return DGCNNPredictor(net, card, device=device, batch_size=batch_size, params=params)
+
+
+def read_dgcnn_card(path: Path) -> tuple[str, str]:
+    """What the weights were trained on (from the file name: dgcnn.pytorch ships no card), and
+    no further card line."""
+    return str(load_dgcnn_state(path)[1]["data"]), ""
 
 
 class DGCNNPredictor(NetworkPredictor):

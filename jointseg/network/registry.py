@@ -2,49 +2,92 @@
 
 A backend's weights are, in this order: the path the caller gives (or the name of pulled
 published weights, see :mod:`jointseg.network.published`), the path in the backend's environment
-variable, the weights bundled with the package. DGCNN has no bundled weights (the published ones
-are a separate download): ``jointseg models pull dgcnn-s3dis-5`` fetches the default ones.
+variable, its default published weights once pulled, the weights bundled with the package. DGCNN
+has no bundled weights (the published ones are a separate download): ``jointseg models pull
+dgcnn-s3dis-5`` fetches the default ones.
+
+Imports no torch: the job service and the web page import this module to know the names, and a
+backend's own module is imported only when its weights are read (see
+:class:`~jointseg.network.backends.Backend`). A new backend is one module declaring its
+``BACKEND`` and one line in :data:`BACKEND_MODULES`.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
+from importlib import import_module
 from pathlib import Path
+from types import MappingProxyType
 
 from jointseg.exceptions import ConfigError
 from jointseg.network import published
-from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.dgcnn_predict import (
-    DGCNNParams,
-    DGCNNPredictor,
-    load_dgcnn_state,
+from jointseg.network.backends import (
+    WEIGHTS_DIR,
+    Backend,
+    Options,
+    Predictor,
+    card_summary,
 )
-from jointseg.network.predict import RandLANetPredictor
 
-WEIGHTS_DIR = Path(__file__).parent / "weights"
-BACKENDS = ("randlanet", "dgcnn")
-DEFAULT_WEIGHTS = {"randlanet": WEIGHTS_DIR / "randlanet_s3dis_area6.pt"}
-#: Published weights a backend without bundled ones uses once they are pulled.
-DEFAULT_PULLED = {"dgcnn": published.DEFAULT_DGCNN}
-WEIGHTS_ENV = {"randlanet": "JOINTSEG_RANDLANET_WEIGHTS", "dgcnn": "JOINTSEG_DGCNN_WEIGHTS"}
-WHERE_TO_GET = {
-    "randlanet": (
-        "train them with `jointseg train --data synth --out model.pt`, or convert Open3D-ML's "
-        "randlanet_s3dis_202201071330utc.pth with `jointseg models import open3d-ml FILE`"
-    ),
-    "dgcnn": (
-        f"run `jointseg models pull {published.DEFAULT_DGCNN}` (or dgcnn-s3dis-1 ... -6: model N "
-        f"leaves S3DIS Area N out), or pass a file with --weights or set {WEIGHTS_ENV['dgcnn']}"
-    ),
+__all__ = [
+    "BACKENDS",
+    "BACKEND_MODULES",
+    "DEFAULT_BACKEND",
+    "DEFAULT_PULLED",
+    "DEFAULT_WEIGHTS",
+    "REGISTRY",
+    "SUFFIX_BACKEND",
+    "WEIGHTS_DIR",
+    "WEIGHTS_ENV",
+    "WHERE_TO_GET",
+    "Backend",
+    "BackendInfo",
+    "Predictor",
+    "available_backends",
+    "backend",
+    "card_summary",
+    "load",
+    "resolve_weights",
+]
+
+#: The torch-free modules that declare the backends (each a ``BACKEND``), in the order
+#: `jointseg models list` shows them.
+BACKEND_MODULES = (
+    "jointseg.network.randlanet_backend",
+    "jointseg.network.dgcnn_backend",
+)
+
+
+def _declared(module: str) -> Backend:
+    """The ``BACKEND`` record ``module`` declares."""
+    record = getattr(import_module(module), "BACKEND", None)
+    if not isinstance(record, Backend):
+        raise TypeError(f"{module}.BACKEND is not a jointseg.network.backends.Backend")
+    return record
+
+
+#: Every backend by name.
+REGISTRY: Mapping[str, Backend] = MappingProxyType(
+    {b.name: b for b in map(_declared, BACKEND_MODULES)}
+)
+#: The backend used when none is named.
+DEFAULT_BACKEND = "randlanet"
+
+# Views of the records by name, for callers written before Backend existed.
+BACKENDS: tuple[str, ...] = tuple(REGISTRY)
+DEFAULT_WEIGHTS: dict[str, Path] = {
+    n: b.bundled for n, b in REGISTRY.items() if b.bundled is not None
 }
+#: Published weights a backend without bundled ones uses once they are pulled.
+DEFAULT_PULLED: dict[str, str] = {
+    n: b.published for n, b in REGISTRY.items() if b.published is not None
+}
+WEIGHTS_ENV: dict[str, str] = {n: b.env for n, b in REGISTRY.items()}
+WHERE_TO_GET: dict[str, str] = {n: b.where_to_get for n, b in REGISTRY.items()}
 #: Weight file suffixes that name their backend when a path is given instead of a name.
-SUFFIX_BACKEND = {".pt": "randlanet", ".pth": "randlanet", ".t7": "dgcnn"}
-
-
-#: A loaded network of any backend: ``predict(scan, progress, cancel, *, seed)`` gives a
-#: :class:`~jointseg.network.predict.NetworkResult`.
-Predictor = RandLANetPredictor | DGCNNPredictor
+SUFFIX_BACKEND: dict[str, str] = {s: n for n, b in REGISTRY.items() for s in b.suffixes}
 
 
 @dataclass(frozen=True)
@@ -52,7 +95,7 @@ class BackendInfo:
     """What `jointseg models list` shows for one backend.
 
     ``weights`` is None when the backend has none configured; ``source`` says where they come
-    from ("bundled", "$VARIABLE" or "none"); ``where_to_get`` how to obtain them.
+    from ("bundled", "pulled", "$VARIABLE" or "none"); ``where_to_get`` how to obtain them.
     """
 
     name: str
@@ -64,17 +107,34 @@ class BackendInfo:
     card: str = ""
 
 
+def backend(name: str) -> Backend:
+    """The backend called ``name``.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown name; the message lists the known ones.
+    """
+    try:
+        return REGISTRY[name]
+    except KeyError:
+        raise ConfigError(f"unknown network {name!r}; available: {', '.join(BACKENDS)}") from None
+
+
 def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) -> Path | None:
     """The weights file backend ``name`` would use: ``weights``, else its environment
-    variable, else the bundled file; None when there is none of them."""
+    variable, else its pulled default or bundled file; None when there is none of them."""
     if weights is not None:
         return _named_or_path(str(weights))
-    env = os.environ.get(WEIGHTS_ENV.get(name, ""), "")
+    record = REGISTRY.get(name)
+    if record is None:
+        return None
+    env = os.environ.get(record.env, "")
     if env:
         return _named_or_path(env)
-    if name in DEFAULT_PULLED:
-        return published.pulled_path(DEFAULT_PULLED[name])
-    return DEFAULT_WEIGHTS.get(name)
+    if record.published is not None:
+        return published.pulled_path(record.published)
+    return record.bundled
 
 
 def _named_or_path(weights: str) -> Path:
@@ -91,30 +151,10 @@ def _named_or_path(weights: str) -> Path:
     return pulled
 
 
-def card_summary(card: dict) -> str:
-    """One line of a model card: epochs, validation score, hardware, command, terms."""
-    parts = []
-    if card.get("epochs"):
-        parts.append(f"{card['epochs']} epochs")
-    val = card.get("validation") or {}
-    if val.get("best_miou") is not None:
-        parts.append(
-            f"validation mIoU {val['last_miou']:.3f} (best {val['best_miou']:.3f}, epoch "
-            f"{val['best_epoch']})"
-        )
-    for key in ("hardware", "command", "terms"):
-        if card.get(key):
-            parts.append(f"{key}: {card[key]}")
-    return "; ".join(parts)
-
-
-def _card(name: str, path: Path) -> tuple[str, str]:
+def _card(record: Backend, path: Path) -> tuple[str, str]:
     """What the weights were trained on, and the rest of their card in one line."""
     try:
-        if name == "dgcnn":
-            return str(load_dgcnn_state(path)[1]["data"]), ""
-        card = load_checkpoint(path)[1]
-        return str(card.get("data", "-")), card_summary(card)
+        return record.read_card(path)
     except ConfigError as exc:
         return f"unreadable: {exc}", ""
 
@@ -122,51 +162,57 @@ def _card(name: str, path: Path) -> tuple[str, str]:
 def available_backends() -> list[BackendInfo]:
     """Every backend with the weights it would use and whether they are installed."""
     out = []
-    for name in BACKENDS:
-        path = resolve_weights(name)
-        env = WEIGHTS_ENV[name]
-        if os.environ.get(env):
-            source = f"${env}"
+    for record in REGISTRY.values():
+        path = resolve_weights(record.name)
+        if os.environ.get(record.env):
+            source = f"${record.env}"
         elif path is None:
             source = "none"
         else:
-            source = "pulled" if name in DEFAULT_PULLED else "bundled"
+            source = "pulled" if record.published is not None else "bundled"
         present = path is not None and path.is_file()
-        trained_on, card = _card(name, path) if present and path is not None else ("-", "")
-        out.append(BackendInfo(name, path, present, trained_on, source, WHERE_TO_GET[name], card))
+        trained_on, card = _card(record, path) if present and path is not None else ("-", "")
+        out.append(
+            BackendInfo(record.name, path, present, trained_on, source, record.where_to_get, card)
+        )
     return out
 
 
 def load(
-    name: str = "randlanet",
+    name: str = DEFAULT_BACKEND,
     weights: str | os.PathLike[str] | None = None,
     *,
     device: str | None = None,
     batch_size: int = 4,
-    dgcnn: DGCNNParams | None = None,
+    params: Options = None,
+    **options: Options,
 ) -> Predictor:
     """A ready predictor for backend ``name`` with ``weights`` (default: see the module).
 
     ``name`` may also be a weights path, for ``load("model.pt")`` (RandLA-Net) or
     ``load("model_1.t7")`` (DGCNN). ``batch_size`` is crops (RandLA-Net) or 4 096-point blocks
-    (DGCNN) per forward pass; ``dgcnn`` sets DGCNN's block and normalisation options.
+    (DGCNN) per forward pass. ``params`` are the backend's options (e.g. ``DGCNNParams``);
+    they may also be given under the backend's name, ``load("dgcnn", dgcnn=DGCNNParams(...))``,
+    so a caller holding every backend's options passes them all and the chosen one's are used.
 
     Raises
     ------
     ConfigError
-        For an unknown backend or missing/unreadable weights; the message says where to get them.
+        For an unknown backend, invalid options, or missing/unreadable weights; the message says
+        where to get weights.
+    TypeError
+        For a keyword that is no backend's name.
     """
-    if weights is None and name not in BACKENDS and Path(name).suffix in SUFFIX_BACKEND:
+    unknown = sorted(set(options) - set(REGISTRY))
+    if unknown:
+        raise TypeError(f"load() got unexpected keyword arguments: {', '.join(unknown)}")
+    if weights is None and name not in REGISTRY and Path(name).suffix in SUFFIX_BACKEND:
         name, weights = SUFFIX_BACKEND[Path(name).suffix], name
-    if name not in BACKENDS:
-        raise ConfigError(f"unknown network {name!r}; available: {', '.join(BACKENDS)}")
+    record = backend(name)
     path = resolve_weights(name, weights)
     if path is None:
-        raise ConfigError(f"no weights for {name!r}: {WHERE_TO_GET[name]}")
+        raise ConfigError(f"no weights for {name!r}: {record.where_to_get}")
     if not path.is_file():
-        raise ConfigError(f"no weights for {name!r} at {path}: {WHERE_TO_GET[name]}")
-    if name == "dgcnn":
-        net, card = load_dgcnn_state(path)
-        return DGCNNPredictor(net, card, device=device, batch_size=batch_size, params=dgcnn)
-    model, card, _ = load_checkpoint(path)
-    return RandLANetPredictor(model, card, device=device, batch_size=batch_size)
+        raise ConfigError(f"no weights for {name!r} at {path}: {record.where_to_get}")
+    chosen = params if params is not None else options.get(name)
+    return record.load(path, device=device, batch_size=batch_size, options=chosen)

@@ -1,8 +1,30 @@
-"""The whole method: network and geometry, fused, scored against ground truth when present."""
+"""The whole method: network and geometry, fused, scored against ground truth when present.
+
+Names are imported on first use (PEP 562), so configuration alone (``PipelineConfig``: the CLI,
+the service's request checks) does not pull in torch and open3d. The stages live in
+``jointseg.pipeline.stages``, not in a module called ``run``, so the submodule never shadows
+the ``run`` function on this package.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
 
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
-from jointseg.pipeline.outputs import OUTPUT_FIELDS, annotate, report_body
-from jointseg.pipeline.run import PipelineResult, load_predictor, run
+
+if TYPE_CHECKING:
+    from jointseg.pipeline.outputs import OUTPUT_FIELDS, annotate, report_body
+    from jointseg.pipeline.stages import PipelineResult, load_predictor, run
+
+_LAZY = {
+    "OUTPUT_FIELDS": "jointseg.pipeline.outputs",
+    "annotate": "jointseg.pipeline.outputs",
+    "report_body": "jointseg.pipeline.outputs",
+    "PipelineResult": "jointseg.pipeline.stages",
+    "load_predictor": "jointseg.pipeline.stages",
+    "run": "jointseg.pipeline.stages",
+}
 
 __all__ = [
     "OUTPUT_FIELDS",
@@ -14,3 +36,11 @@ __all__ = [
     "report_body",
     "run",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(_LAZY[name]), name)
+    globals()[name] = value
+    return value

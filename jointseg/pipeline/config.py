@@ -7,21 +7,28 @@ silently ignored.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
 
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
-from jointseg.network.dgcnn_predict import DGCNNParams
+from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
 
 
-class NetworkConfig(BaseModel):
-    """Which network labels the points, and where it runs."""
+class NetworkSettings(BaseModel):
+    """Which network labels the points, and where it runs: the fields every backend shares.
+
+    :data:`NetworkConfig` adds one section per backend that takes options, named after it
+    (``{"name": "dgcnn", "dgcnn": {"stride": 1.0}}``) and validated by that backend's params
+    model, so a misspelt option of any backend is rejected whichever backend is chosen.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     name: str = Field(
-        "randlanet", description="Network backend: randlanet or dgcnn (`jointseg models list`)."
+        DEFAULT_BACKEND,
+        description=f"Network backend: {' or '.join(BACKENDS)} (`jointseg models list`).",
     )
     weights: Path | None = Field(
         None,
@@ -34,9 +41,39 @@ class NetworkConfig(BaseModel):
         description="Crops (RandLA-Net) or 4 096-point blocks (DGCNN) per forward pass: memory, "
         "and how often cancellation is checked.",
     )
-    dgcnn: DGCNNParams = Field(
-        default_factory=DGCNNParams,
-        description="DGCNN's blocks and room normalisation (used when name is dgcnn).",
+
+    def options(self) -> BaseModel | None:
+        """The chosen backend's options (its section), None for a backend that takes none."""
+        record = REGISTRY.get(self.name)
+        if record is None or record.params is None:
+            return None
+        return getattr(self, record.name, None)
+
+
+def _backend_sections() -> dict[str, Any]:
+    """One field per backend with options: its params model, defaulting to its defaults."""
+    return {
+        record.name: (
+            record.params,
+            Field(
+                default_factory=record.params,
+                description=f"{record.params_help} (used when name is {record.name}).",
+            ),
+        )
+        for record in REGISTRY.values()
+        if record.params is not None
+    }
+
+
+if TYPE_CHECKING:
+    NetworkConfig = NetworkSettings
+else:
+    NetworkConfig = create_model(
+        "NetworkConfig",
+        __base__=NetworkSettings,
+        __module__=__name__,
+        __doc__=NetworkSettings.__doc__,
+        **_backend_sections(),
     )
 
 

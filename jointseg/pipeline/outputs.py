@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from jointseg.pipeline.run import PipelineResult
+from jointseg.pipeline.stages import PipelineResult
 from jointseg.scan import Scan
 
 #: Per-point fields the pipeline adds to a scan, in the order they are written.

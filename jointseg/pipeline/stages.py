@@ -22,8 +22,9 @@ from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
-from jointseg.network import NetworkResult, Predictor, load
-from jointseg.network.registry import resolve_weights
+from jointseg.network.backends import Predictor
+from jointseg.network.predict import NetworkResult
+from jointseg.network.registry import load, resolve_weights
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -106,7 +107,7 @@ def load_predictor(config: NetworkConfig) -> Predictor:
         config.weights,
         device=config.device,
         batch_size=config.batch_size,
-        dgcnn=config.dgcnn,
+        params=config.options(),
     )
 
 
@@ -258,20 +259,18 @@ def _resolved_params(
     config: PipelineConfig, predictor: Predictor, geometry: GeometryResult
 ) -> dict[str, Any]:
     """The parameters a run used, as JSON-ready values (geometry's adaptive ones resolved)."""
-    weights = resolve_weights(config.network.name, config.network.weights)
-    device = getattr(predictor, "device", config.network.device)
+    network = config.network
+    weights = resolve_weights(network.name, network.weights)
+    device = getattr(predictor, "device", network.device)  # stand-in predictors may have none
+    options = network.options()
     return {
         "network": {
-            "name": config.network.name,
+            "name": network.name,
             "weights": None if weights is None else str(weights),
             "device": None if device is None else str(device),
-            "batch_size": config.network.batch_size,
+            "batch_size": network.batch_size,
             "trained_on": predictor.card.get("data"),
-            **(
-                {"dgcnn": config.network.dgcnn.model_dump()}
-                if config.network.name == "dgcnn"
-                else {}
-            ),
+            **({} if options is None else {network.name: options.model_dump()}),
         },
         "geometry": geometry.params.model_dump(),
         "fusion": config.fusion.model_dump(),

@@ -1,0 +1,160 @@
+"""The backend registry: records that import no torch, their options validated by their own
+params model, and a backend declared in one module of its own."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from pydantic import BaseModel, ConfigDict
+
+from jointseg.exceptions import ConfigError
+from jointseg.network import DGCNNParams, load
+from jointseg.network.backends import Backend, _resolve
+from jointseg.network.dgcnn_predict import DGCNNParams as ReExported
+from jointseg.network.registry import (
+    BACKENDS,
+    DEFAULT_PULLED,
+    DEFAULT_WEIGHTS,
+    REGISTRY,
+    SUFFIX_BACKEND,
+    WEIGHTS_ENV,
+    WHERE_TO_GET,
+    _declared,
+)
+
+
+def _imports_torch(code: str) -> bool:
+    """Whether running ``code`` in a fresh interpreter leaves torch imported."""
+    out = subprocess.run(
+        [sys.executable, "-c", f"{code}\nimport sys; print('torch' in sys.modules)"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return out.stdout.strip().splitlines()[-1] == "True"
+
+
+def test_the_registry_and_the_backend_records_import_no_torch() -> None:
+    assert not _imports_torch(
+        "import jointseg.network.registry\n"
+        "from jointseg.network import published\n"
+        "from jointseg.network.registry import BACKENDS, REGISTRY, resolve_weights\n"
+        "REGISTRY['dgcnn'].options({'stride': 1.0}); resolve_weights('randlanet')"
+    )
+    # the pipeline's configuration module itself (its package __init__ is not under test here)
+    assert not _imports_torch(
+        "import sys, types, jointseg\n"
+        "pkg = types.ModuleType('jointseg.pipeline')\n"
+        "pkg.__path__ = [jointseg.__path__[0] + '/pipeline']\n"
+        "sys.modules['jointseg.pipeline'] = pkg\n"
+        "from jointseg.pipeline.config import PipelineConfig\n"
+        "PipelineConfig.model_validate({'network': {'name': 'dgcnn', 'dgcnn': {'stride': 1}}})"
+    )
+    assert _imports_torch("from jointseg.network import load, DGCNN")
+
+
+def test_the_views_by_name_keep_their_old_meaning() -> None:
+    assert BACKENDS == ("randlanet", "dgcnn") == tuple(REGISTRY)
+    assert DEFAULT_WEIGHTS["randlanet"].name == "randlanet_s3dis_area6.pt"
+    assert "dgcnn" not in DEFAULT_WEIGHTS and DEFAULT_PULLED == {"dgcnn": "dgcnn-s3dis-5"}
+    assert WEIGHTS_ENV == {
+        "randlanet": "JOINTSEG_RANDLANET_WEIGHTS",
+        "dgcnn": "JOINTSEG_DGCNN_WEIGHTS",
+    }
+    assert SUFFIX_BACKEND == {".pt": "randlanet", ".pth": "randlanet", ".t7": "dgcnn"}
+    assert "jointseg models pull dgcnn-s3dis-5" in WHERE_TO_GET["dgcnn"]
+    assert ReExported is DGCNNParams
+
+
+@pytest.mark.parametrize("name", BACKENDS)
+def test_every_loader_and_card_reader_path_names_a_function(name: str) -> None:
+    record = REGISTRY[name]
+    assert callable(_resolve(record.loader)) and callable(_resolve(record.card_reader))
+
+
+def test_options_are_validated_by_the_backends_own_model() -> None:
+    dgcnn, randlanet = REGISTRY["dgcnn"], REGISTRY["randlanet"]
+    assert dgcnn.options() == DGCNNParams()
+    assert dgcnn.options({"stride": 1.0}) == DGCNNParams(stride=1.0)
+    given = DGCNNParams(num_points=256)
+    assert dgcnn.options(given) is given
+    with pytest.raises(ConfigError, match="strid"):
+        dgcnn.options({"strid": 1.0})
+    with pytest.raises(ConfigError, match="takes DGCNNParams"):
+        dgcnn.options(_PointNetParams())
+    assert randlanet.options() is None and randlanet.options({}) is None
+    with pytest.raises(ConfigError, match="takes no options"):
+        randlanet.options({"stride": 1.0})
+
+
+def test_load_takes_options_directly_or_under_the_backends_name(dgcnn_random_weights) -> None:
+    direct = load("dgcnn", dgcnn_random_weights, device="cpu", params={"num_points": 256})
+    assert direct.params == DGCNNParams(num_points=256)  # type: ignore[attr-defined]
+    by_name = load("dgcnn", dgcnn_random_weights, device="cpu", dgcnn=DGCNNParams(stride=1.0))
+    assert by_name.params == DGCNNParams(stride=1.0)  # type: ignore[attr-defined]
+    with pytest.raises(TypeError, match="pointnet"):
+        load("dgcnn", dgcnn_random_weights, pointnet={})
+
+
+class _PointNetParams(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    num_points: int = 2048
+
+
+def test_a_backend_is_one_module_declaring_its_record(tmp_path, monkeypatch) -> None:
+    """What the README's "Adding a backend" shows: a module with ``BACKEND`` and its loader."""
+    (tmp_path / "pointnet_backend.py").write_text(
+        textwrap.dedent(
+            """
+            from pydantic import BaseModel, ConfigDict
+            from jointseg.network.backends import Backend
+
+            class PointNetParams(BaseModel):
+                model_config = ConfigDict(extra="forbid", frozen=True)
+                num_points: int = 2048
+
+            class PointNetPredictor:
+                name = "pointnet"
+
+                def __init__(self, path, device, batch_size, params):
+                    self.card = {"data": path.stem}
+                    self.batch_size, self.params = batch_size, params
+
+            def load(path, *, device, batch_size, params):
+                return PointNetPredictor(path, device, batch_size, params)
+
+            def read_card(path):
+                return path.stem, ""
+
+            BACKEND = Backend(
+                name="pointnet",
+                loader="pointnet_backend:load",
+                card_reader="pointnet_backend:read_card",
+                env="JOINTSEG_POINTNET_WEIGHTS",
+                where_to_get="train them",
+                params=PointNetParams,
+                params_help="PointNet's sampling",
+                suffixes=(".pn",),
+            )
+            """
+        )
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    record = _declared("pointnet_backend")
+    assert isinstance(record, Backend) and record.name == "pointnet"
+    weights = tmp_path / "area5.pn"
+    weights.write_bytes(b"")
+    predictor = record.load(weights, device=None, batch_size=2, options={"num_points": 512})
+    assert predictor.name == "pointnet" and predictor.card == {"data": "area5"}
+    assert predictor.params.num_points == 512  # type: ignore[attr-defined]
+    assert record.read_card(Path(weights)) == ("area5", "")
+    with pytest.raises(ConfigError, match="num_point"):
+        record.options({"num_point": 1})
+    monkeypatch.setattr("pointnet_backend.BACKEND", "not a record")
+    with pytest.raises(TypeError, match="not a jointseg.network.backends.Backend"):
+        _declared("pointnet_backend")
