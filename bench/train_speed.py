@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from jointseg.network.batches import Prefetcher, sequential
+from jointseg.network.batches import Prefetcher, calls
 from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.registry import DEFAULT_WEIGHTS
 from jointseg.network.train_data import centre_weights
@@ -72,7 +72,7 @@ def main() -> None:
             return batch
 
         n = args.steps + args.warmup
-        stream = Prefetcher(make, n) if "thread" in mode else sequential(make, n)
+        stream = Prefetcher(calls(make, n)) if "thread" in mode else calls(make, n)
         for i, batch in enumerate(stream):
             if i == args.warmup:
                 started, spent[0] = time.perf_counter(), 0.0

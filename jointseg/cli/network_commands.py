@@ -37,8 +37,11 @@ def predict(
         help="Weights file (default: $JOINTSEG_DGCNN_WEIGHTS for dgcnn, bundled for randlanet).",
     ),
     device: str | None = typer.Option(None, help="cpu or cuda (default: cuda when present)."),
-    batch_size: int = typer.Option(
-        4, min=1, help="Crops (randlanet) or 4 096-point blocks (dgcnn) per forward pass."
+    batch_size: int | None = typer.Option(
+        None,
+        min=1,
+        help="Crops (randlanet) or 4 096-point blocks (dgcnn) per forward pass "
+        "(default: 1 on the CPU, 8 on CUDA).",
     ),
     seed: int = typer.Option(0, help="Sampling randomness; the same seed gives the same labels."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),

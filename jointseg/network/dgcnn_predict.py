@@ -112,7 +112,7 @@ class DGCNNPredictor(NetworkPredictor):
         card: dict[str, Any] | None = None,
         *,
         device: str | None = None,
-        batch_size: int = 4,
+        batch_size: int = 1,
         params: DGCNNParams | None = None,
     ) -> None:
         super().__init__(model, card, device=device, batch_size=batch_size)

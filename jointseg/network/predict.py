@@ -24,8 +24,16 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.backends import Predictor, card_summary
+from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.crops import build_batch, crop_indices, grid_subsample, pad_to
+from jointseg.network.crops import (
+    Batch,
+    GridCloud,
+    build_batch,
+    crop_indices,
+    grid_subsample,
+    pad_to,
+)
 from jointseg.network.randlanet import RandLANet
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -115,13 +123,34 @@ class RandLANetPredictor(NetworkPredictor):
         card: dict[str, Any] | None = None,
         *,
         device: str | None = None,
-        batch_size: int = 4,
+        batch_size: int = 1,
         num_points: int | None = None,
         min_possibility: float = 0.5,
     ) -> None:
         super().__init__(model, card, device=device, batch_size=batch_size)
         self.num_points = num_points or model.config.num_points
         self.min_possibility = min_possibility
+
+    def _batches(self, cloud: GridCloud, rng: np.random.Generator) -> Iterator[tuple[Batch, float]]:
+        """Batches of crops chosen by the possibility scheme until every point is covered, each
+        with the covered share after it. Depends only on the geometry, never on the network's
+        outputs, so it runs a batch ahead in a thread (:class:`Prefetcher`)."""
+        m = len(cloud.xyz)
+        crop_size = min(self.num_points, max(m, 1024))
+        possibility = rng.random(m) * 1e-3
+        while possibility.min() < self.min_possibility:
+            batch_crops = []
+            for _ in range(self.batch_size):
+                centre_idx = int(np.argmin(possibility))
+                idx = crop_indices(cloud, cloud.xyz[centre_idx], crop_size)
+                dist = np.sum((cloud.xyz[idx] - cloud.xyz[centre_idx]) ** 2, axis=1)
+                possibility[idx] += 1 - dist / max(float(dist.max()), 1e-12)
+                idx = rng.permutation(pad_to(idx, crop_size, rng))
+                batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
+                if possibility.min() >= self.min_possibility:
+                    break
+            covered = float(np.mean(np.minimum(possibility / self.min_possibility, 1.0)))
+            yield build_batch(batch_crops, self.model.config), covered
 
     def predict(
         self,
@@ -150,40 +179,28 @@ class RandLANetPredictor(NetworkPredictor):
         cfg = self.model.config
         cloud = grid_subsample(scan.xyz, scan.rgb, None, cfg.grid_size)
         m = len(cloud.xyz)
-        crop_size = min(self.num_points, max(m, 1024))
-        possibility = rng.random(m) * 1e-3
-        prob_sum = np.zeros((m, cfg.num_classes), dtype=np.float32)
-        seen = np.zeros(m, dtype=np.int32)
+        prob_sum = torch.zeros((m, cfg.num_classes), dtype=torch.float32)
+        seen = torch.zeros(m, dtype=torch.float32)
         timings["subsample"] = time.perf_counter() - t
         t = time.perf_counter()
         crops = 0
-        with torch.inference_mode(), cancellable(self.model, cancel):
-            while possibility.min() < self.min_possibility:
+        source = self._batches(cloud, rng)
+        with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
+            for batch, covered in ahead:
                 check_cancel(cancel)
-                batch_crops = []
-                for _ in range(self.batch_size):
-                    centre_idx = int(np.argmin(possibility))
-                    idx = crop_indices(cloud, cloud.xyz[centre_idx], crop_size)
-                    dist = np.sum((cloud.xyz[idx] - cloud.xyz[centre_idx]) ** 2, axis=1)
-                    possibility[idx] += 1 - dist / max(float(dist.max()), 1e-12)
-                    idx = rng.permutation(pad_to(idx, crop_size, rng))
-                    batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
-                    if possibility.min() >= self.min_possibility:
-                        break
-                batch = build_batch(batch_crops, cfg).to(self.device)
+                batch = batch.to(self.device)
                 logits = self.model(
                     batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
                 )
-                probs = torch.softmax(logits.float(), dim=-1).cpu().numpy()
-                flat_idx = batch.indices.reshape(-1)
-                np.add.at(prob_sum, flat_idx, probs.reshape(-1, cfg.num_classes))
-                np.add.at(seen, flat_idx, 1)
-                crops += len(batch_crops)
-                covered = float(np.mean(np.minimum(possibility / self.min_possibility, 1.0)))
+                probs = torch.softmax(logits.float(), dim=-1).cpu()
+                flat_idx = torch.from_numpy(batch.indices.reshape(-1))
+                prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
+                seen.index_add_(0, flat_idx, torch.ones(len(flat_idx)))
+                crops += len(batch.indices)
                 report(progress, STAGE, 0.95 * covered)
         timings["crops"] = time.perf_counter() - t
         t = time.perf_counter()
-        sub_probs = prob_sum / np.maximum(seen, 1)[:, None]
+        sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).numpy()
         query = (scan.xyz - cloud.origin).astype(np.float32)
         _, nearest = cloud.tree.query(query, k=1, workers=-1)
         probs_full = sub_probs[nearest]

@@ -24,7 +24,7 @@ from scipy import ndimage
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
-from jointseg.network.batches import Prefetcher, sequential
+from jointseg.network.batches import Prefetcher, calls
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.crops import (
     MIN_CROP,
@@ -350,7 +350,8 @@ def train(
         return draw_batch(train_clouds, draw_p, centre_p, cfg, model_cfg, rng).to(device)
 
     count = (cfg.epochs - start_epoch) * cfg.steps_per_epoch
-    batches = Prefetcher(make, count) if cfg.prefetch else nullcontext(sequential(make, count))
+    source = calls(make, count)
+    batches = Prefetcher(source) if cfg.prefetch else nullcontext(source)
     with batches as stream:
         _train_epochs(
             cfg,

@@ -268,7 +268,7 @@ def _resolved_params(
             "name": network.name,
             "weights": None if weights is None else str(weights),
             "device": None if device is None else str(device),
-            "batch_size": network.batch_size,
+            "batch_size": getattr(predictor, "batch_size", network.batch_size),
             "trained_on": predictor.card.get("data"),
             **({} if options is None else {network.name: options.model_dump()}),
         },

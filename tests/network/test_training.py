@@ -114,7 +114,7 @@ def test_prefetched_training_is_the_same_training(tmp_path, tiny_training) -> No
 
 
 def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None:
-    from jointseg.network.batches import Prefetcher
+    from jointseg.network.batches import Prefetcher, calls
 
     made: list[int] = []
 
@@ -124,7 +124,7 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
             raise ValueError("room 3 is broken")
         return made[-1]
 
-    stream = Prefetcher(make, 10, depth=2)
+    stream = Prefetcher(calls(make, 10), depth=2)
     assert [next(stream), next(stream)] == [0, 1]
     with pytest.raises(ValueError, match="room 3"):
         next(stream)
@@ -132,7 +132,7 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
         next(stream)
     stream.close()
     assert len(made) == 3  # nothing built after the failure
-    slow = Prefetcher(lambda: 1, 1000, depth=1)
+    slow = Prefetcher(calls(lambda: 1, 1000), depth=1)
     next(slow)
     slow.close()  # the producer, blocked on a full queue, notices and ends
     assert not slow._thread.is_alive()
