@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import hashlib
 import logging
 import sys
@@ -155,8 +156,28 @@ def network_output(spec: str, item: Item, predictors: dict) -> tuple[np.ndarray,
         result = predictors[spec].predict(item.scan, seed=0)
         return {"labels": result.labels.astype(np.int8), "probs": result.probs.astype(np.float16)}
 
-    out = cached(CACHE / "net" / f"{item.key}-{content_key(spec)}.npz", compute)
+    key = content_key(spec, weights_fingerprint(spec), INFERENCE_VERSION)
+    out = cached(CACHE / "net" / f"{item.key}-{key}.npz", compute)
     return out["labels"].astype(np.int64), out["probs"].astype(np.float32)
+
+
+#: Part of every cached network output's key: bump it when whole-scan inference changes what it
+#: computes (2: RandLA-Net's linear possibility weight), so no stale labels are reused.
+INFERENCE_VERSION = 2
+
+
+@functools.cache
+def weights_fingerprint(spec: str) -> str:
+    """Size and modification time of the weights file ``spec`` resolves to: a spec without a
+    path ("randlanet") names whatever weights are bundled now, so the key must follow them."""
+    from jointseg.network.registry import resolve_weights
+
+    backend, _, weights = spec.partition(":")
+    path = resolve_weights(backend, weights or None)
+    if path is None or not path.is_file():
+        return "none"
+    stat = path.stat()
+    return f"{stat.st_size}-{stat.st_mtime_ns}"
 
 
 def geometry_output(name: str, item: Item) -> dict[str, np.ndarray]:

@@ -10,7 +10,8 @@ from service_process import post_scan, scan_file, wait_for
 
 def test_cancel_a_running_job_stops_it_within_seconds(service, scans, job_config) -> None:
     with service.http() as http:
-        job_id = post_scan(http, scan_file(scans, ".ply", points=30_000, seed=6), job_config)
+        # big enough that the job is still in its network stage when the DELETE arrives
+        job_id = post_scan(http, scan_file(scans, ".ply", points=300_000, seed=6), job_config)
         job_id = job_id.json()["id"]
         wait_for(http, job_id, until=("running",), stage="network", timeout=60)
         asked = time.monotonic()
