@@ -23,8 +23,6 @@ from pydantic_settings import (
     TomlConfigSettingsSource,
 )
 
-from jointseg.io import DEFAULT_MAX_POINTS
-
 ENV_PREFIX = "JOINTSEG_"
 #: Environment variable naming an optional settings file (.toml, or KEY=value lines).
 CONFIG_ENV = "JOINTSEG_CONFIG"
@@ -32,6 +30,12 @@ CONFIG_ENV = "JOINTSEG_CONFIG"
 QueueKind = Literal["sqlite", "postgres", "redis"]
 GIB = 1 << 30
 MIB = 1 << 20
+
+#: The service's default point limit: what one worker is measured to handle untiled on the
+#: 24 GB / 2-core reference machine. `bench/big.py`: a 20 M-point floor through `jointseg segment`
+#: peaks at 8.7 GB (321 s); memory grows by ~0.45 GB per million points, so the library's
+#: 50 M-point default would need ~22 GB in one worker, and two such jobs would kill both.
+SERVICE_MAX_POINTS = 20_000_000
 
 
 class Settings(BaseSettings):
@@ -72,7 +76,7 @@ class Settings(BaseSettings):
         "Clients send `Authorization: Bearer <key>`.",
     )
     max_upload_bytes: int = Field(2 * GIB, gt=0, description="Largest upload accepted (413).")
-    max_points: int = Field(DEFAULT_MAX_POINTS, gt=0, description="Largest scan accepted (422).")
+    max_points: int = Field(SERVICE_MAX_POINTS, gt=0, description="Largest scan accepted (422).")
     full_check_max_bytes: int = Field(
         64 * MIB,
         ge=0,
