@@ -76,7 +76,12 @@ class Settings(BaseSettings):
         "Clients send `Authorization: Bearer <key>`.",
     )
     max_upload_bytes: int = Field(2 * GIB, gt=0, description="Largest upload accepted (413).")
-    max_points: int = Field(SERVICE_MAX_POINTS, gt=0, description="Largest scan accepted (422).")
+    max_points: int = Field(
+        SERVICE_MAX_POINTS,
+        gt=0,
+        description="Largest scan accepted (422); the default is what one worker is measured to "
+        "handle untiled on 24 GB (bench/big.py).",
+    )
     full_check_max_bytes: int = Field(
         64 * MIB,
         ge=0,
