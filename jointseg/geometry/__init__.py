@@ -9,10 +9,10 @@ never shadows the ``segment`` function on this package.
 
 from __future__ import annotations
 
-from importlib import import_module
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
+from jointseg.lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from jointseg.geometry.segmentation import GeometryResult, PlaneInfo, segment
@@ -22,9 +22,4 @@ _LAZY = ("GeometryResult", "PlaneInfo", "segment")
 __all__ = ["GeometryParams", "GeometryResult", "PlaneInfo", "ResolvedGeometryParams", "segment"]
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module("jointseg.geometry.segmentation"), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_attributes(__name__, {name: "jointseg.geometry.segmentation" for name in _LAZY})

@@ -125,7 +125,7 @@ def pack_checkpoint(
     card = {**card, "weights_dtype": "float16" if half else "float32"}
     card.pop("input_conventions", None)
     if "train_config" in card:  # cards written before these facts existed get them now
-        from jointseg.network.training import TrainConfig, card_facts
+        from jointseg.network.training import TrainConfig, card_facts  # imports this module
 
         facts = card_facts(
             TrainConfig.model_validate(card["train_config"]), list(card.get("history", []))

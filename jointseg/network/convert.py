@@ -14,7 +14,6 @@ names differ, and three details need care:
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import pickle
 import re
@@ -29,6 +28,7 @@ import torch
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import FORMAT, save_checkpoint
+from jointseg.network.published import file_sha256
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
 
 log = logging.getLogger(__name__)
@@ -233,7 +233,7 @@ def import_open3d_ml(src: Path, dst: Path, *, allow_pickle: bool = False) -> Pat
         raise ConfigError(f"Open3D-ML checkpoint not found: {src}")
     if dst.resolve() == src.resolve():
         raise ConfigError(f"{src}: refusing to overwrite the Open3D-ML checkpoint with its import")
-    digest = _sha256(src)
+    digest = file_sha256(src)
     body = _load(src, digest, allow_pickle=allow_pickle)
     state = _state_dict(src, body)
     try:
@@ -361,14 +361,6 @@ def _open3d_ml_shape(ours: str, tensor: torch.Tensor) -> tuple[int, ...]:
 def _listing(keys: list[str], limit: int = 8) -> str:
     shown = ", ".join(repr(k) for k in keys[:limit])
     return shown + (f" and {len(keys) - limit} more" if len(keys) > limit else "")
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def to_open3d_ml_state(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:

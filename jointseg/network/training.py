@@ -10,6 +10,8 @@ validation mIoU per epoch, resumable checkpoints with a model card.
 from __future__ import annotations
 
 import logging
+import os
+import platform
 import time
 from collections.abc import Iterator
 from contextlib import nullcontext
@@ -384,9 +386,6 @@ SYNTH_TERMS = "synthetic rooms only (jointseg.synth); no third-party data"
 def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
     """What a user deciding whether to trust the weights wants: the hardware, the command, the
     validation figures and the data's terms of use."""
-    import os
-    import platform
-
     scores = [(h["val_miou"], h["epoch"]) for h in history if h.get("val_miou") is not None]
     best = max(scores) if scores else None
     real = cfg.data != "synth"
