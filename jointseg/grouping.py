@@ -54,7 +54,11 @@ def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cell_keys(
-    xyz: np.ndarray, size: float, *, origin: np.ndarray | None = None
+    xyz: np.ndarray,
+    size: float,
+    *,
+    origin: np.ndarray | None = None,
+    aligned: bool = False,
 ) -> tuple[np.ndarray, int]:
     """Flat key of the cubic cell of side ``size`` each point falls in, so points can be
     grouped by cell with one integer per point.
@@ -70,6 +74,10 @@ def cell_keys(
         Cell side, in the units of ``xyz``.
     origin : ndarray of shape (D,), optional
         Corner of cell 0; no coordinate may lie below it. Default: the per-axis minimum.
+    aligned : bool
+        Cells on the absolute grid (cell ``floor(x / size)``) instead of one starting at the
+        points' minimum, so any subset of the points falls into the same cells as the whole
+        set does: a scan fused tile by tile groups its points as the whole scan would.
 
     Returns
     -------
@@ -82,10 +90,14 @@ def cell_keys(
         raise ValueError(f"xyz must have shape (N, D), got {xyz.shape}")
     if len(xyz) == 0:
         return np.zeros(0, dtype=np.int64), 0
-    lo = xyz.min(axis=0) if origin is None else origin
-    cells = np.floor((xyz - lo) / size).astype(np.int64)
-    if origin is not None and cells.min() < 0:
-        raise ValueError("origin must not lie above any point")
+    if aligned:
+        cells = np.floor(xyz / size).astype(np.int64)
+        cells -= cells.min(axis=0)
+    else:
+        lo = xyz.min(axis=0) if origin is None else origin
+        cells = np.floor((xyz - lo) / size).astype(np.int64)
+        if origin is not None and cells.min() < 0:
+            raise ValueError("origin must not lie above any point")
     dims = cells.max(axis=0) + 1
     keys = cells[:, 0]
     for axis in range(1, cells.shape[1]):

@@ -22,6 +22,7 @@ from jointseg.io.atomic import atomic_open
 from jointseg.network.registry import BACKENDS
 
 if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
+    from jointseg.network.backends import Predictor
     from jointseg.pipeline.config import PipelineConfig
 
 #: Output formats that keep per-point fields (text formats would drop them).
@@ -64,12 +65,33 @@ def segment_scan(
     weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
     config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
+    tile_points: int | None = typer.Option(
+        None,
+        "--tile-points",
+        min=1000,
+        help="Cut scans with more points into tiles of about this many (bounded memory; "
+        "default: the config's tiles.max_points, 4 000 000).",
+    ),
+    work_dir: Path | None = typer.Option(
+        None,
+        "--work-dir",
+        help="Folder for a tiled run's spilled scan and tile results (about 60 bytes a point; "
+        "default: a temporary folder beside the output, removed at the end).",
+    ),
 ) -> None:
-    """Segment a scan semantically: network labels refined by geometric segments (the paper)."""
+    """Segment a scan semantically: network labels refined by geometric segments (the paper).
+
+    A scan with more points than the tile size is processed tile by tile in bounded memory,
+    with the same labels as a run on the whole scan on all but a few border points.
+    """
     from jointseg.pipeline import annotate, load_predictor, report_body, run
     from jointseg.pipeline.tables import format_score
 
     cfg = _config(config, network, weights)
+    if tile_points is not None:
+        cfg = cfg.model_copy(
+            update={"tiles": cfg.tiles.model_copy(update={"max_points": tile_points})}
+        )
     if output.suffix.lower() not in FIELD_EXTENSIONS:
         raise ConfigError(
             f"{output}: cannot store the output fields in {output.suffix or 'no extension'!r}; "
@@ -78,9 +100,15 @@ def segment_scan(
     _check_writable(output, "output")
     if report is not None:
         _check_writable(report, "report")
+    info = probe_scan(source, max_points=max_points)
+    if work_dir is not None and not work_dir.is_dir():
+        raise ConfigError(f"--work-dir {work_dir}: not a folder")
     started = time.perf_counter()
     predictor = load_predictor(cfg.network)
     load_s = time.perf_counter() - started
+    if info.n_points > cfg.tiles.max_points:
+        _segment_tiled(source, output, report, cfg, predictor, max_points, work_dir, load_s)
+        return
     with progress_bar() as progress:
         scan = read_scan(source, max_points=max_points, progress=progress)
         read_s = time.perf_counter() - started - load_s
@@ -101,6 +129,49 @@ def segment_scan(
     if result.metrics is not None:
         network, fused, oracle = (
             format_score(result.metrics[k].miou) for k in ("network", "fused", "oracle")
+        )
+        line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
+    typer.echo(line, err=True)
+
+
+def _segment_tiled(
+    source: Path,
+    output: Path,
+    report: Path | None,
+    cfg: PipelineConfig,
+    predictor: Predictor,
+    max_points: int,
+    work_dir: Path | None,
+    load_s: float,
+) -> None:
+    """`jointseg segment` for a scan above the tile size: tile by tile, streamed output."""
+    from jointseg.pipeline.tables import format_score
+    from jointseg.pipeline.tiled import run_tiled
+
+    with progress_bar() as progress:
+        done = run_tiled(
+            source,
+            output,
+            cfg,
+            predictor=predictor,
+            max_points=max_points,
+            progress=progress,
+            workdir=work_dir,
+        )
+    body: dict[str, Any] = {"input": str(source), "output": str(output), **done.report}
+    body["timings_s"] = {"load_network": load_s, **body["timings_s"]}
+    body["timings_s"]["total"] += load_s
+    if report is not None:
+        _write_text(report, json.dumps(body, indent=2))
+    merged = done.merged
+    line = (
+        f"{done.plan.points:,} points in {len(done.plan.tiles)} tiles -> "
+        f"{merged.n_segments:,} segments, {merged.labels_changed:,} labels changed by fusion, "
+        f"{body['timings_s']['total']:.1f} s -> {output}"
+    )
+    if merged.metrics is not None:
+        network, fused, oracle = (
+            format_score(merged.metrics[k].miou) for k in ("network", "fused", "oracle")
         )
         line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)

@@ -25,6 +25,24 @@ log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
+class ScanTotals:
+    """Scan-wide values some votes use, given when a scan is fused in parts (tiles) so every
+    part votes as it would inside the whole scan.
+
+    Attributes
+    ----------
+    points : int
+        Points in the whole scan (segment sizes are judged as shares of it).
+    mean_entropy : float
+        Mean normalised entropy of the network's probabilities over the whole scan
+        (:func:`jointseg.fusion.learned.normalised_entropy`).
+    """
+
+    points: int
+    mean_entropy: float
+
+
+@dataclass(frozen=True)
 class FusionResult:
     """Fused labels and confidence for every point, and what each segment's vote decided.
 
@@ -81,6 +99,7 @@ def fuse(
     *,
     network_xyz: np.ndarray | None = None,
     main_plane: np.ndarray | None = None,
+    totals: ScanTotals | None = None,
 ) -> FusionResult:
     """Combine network labels with geometric segments (eq. 6-7 and the modes beyond them).
 
@@ -102,6 +121,9 @@ def fuse(
     main_plane : ndarray of shape (N,), bool, optional
         Points on the geometry's main planes (``GeometryResult.main_plane``): the learned vote
         weighs an offer from a wall or floor plane differently from one from an object.
+    totals : ScanTotals, optional
+        Scan-wide values when ``xyz`` is a part of a scan made of whole segments (a tiled
+        run); default: ``xyz`` is the whole scan.
 
     Returns
     -------
@@ -125,7 +147,7 @@ def fuse(
 
     t = time.perf_counter()
     segment_ids, seg = compact_ids(segments)
-    ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params)
+    ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params, totals)
     vote = _vote(ballot, main_plane, timings, t)
     return _result(vote, labels, segment_ids, params, timings)
 
@@ -140,6 +162,7 @@ class _Ballot(NamedTuple):
     labels: np.ndarray
     probs: np.ndarray | None
     params: FusionParams
+    totals: ScanTotals | None
 
 
 class _Vote(NamedTuple):
@@ -228,7 +251,7 @@ def _result(
 
 def _evidence_vote(ballot: _Ballot) -> _Vote:
     """The 'evidence' mode (see :mod:`jointseg.fusion.evidence`) over segment cells."""
-    xyz, seg, n_seg, labels, probs, params = ballot
+    xyz, seg, n_seg, labels, probs, params, _ = ballot
     p = evidence.point_probs(labels, probs)
     split = np.ones(n_seg, dtype=bool) if params.vote_cell_size > 0 else np.zeros(n_seg, bool)
     if split.any():
@@ -244,7 +267,7 @@ def _evidence_vote(ballot: _Ballot) -> _Vote:
 
 def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
     """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment and cell offers."""
-    xyz, seg, n_seg, labels, probs, params = ballot
+    xyz, seg, n_seg, labels, probs, params, totals = ballot
     p = evidence.point_probs(labels, probs)
     fused, seg_votes = learned.learned_labels(
         xyz,
@@ -255,6 +278,7 @@ def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
         threshold=params.flip_threshold,
         min_support=params.min_support if probs is not None else 0.0,
         main_plane=main_plane,
+        totals=None if totals is None else (totals.points, totals.mean_entropy),
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])
@@ -264,8 +288,8 @@ def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
 
 def _majority_vote(ballot: _Ballot, timings: dict[str, float], t: float) -> _Vote:
     """Eq. 6-7 (hard or soft votes), with the impure-segment guard in the guarded modes."""
-    xyz, seg, n_seg, labels, probs, params = ballot
-    n = len(xyz)
+    xyz, seg, n_seg, labels, probs, params, totals = ballot
+    n = len(xyz) if totals is None else totals.points
     soft = params.mode in SOFT_MODES
     vote_probs = probs if soft else None
     seg_votes = _votes(seg, n_seg, labels, vote_probs)

@@ -96,7 +96,7 @@ def split_into_cells(
     members = np.flatnonzero(split[seg])
     if len(members) == 0:
         return unit, n_seg
-    cells, n_cells = cell_keys(xyz[members], cell_size)
+    cells, n_cells = cell_keys(xyz[members], cell_size, aligned=True)
     # renumbering only the split points: one (segment, cell) pair per part
     _, part = compact_ids(seg[members].astype(np.int64) * n_cells + cells)
     unit[members] = n_seg + part
@@ -112,6 +112,6 @@ def segment_cells(xyz: np.ndarray, seg: np.ndarray, cell_size: float) -> tuple[n
         Unit 0..U-1 of every point.
     n_units : int
     """
-    cells, n_cells = cell_keys(xyz, cell_size)
+    cells, n_cells = cell_keys(xyz, cell_size, aligned=True)
     ids, unit = compact_ids(seg.astype(np.int64) * n_cells + cells)
     return unit, len(ids)

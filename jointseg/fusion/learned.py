@@ -98,6 +98,12 @@ class Offers:
     segment_votes: np.ndarray
 
 
+def normalised_entropy(probs: np.ndarray) -> np.ndarray:
+    """Entropy of each row of ``probs`` (N, C) divided by log C: 0 sure, 1 uniform."""
+    n_classes = probs.shape[1]
+    return -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)
+
+
 def _shares(
     unit: np.ndarray, n_units: int, probs: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -118,6 +124,7 @@ def vote_offers(
     cell_size: float = DEFAULT_CELL_SIZE,
     main_plane: np.ndarray | None = None,
     min_support: float = 0.0,
+    totals: tuple[int, float] | None = None,
 ) -> Offers:
     """Every offer of a segment or cell label to a point whose network label differs, except
     offers of a class the network gave the point less than ``min_support`` probability.
@@ -138,6 +145,9 @@ def vote_offers(
         Points on the geometry's main planes (walls, floor, ceiling); none when not given.
     min_support : float
         Least probability of the offered class at the point (0 keeps every offer).
+    totals : (int, float), optional
+        The whole scan's point count and mean normalised entropy when these points are a part
+        of it made of whole segments (a tiled run); default: taken from these points.
 
     Returns
     -------
@@ -153,7 +163,8 @@ def vote_offers(
     seg_hard = label_histogram(seg, n_seg, labels, n_classes) / np.maximum(seg_size, 1)[:, None]
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
     cell_size_pts, _, cell_soft = _shares(cell, n_cells, probs)
-    entropy = -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)
+    entropy = normalised_entropy(probs)
+    scan_points, scan_entropy = totals if totals is not None else (n, float(entropy.mean()))
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = (
         np.zeros(n_seg)
@@ -179,7 +190,7 @@ def vote_offers(
             _logit(seg_soft[s, offer]),
             _logit(seg_soft[s, own]),
             _logit(seg_hard[s, offer]),
-            np.log10(seg_size[s] / max(n, 1)),
+            np.log10(seg_size[s] / max(scan_points, 1)),
             seg_entropy[s],
             entropy[point],
             _logit(cell_soft[c, offer]),
@@ -189,7 +200,7 @@ def vote_offers(
             STRUCTURAL[own],
             STRUCTURAL[offer],
             from_segment,
-            np.full(len(point), entropy.mean()),
+            np.full(len(point), scan_entropy),
         ]
     ).astype(np.float64)
     return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
@@ -329,6 +340,7 @@ def learned_labels(
     min_support: float = 0.0,
     main_plane: np.ndarray | None = None,
     model: TreeEnsemble | None = None,
+    totals: tuple[int, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     ``threshold``, else the network's label. An offer of a class the network gave the point
@@ -350,6 +362,7 @@ def learned_labels(
         cell_size=model.cell_size,
         main_plane=main_plane,
         min_support=min_support,
+        totals=totals,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
     return best_offers(labels, offers.point, offers.label, p, threshold), offers.segment_votes

@@ -15,11 +15,18 @@ from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
 from jointseg.lazy import lazy_attributes
 
 if TYPE_CHECKING:
-    from jointseg.geometry.segmentation import GeometryResult, PlaneInfo, segment
+    from jointseg.geometry.segmentation import GeometryResult, PlaneInfo, scan_params, segment
 
-_LAZY = ("GeometryResult", "PlaneInfo", "segment")
+_LAZY = ("GeometryResult", "PlaneInfo", "scan_params", "segment")
 
-__all__ = ["GeometryParams", "GeometryResult", "PlaneInfo", "ResolvedGeometryParams", "segment"]
+__all__ = [
+    "GeometryParams",
+    "GeometryResult",
+    "PlaneInfo",
+    "ResolvedGeometryParams",
+    "scan_params",
+    "segment",
+]
 
 
 __getattr__ = lazy_attributes(__name__, {name: "jointseg.geometry.segmentation" for name in _LAZY})

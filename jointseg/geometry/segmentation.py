@@ -84,6 +84,7 @@ def segment(
     cancel: CancelToken | None = None,
     *,
     seed: int = 0,
+    resolved: ResolvedGeometryParams | None = None,
 ) -> GeometryResult:
     """Split a scan into geometric segments without semantics (§2.2 of the paper).
 
@@ -99,6 +100,10 @@ def segment(
         Checked between steps.
     seed : int
         RANSAC randomness; the result is deterministic for a seed.
+    resolved : ResolvedGeometryParams, optional
+        Every threshold, the spacing and the yaw fixed in advance (:func:`scan_params` on the
+        whole scan), so the tiles of a big scan are cut with the same thresholds and frame;
+        ``params`` is then ignored. Default: derived from this scan.
 
     Returns
     -------
@@ -117,13 +122,19 @@ def segment(
     laps = _Laps(progress, cancel)
     centre = scan.xyz.mean(axis=0)
     xyz = scan.xyz - centre
-    spacing = estimate_spacing(xyz, rng=rng) or 1e-3
+    if resolved is None:
+        spacing = estimate_spacing(xyz, rng=rng) or 1e-3
+    else:
+        params, spacing = resolved, resolved.spacing
     laps.lap("spacing", 0.05)
     work = _voxelise(xyz, scan.rgb, params.voxel_factor * spacing)
     laps.lap("voxels", 0.1)
-    frame = _align(work.xyz, max(spacing, work.voxel), align=params.align)
+    yaw = None if resolved is None else resolved.yaw_deg
+    frame = _align(work.xyz, max(spacing, work.voxel), align=params.align, yaw=yaw)
     laps.lap("alignment", 0.2)
     graph, colours, p = _neighbours(work, params, n_points=n, spacing=spacing, yaw=frame.yaw)
+    if resolved is not None:
+        p = resolved
     laps.lap("neighbours", 0.4)
     found, plane_id = _box_planes(frame.xyz, p, rng)
     laps.lap("box_planes", 0.5)
@@ -139,6 +150,46 @@ def segment(
     infos = _plane_infos(found, frame.rotation.T, centre, point_plane)
     log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
     return GeometryResult(segments, point_plane, infos, p, laps.timings)
+
+
+def scan_params(
+    scan: Scan,
+    params: GeometryParams | None = None,
+    *,
+    n_points: int | None = None,
+    seed: int = 0,
+) -> ResolvedGeometryParams:
+    """Every adaptive threshold of :func:`segment` derived from ``scan`` without segmenting it.
+
+    A big scan is segmented tile by tile; deriving the spacing, the yaw and the colour noise
+    once, from a contiguous part of it, and handing the result to every tile
+    (``segment(..., resolved=...)``) cuts all tiles with the same thresholds and frame.
+
+    Parameters
+    ----------
+    scan : Scan
+        A contiguous part of the scan (a few hundred thousand points or more), not a random
+        sample: the spacing is the distance between neighbouring points.
+    params : GeometryParams, optional
+    n_points : int, optional
+        Points in the whole scan (sets ``min_region_points``); default ``len(scan)``.
+    seed : int
+
+    Raises
+    ------
+    ConfigError
+        When the scan has too few points.
+    """
+    params = params or GeometryParams()
+    if len(scan) < 10:
+        raise ConfigError(f"geometry needs at least 10 points, got {len(scan)}")
+    rng = np.random.default_rng(seed)
+    xyz = scan.xyz - scan.xyz.mean(axis=0)
+    spacing = estimate_spacing(xyz, rng=rng) or 1e-3
+    work = _voxelise(xyz, scan.rgb, params.voxel_factor * spacing)
+    frame = _align(work.xyz, max(spacing, work.voxel), align=params.align)
+    n = len(scan) if n_points is None else n_points
+    return _neighbours(work, params, n_points=n, spacing=spacing, yaw=frame.yaw)[2]
 
 
 class _Laps:
@@ -204,10 +255,12 @@ class _Frame:
     rotation: np.ndarray
 
 
-def _align(work: np.ndarray, spacing: float, *, align: bool) -> _Frame:
-    """Normals and the yaw rotation, so the box-face planes can be searched axis-aligned."""
+def _align(work: np.ndarray, spacing: float, *, align: bool, yaw: float | None = None) -> _Frame:
+    """Normals and the yaw rotation (``yaw`` when given, else the dominant walls'), so the
+    box-face planes can be searched axis-aligned."""
     normals = alignment.point_normals(work, spacing, max_voxels=100_000)
-    yaw = alignment.dominant_yaw(normals) if align else 0.0
+    if yaw is None:
+        yaw = alignment.dominant_yaw(normals) if align else 0.0
     rot = alignment.rotation_z(-yaw)
     return _Frame(work @ rot.T, normals @ rot.T, yaw, rot)
 

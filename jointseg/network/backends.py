@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import import_module
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol, cast
+from typing import TYPE_CHECKING, Any, Protocol, cast, runtime_checkable
 
 from pydantic import BaseModel, ValidationError
 
@@ -21,9 +21,11 @@ from jointseg.exceptions import ConfigError
 from jointseg.progress import CancelToken, ProgressFn
 
 if TYPE_CHECKING:
+    import numpy as np
     import torch
 
-    from jointseg.network.predict import NetworkResult
+    from jointseg.network.anchored import AnchoredCloud, CropPlan
+    from jointseg.network.predict import CellSums, NetworkResult
     from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
@@ -186,3 +188,34 @@ def card_summary(card: dict[str, Any]) -> str:
         if card.get(key):
             parts.append(f"{key}: {card[key]}")
     return "; ".join(parts)
+
+
+@runtime_checkable
+class TilePredictor(Protocol):
+    """A predictor that can share one whole-scan inference among tiles (RandLA-Net): the
+    whole scan's crop plan is made once, each tile evaluates the crops centred in its core,
+    and the sums per sub-sampled cell are added over tiles (:mod:`jointseg.network.anchored`).
+    """
+
+    @property
+    def grid_size(self) -> float:
+        """Side (m) of the sub-sampling grid."""
+        ...
+
+    def plan(self, cloud: AnchoredCloud, seed: int) -> CropPlan:
+        """The crop plan of a whole scan's sub-sample."""
+        ...
+
+    def predict_cells(
+        self,
+        scan: Scan,
+        plan: CropPlan,
+        lower: np.ndarray,
+        crops: np.ndarray,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> CellSums:
+        """A tile's share of the whole-scan inference."""
+        ...

@@ -23,17 +23,17 @@ import numpy as np
 import torch
 
 from jointseg.exceptions import ConfigError
+from jointseg.network.anchored import (
+    AnchoredCloud,
+    CropPlan,
+    anchored_cloud,
+    crop_members,
+    plan_crops,
+)
 from jointseg.network.backends import Predictor, card_summary
 from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.crops import (
-    Batch,
-    GridCloud,
-    build_batch,
-    crop_indices,
-    grid_subsample,
-    pad_to,
-)
+from jointseg.network.crops import Batch, build_batch
 from jointseg.network.randlanet import RandLANet
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -131,26 +131,54 @@ class RandLANetPredictor(NetworkPredictor):
         self.num_points = num_points or model.config.num_points
         self.min_possibility = min_possibility
 
-    def _batches(self, cloud: GridCloud, rng: np.random.Generator) -> Iterator[tuple[Batch, float]]:
-        """Batches of crops chosen by the possibility scheme until every point is covered, each
-        with the covered share after it. Depends only on the geometry, never on the network's
-        outputs, so it runs a batch ahead in a thread (:class:`Prefetcher`)."""
-        m = len(cloud.xyz)
-        crop_size = min(self.num_points, max(m, 1024))
-        possibility = rng.random(m) * 1e-3
-        while possibility.min() < self.min_possibility:
+    def _batches(
+        self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int
+    ) -> Iterator[tuple[Batch, int]]:
+        """Batches of the crops ``crops`` (indices into ``plan``), each with the number of
+        crops done after it. Depends only on the geometry, never on the network's outputs, so
+        it runs a batch ahead in a thread (:class:`Prefetcher`)."""
+        for first in range(0, len(crops), self.batch_size):
+            chosen = crops[first : first + self.batch_size]
             batch_crops = []
-            for _ in range(self.batch_size):
-                centre_idx = int(np.argmin(possibility))
-                idx = crop_indices(cloud, cloud.xyz[centre_idx], crop_size)
-                dist = np.sum((cloud.xyz[idx] - cloud.xyz[centre_idx]) ** 2, axis=1)
-                possibility[idx] += 1 - dist / max(float(dist.max()), 1e-12)
-                idx = rng.permutation(pad_to(idx, crop_size, rng))
+            for crop in chosen:
+                idx = crop_members(cloud, plan, int(crop), seed)
                 batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
-                if possibility.min() >= self.min_possibility:
-                    break
-            covered = float(np.mean(np.minimum(possibility / self.min_possibility, 1.0)))
-            yield build_batch(batch_crops, self.model.config), covered
+            yield build_batch(batch_crops, self.model.config), first + len(chosen)
+
+    def crop_sums(
+        self,
+        cloud: AnchoredCloud,
+        plan: CropPlan,
+        crops: np.ndarray,
+        *,
+        seed: int,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Softmax outputs of the crops ``crops`` summed per sub-sampled point: (M, 13)
+        float64 sums and (M,) counts of crops that saw each point."""
+        cfg = self.model.config
+        m = len(cloud.xyz)
+        prob_sum = torch.zeros((m, cfg.num_classes), dtype=torch.float64)
+        seen = torch.zeros(m, dtype=torch.float64)
+        source = self._batches(cloud, plan, np.asarray(crops, dtype=np.int64), seed)
+        with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
+            for batch, done in ahead:
+                check_cancel(cancel)
+                batch = batch.to(self.device)
+                logits = self.model(
+                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+                )
+                probs = torch.softmax(logits.float(), dim=-1).cpu().double()
+                flat_idx = torch.from_numpy(batch.indices.reshape(-1))
+                prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
+                seen.index_add_(0, flat_idx, torch.ones(len(flat_idx), dtype=torch.float64))
+                report(progress, STAGE, 0.95 * done / max(len(crops), 1))
+        return prob_sum.numpy(), seen.numpy()
+
+    def plan(self, cloud: AnchoredCloud, seed: int) -> CropPlan:
+        """The crop plan of a whole scan's sub-sample (:func:`plan_crops`)."""
+        return plan_crops(cloud, self.num_points, self.min_possibility, seed)
 
     def predict(
         self,
@@ -163,7 +191,8 @@ class RandLANetPredictor(NetworkPredictor):
         """Label every point of ``scan``.
 
         Memory is bounded by the crop size and the batch: the scan itself is only held as its
-        grid sub-sample plus the output arrays.
+        grid sub-sample plus the output arrays. A tile of a big scan run through
+        :meth:`predict_cells` with the whole scan's plan gives the same outputs.
 
         Raises
         ------
@@ -174,41 +203,96 @@ class RandLANetPredictor(NetworkPredictor):
             raise ConfigError("cannot run the network on an empty scan")
         timings: dict[str, float] = {}
         t = time.perf_counter()
-        rng = np.random.default_rng(seed)
         torch.manual_seed(seed)
-        cfg = self.model.config
-        cloud = grid_subsample(scan.xyz, scan.rgb, None, cfg.grid_size)
-        m = len(cloud.xyz)
-        prob_sum = torch.zeros((m, cfg.num_classes), dtype=torch.float32)
-        seen = torch.zeros(m, dtype=torch.float32)
+        cloud = anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, scan.xyz.min(axis=0))
+        plan = self.plan(cloud, seed)
         timings["subsample"] = time.perf_counter() - t
         t = time.perf_counter()
-        crops = 0
-        source = self._batches(cloud, rng)
-        with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
-            for batch, covered in ahead:
-                check_cancel(cancel)
-                batch = batch.to(self.device)
-                logits = self.model(
-                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
-                )
-                probs = torch.softmax(logits.float(), dim=-1).cpu()
-                flat_idx = torch.from_numpy(batch.indices.reshape(-1))
-                prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
-                seen.index_add_(0, flat_idx, torch.ones(len(flat_idx)))
-                crops += len(batch.indices)
-                report(progress, STAGE, 0.95 * covered)
+        crops = np.arange(len(plan))
+        prob_sum, seen = self.crop_sums(
+            cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
+        )
         timings["crops"] = time.perf_counter() - t
         t = time.perf_counter()
-        sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).numpy()
-        query = (scan.xyz - cloud.origin).astype(np.float32)
-        _, nearest = cloud.tree.query(query, k=1, workers=-1)
-        probs_full = sub_probs[nearest]
+        sub_probs = (prob_sum / np.maximum(seen, 1)[:, None]).astype(np.float32)
+        probs_full = sub_probs[cloud.nearest(scan.xyz)]
         labels = probs_full.argmax(axis=1).astype(np.int32)
         timings["project"] = time.perf_counter() - t
         report(progress, STAGE, 1.0)
-        log.info("network: %d points, %d sub-sampled, %d crops", len(scan), m, crops)
-        return NetworkResult(labels, probs_full.astype(np.float32), crops, timings)
+        log.info(
+            "network: %d points, %d sub-sampled, %d crops", len(scan), len(cloud.xyz), len(plan)
+        )
+        return NetworkResult(labels, probs_full, len(plan), timings)
+
+    def predict_cells(
+        self,
+        scan: Scan,
+        plan: CropPlan,
+        lower: np.ndarray,
+        crops: np.ndarray,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        seed: int = 0,
+    ) -> CellSums:
+        """One tile's share of a whole-scan inference: the crops ``crops`` of the whole scan's
+        ``plan`` (those centred in the tile's core), evaluated on the tile's points.
+
+        Parameters
+        ----------
+        scan : Scan
+            The tile's points (its outer box).
+        plan : CropPlan
+            Made by :meth:`plan` on the whole scan's sub-sample.
+        lower : ndarray of shape (3,)
+            The whole scan's lower corner.
+        crops : ndarray of int
+            Indices into ``plan`` to evaluate here.
+
+        Returns
+        -------
+        CellSums
+            Sums per sub-sampled cell, to be added over all tiles, and the cell of every point.
+        """
+        torch.manual_seed(seed)
+        cloud = anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower)
+        prob_sum, seen = self.crop_sums(
+            cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
+        )
+        touched = seen > 0
+        report(progress, STAGE, 1.0)
+        return CellSums(
+            ids=cloud.ids[touched],
+            sums=prob_sum[touched],
+            seen=seen[touched],
+            point_cell=cloud.ids[cloud.nearest(scan.xyz)],
+        )
+
+    @property
+    def grid_size(self) -> float:
+        """Side (m) of the grid the network sub-samples a scan on."""
+        return float(self.model.config.grid_size)
+
+
+@dataclass(frozen=True)
+class CellSums:
+    """Summed softmax outputs per sub-sampled cell, from some of a scan's crops.
+
+    Attributes
+    ----------
+    ids : ndarray of shape (K,), int64
+        Packed cell ids (:func:`jointseg.network.anchored.cell_ids`), ascending.
+    sums : ndarray of shape (K, 13), float64
+    seen : ndarray of shape (K,), float64
+        Crops that saw each cell.
+    point_cell : ndarray of shape (N,), int64
+        The cell whose outputs each input point takes (its nearest sub-sampled point).
+    """
+
+    ids: np.ndarray
+    sums: np.ndarray
+    seen: np.ndarray
+    point_cell: np.ndarray
 
 
 def load_randlanet(

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
+from jointseg.pipeline.tiles import TileParams
 
 
 class NetworkSettings(BaseModel):
@@ -91,6 +92,10 @@ class PipelineConfig(BaseModel):
     network: NetworkConfig = Field(default_factory=NetworkConfig)
     geometry: GeometryParams = Field(default_factory=GeometryParams)
     fusion: FusionParams = Field(default_factory=FusionParams)
+    tiles: TileParams = Field(
+        default_factory=TileParams,
+        description="When a big scan is cut into tiles, and how (bounded memory; issue 16).",
+    )
     seed: int = Field(0, description="Crop and RANSAC randomness; a seed gives one result.")
     concurrent: bool = Field(
         True,

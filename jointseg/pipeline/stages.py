@@ -20,7 +20,7 @@ import numpy as np
 
 from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.fusion import FusionResult, fuse
-from jointseg.geometry import GeometryResult, segment
+from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
 from jointseg.network.predict import NetworkResult
@@ -158,35 +158,19 @@ def run(
         predictor = load_predictor(config.network)
         timings["load_network"] = time.perf_counter() - started
 
-    lock = threading.Lock()
-
-    def serialised(stage: str, fraction: float) -> None:
-        if progress is not None:
-            with lock:
-                progress(stage, fraction)
-
-    stop = threading.Event()
-    token = _AnyOf(cancel, stop)
     seed = config.seed
 
-    def network_stage() -> NetworkResult:
-        return predictor.predict(scan, serialised, token, seed=seed)
+    def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
+        return predictor.predict(scan, progress, cancel, seed=seed)
 
-    def geometry_stage() -> GeometryResult:
-        return segment(scan, config.geometry, serialised, token, seed=seed)
-
-    if config.concurrent:
-        net, geo = _both(network_stage, geometry_stage, stop, cancel, timings)
-    else:
-        net = _timed(network_stage, timings, "network")
-        geo = _timed(geometry_stage, timings, "geometry")
+    net, geo = network_and_geometry(scan, config, network, progress, cancel, timings)
 
     t = time.perf_counter()
     check_cancel(cancel)
     fused = fuse(
         scan.xyz, geo.segments, net.labels, net.probs, config.fusion, main_plane=geo.main_plane
     )
-    report(serialised, "fusion", 1.0)
+    report(progress, "fusion", 1.0)
     timings["fusion"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -217,6 +201,47 @@ def run(
     )
 
 
+def network_and_geometry(
+    scan: Scan,
+    config: PipelineConfig,
+    network: Callable[[ProgressFn, CancelToken], T],
+    progress: ProgressFn | None,
+    cancel: CancelToken | None,
+    timings: dict[str, float],
+    *,
+    resolved: ResolvedGeometryParams | None = None,
+) -> tuple[T, GeometryResult]:
+    """The network (``network(progress, cancel)``) and the geometry, side by side when
+    ``config.concurrent`` (their times go into ``timings``); ``resolved`` fixes the geometry's
+    thresholds (a tile of a big scan).
+
+    Raises
+    ------
+    Cancelled
+        When ``cancel`` was set; the other stage is stopped first.
+    """
+    lock = threading.Lock()
+
+    def serialised(stage: str, fraction: float) -> None:
+        if progress is not None:
+            with lock:
+                progress(stage, fraction)
+
+    stop = threading.Event()
+    token = _AnyOf(cancel, stop)
+    seed = config.seed
+
+    def network_stage() -> T:
+        return network(serialised, token)
+
+    def geometry_stage() -> GeometryResult:
+        return segment(scan, config.geometry, serialised, token, seed=seed, resolved=resolved)
+
+    if config.concurrent:
+        return _both(network_stage, geometry_stage, stop, cancel, timings)
+    return _timed(network_stage, timings, "network"), _timed(geometry_stage, timings, "geometry")
+
+
 def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
     t = time.perf_counter()
     out = fn()
@@ -225,15 +250,15 @@ def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
 
 
 def _both(
-    network_stage: Callable[[], NetworkResult],
+    network_stage: Callable[[], T],
     geometry_stage: Callable[[], GeometryResult],
     stop: threading.Event,
     cancel: CancelToken | None,
     timings: dict[str, float],
-) -> tuple[NetworkResult, GeometryResult]:
+) -> tuple[T, GeometryResult]:
     """Run both stages in two threads; the first failure stops the other, then is raised."""
     with ThreadPoolExecutor(max_workers=2, thread_name_prefix="jointseg-stage") as pool:
-        net_f: Future[NetworkResult] = pool.submit(_timed, network_stage, timings, "network")
+        net_f: Future[T] = pool.submit(_timed, network_stage, timings, "network")
         geo_f: Future[GeometryResult] = pool.submit(_timed, geometry_stage, timings, "geometry")
         both: list[Future[Any]] = [net_f, geo_f]
         try:

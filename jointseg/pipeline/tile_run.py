@@ -1,0 +1,274 @@
+"""One tile of a big scan: network and geometry on its outer box, kept for the merge.
+
+A tile reads its outer box (its core plus the overlap margin) so the network's crops and the
+geometry's neighbourhoods near the core's edge see what lies beyond it, and keeps:
+
+- for every outer point: its segment in this tile and whether it lies on a main plane (the
+  margin's segments are what joins segments across tile borders);
+- for the core points only: the network's label, confidence and probabilities (float16, for
+  the vote), since a point takes its network output from the tile whose core holds it.
+
+The result is written to ``tiles/NNNN/result.npz`` through a temporary file and a rename, and
+is a function of the plan, the tile and the seed only: a tile run twice (a worker killed after
+writing, its task re-queued) leaves the same file.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from jointseg.exceptions import ConfigError
+from jointseg.fusion.learned import normalised_entropy
+from jointseg.network.backends import Predictor, TilePredictor
+from jointseg.network.predict import NetworkResult
+from jointseg.pipeline.config import PipelineConfig
+from jointseg.pipeline.stages import network_and_geometry
+from jointseg.pipeline.tile_store import TilePlan, load_tile, read_crops, read_plan, tile_folder
+from jointseg.progress import CancelToken, ProgressFn, check_cancel
+
+log = logging.getLogger(__name__)
+RESULT_FILE = "result.npz"
+PROBS_FILE = "probs.npy"
+CELLS_FILE = "cells.npz"
+#: The steps a tile's timings record.
+STEPS = ("load", "network", "geometry")
+
+
+@dataclass(frozen=True)
+class TileResult:
+    """What one tile's run left, as loaded by the merge.
+
+    Attributes
+    ----------
+    index : ndarray of shape (M,), int64
+        The outer points' indices in the scan (ascending).
+    core : ndarray of shape (M,), bool
+        Outer points inside the core.
+    segments : ndarray of shape (M,), int32
+        Segment 0..S-1 of every outer point, in this tile.
+    main_plane : ndarray of shape (M,), bool
+    point_cell : ndarray of shape (C,), int64, optional
+        With a shared crop plan: the sub-sampled cell each core point takes its network
+        outputs from (the outputs themselves are summed over tiles by the merge).
+    labels, confidence : ndarray of shape (C,), optional
+        Without one: the network's label (uint8) and confidence (float32) at the core points.
+    probs : ndarray of shape (C, 13), float16, optional
+        Without one: the probabilities at the core points (memory-mapped, read-only).
+    entropy_sum : float
+        Without one: the normalised entropy of the probabilities summed over the core points.
+    timings : dict of str to float
+    """
+
+    index: np.ndarray
+    core: np.ndarray
+    segments: np.ndarray
+    main_plane: np.ndarray
+    timings: dict[str, float]
+    point_cell: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    probs: np.ndarray | None = None
+    entropy_sum: float = 0.0
+
+    @property
+    def n_segments(self) -> int:
+        """Segments of this tile."""
+        return int(self.segments.max()) + 1 if len(self.segments) else 0
+
+    @property
+    def core_index(self) -> np.ndarray:
+        """The core points' indices in the scan (ascending)."""
+        return self.index[self.core]
+
+
+def result_path(workdir: Path, index: int) -> Path:
+    """Where tile ``index``'s result is written."""
+    return tile_folder(workdir, index) / RESULT_FILE
+
+
+def probs_path(workdir: Path, index: int) -> Path:
+    """Where tile ``index``'s core probabilities are written (float16, memory-mappable)."""
+    return tile_folder(workdir, index) / PROBS_FILE
+
+
+def cells_path(workdir: Path, index: int) -> Path:
+    """Where tile ``index``'s summed network outputs per sub-sampled cell are written."""
+    return tile_folder(workdir, index) / CELLS_FILE
+
+
+def _save(target: Path, write: Callable[[BinaryIO], None]) -> None:
+    """Write ``target`` through a temporary file of this process and a rename."""
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:
+        write(fh)
+    os.replace(tmp, target)
+
+
+def tile_done(workdir: Path, index: int) -> bool:
+    """Whether tile ``index`` has a complete result (results appear only by rename)."""
+    return result_path(workdir, index).is_file()
+
+
+def run_tile(
+    workdir: Path,
+    index: int,
+    config: PipelineConfig,
+    *,
+    predictor: Predictor,
+    plan: TilePlan | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+) -> dict[str, float]:
+    """Run the network and the geometry on tile ``index`` and write its result.
+
+    Parameters
+    ----------
+    workdir : Path
+        A folder made by :func:`jointseg.pipeline.tile_store.prepare`.
+    index : int
+    config : PipelineConfig
+        The run's configuration (its seed, geometry and network); the geometry's thresholds
+        are the plan's, resolved once for the whole scan.
+    predictor : Predictor
+    plan : TilePlan, optional
+        Read from ``workdir`` when not given.
+    progress : callable, optional
+        ``progress("network" | "geometry", fraction)`` within this tile.
+    cancel : object with ``is_set()``, optional
+
+    Returns
+    -------
+    dict of str to float
+        Seconds per step: ``load``, ``network``, ``geometry``, ``save``.
+
+    Raises
+    ------
+    ConfigError
+        For a tile the plan lacks.
+    Cancelled
+        When ``cancel`` was set (no result is written).
+    """
+    plan = plan or read_plan(workdir)
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    scan, _ = load_tile(workdir, plan, index)
+    if len(scan) < 10:
+        raise ConfigError(f"tile {index} holds {len(scan)} points, too few to segment")
+    box = plan.tiles[index]
+    core = box.tile().core_mask(scan.xyz[:, :2])
+    timings["load"] = time.perf_counter() - t
+    check_cancel(cancel)
+    seed = config.seed
+    network: Callable[[ProgressFn, CancelToken], Any]
+    if plan.anchoring is not None and isinstance(predictor, TilePredictor):
+        crops = read_crops(workdir, plan)
+        lower = np.array(plan.lower)
+        mine = np.flatnonzero(
+            np.all(
+                (crops.centres[:, :2] + lower[:2] >= box.core_min)
+                & (crops.centres[:, :2] + lower[:2] < box.core_max),
+                axis=1,
+            )
+        )
+        tile_predictor = predictor
+
+        def network(progress: ProgressFn, cancel: CancelToken) -> Any:
+            return tile_predictor.predict_cells(
+                scan,
+                crops,
+                lower,
+                mine,
+                progress,
+                cancel,
+                seed=seed,  # type: ignore[arg-type]
+            )
+    else:
+
+        def network(progress: ProgressFn, cancel: CancelToken) -> Any:
+            return predictor.predict(scan, progress, cancel, seed=seed)
+
+    net, geo = network_and_geometry(
+        scan, config, network, progress, cancel, timings, resolved=plan.geometry
+    )
+    check_cancel(cancel)
+    t = time.perf_counter()
+    common = {
+        "segments": geo.segments.astype(np.int32),
+        "main_plane": geo.main_plane,
+        "core": core,
+        "timings": np.array([timings.get(k, 0.0) for k in STEPS]),
+    }
+    # the big arrays first, the small result last: its rename marks the tile done
+    if isinstance(net, NetworkResult):
+        probs = net.probs[core]
+        _save(probs_path(workdir, index), lambda fh: np.save(fh, probs.astype(np.float16)))
+        extra = {
+            "labels": net.labels[core].astype(np.uint8),
+            "confidence": probs.max(axis=1).astype(np.float32),
+            "entropy_sum": np.float64(normalised_entropy(probs).sum()),
+        }
+    else:
+        cells = net
+        _save(
+            cells_path(workdir, index),
+            lambda fh: np.savez(fh, ids=cells.ids, sums=cells.sums, seen=cells.seen),
+        )
+        extra = {"point_cell": cells.point_cell[core]}
+    _save(result_path(workdir, index), lambda fh: np.savez(fh, **common, **extra))
+    timings["save"] = time.perf_counter() - t
+    log.info(
+        "tile %d: %d points (%d core), %d segments",
+        index,
+        len(scan),
+        int(core.sum()),
+        geo.n_segments,
+    )
+    return timings
+
+
+def load_result(workdir: Path, index: int) -> TileResult:
+    """Tile ``index``'s result with its point indices.
+
+    Raises
+    ------
+    ConfigError
+        When the tile has not been run.
+    """
+    path = result_path(workdir, index)
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except FileNotFoundError as exc:
+        raise ConfigError(f"tile {index} has no result yet ({path})") from exc
+    index_in_scan = np.fromfile(tile_folder(workdir, index) / "index.i64", dtype="<i8")
+    steps = dict(zip(STEPS, arrays["timings"].tolist(), strict=True))
+    common = {
+        "index": index_in_scan,
+        "core": arrays["core"],
+        "segments": arrays["segments"],
+        "main_plane": arrays["main_plane"],
+        "timings": steps,
+    }
+    if "point_cell" in arrays:
+        return TileResult(**common, point_cell=arrays["point_cell"])
+    return TileResult(
+        **common,
+        labels=arrays["labels"],
+        confidence=arrays["confidence"],
+        probs=np.load(probs_path(workdir, index), mmap_mode="r"),
+        entropy_sum=float(arrays["entropy_sum"]),
+    )
+
+
+def load_cells(workdir: Path, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tile ``index``'s summed network outputs: cell ids, sums (K, 13) and crop counts."""
+    with np.load(cells_path(workdir, index)) as data:
+        return data["ids"], data["sums"], data["seen"]
