@@ -16,7 +16,6 @@ from jointseg.pipeline.tile_merge import MIN_LINK_POINTS, _Gathered, join_segmen
 from jointseg.pipeline.tile_run import cells_path, result_path, run_tile
 from jointseg.pipeline.tile_store import prepare
 from jointseg.pipeline.tiled import run_tiled
-from jointseg.pipeline.tiles import TileParams
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
 
