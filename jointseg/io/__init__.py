@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 import os
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 from jointseg.exceptions import ConfigError, ScanFormatError
@@ -59,6 +60,16 @@ def _prepare_input(path: str | os.PathLike[str], max_points: int) -> tuple[Path,
     if fmt != "s3dis":
         check_input_file(path)
     return path, fmt
+
+
+def _prepare_output(path: Path) -> Callable[[Scan, Path, ProgressFn | None], None]:
+    """The writer for ``path``, after checking that a file can be written there."""
+    write = writer_for(path)
+    if path.is_dir():
+        raise ScanFormatError(f"{path}: is a directory; give a file name to write to")
+    if not path.parent.is_dir():
+        raise ScanFormatError(f"{path}: folder {path.parent} does not exist")
+    return write
 
 
 def read_scan(
@@ -165,11 +176,7 @@ def write_scan(
         a field the format cannot store.
     """
     path = Path(path)
-    write = writer_for(path)
-    if path.is_dir():
-        raise ScanFormatError(f"{path}: is a directory; give a file name to write to")
-    if not path.parent.is_dir():
-        raise ScanFormatError(f"{path}: folder {path.parent} does not exist")
+    write = _prepare_output(path)
     write(scan, path, progress)
     logger.info("wrote %s: %d points", path, len(scan))
     return path

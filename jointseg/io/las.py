@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import laspy
@@ -29,10 +30,16 @@ import numpy as np
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
 from jointseg.io.common import (
+    ColourRange,
+    FieldColumn,
+    LabelSummary,
     ScanInfo,
     build_scan,
     check_max_points,
-    flatten_fields,
+    field_columns,
+    label_summary,
+    log_outside_labels,
+    merge_colour_ranges,
     normalise_labels,
     to_rgb8,
 )
@@ -46,14 +53,23 @@ LABELS_VLR_USER_ID = "jointseg"
 LABELS_VLR_RECORD_ID = 1
 _BASE_SCALE = 1e-4
 _INT32_SPAN = 2**31 - 2
-_LASPY_ERRORS = (laspy.errors.LaspyException, ValueError, OSError, EOFError, RuntimeError)
+LASPY_ERRORS = (laspy.errors.LaspyException, ValueError, OSError, EOFError, RuntimeError)
 _EXTRA_KINDS = frozenset("iuf")
 
 
-def _open(path: Path) -> laspy.LasReader:
+def open_reader(
+    path: Path, selection: laspy.DecompressionSelection | None = None
+) -> laspy.LasReader:
+    """Open ``path`` with laspy, turning a bad signature or header into a ScanFormatError.
+
+    ``selection`` names the dimensions to decompress (LAZ with point formats 6-10 only; laspy
+    ignores it elsewhere); by default all.
+    """
+    if selection is None:
+        selection = laspy.DecompressionSelection.all()
     try:
-        return laspy.open(str(path))
-    except _LASPY_ERRORS as exc:
+        return laspy.open(str(path), decompression_selection=selection)
+    except LASPY_ERRORS as exc:
         with open(path, "rb") as fh:
             magic = fh.read(4)
         if magic != b"LASF":
@@ -63,7 +79,7 @@ def _open(path: Path) -> laspy.LasReader:
         raise ScanFormatError(f"{path}: cannot read the LAS header: {exc}") from exc
 
 
-def _check_body_size(path: Path, header: laspy.LasHeader) -> None:
+def check_body_size(path: Path, header: laspy.LasHeader) -> None:
     """For uncompressed files, compare the byte size of the point block with the header's count."""
     if header.are_points_compressed:
         return
@@ -99,6 +115,150 @@ def _written_by_jointseg(header: laspy.LasHeader) -> bool:
     return str(header.generating_software).strip("\x00 ").startswith("jointseg")
 
 
+@dataclass(frozen=True)
+class LasFacts:
+    """What the whole file's points say that changes how each point is read.
+
+    :func:`read_las` decides from all points at once whether there is colour (and whether it is
+    8- or 16-bit), whether classification holds labels, whether raw classification values are
+    kept, and whether intensity is a field. A reader that goes chunk by chunk gathers these facts
+    in a first pass (:func:`las_facts` per chunk, :meth:`merge`) so its chunks match.
+
+    Attributes
+    ----------
+    colour : tuple of (float, float) or None
+        Smallest and largest red/green/blue value; None when the point format has no colour.
+    classified : bool
+        Some classification is not 0.
+    labels : LabelSummary
+        Classification values that are no S3DIS class (nor 255).
+    intensity : bool
+        Some intensity is not 0.
+    """
+
+    colour: ColourRange | None = None
+    classified: bool = False
+    labels: LabelSummary = field(default_factory=LabelSummary)
+    intensity: bool = False
+
+    def merge(self, other: LasFacts) -> LasFacts:
+        """The facts of two consecutive chunks together."""
+        return LasFacts(
+            merge_colour_ranges(self.colour, other.colour),
+            self.classified or other.classified,
+            self.labels.merge(other.labels),
+            self.intensity or other.intensity,
+        )
+
+
+_RGB = ("red", "green", "blue")
+
+
+def las_facts(points: laspy.PackedPointRecord, path: Path) -> LasFacts:
+    """The :class:`LasFacts` of ``points`` (all of a file, or one chunk of it)."""
+    arr = points.array
+    colour = None
+    if set(_RGB) <= set(points.point_format.dimension_names) and len(points):
+        colour = (
+            min(int(arr[c].min()) for c in _RGB),
+            max(int(arr[c].max()) for c in _RGB),
+        )
+    cls = np.asarray(points.classification)
+    return LasFacts(
+        colour=colour,
+        classified=bool(cls.any()),
+        labels=label_summary(cls, path=path, source="classification", unlabelled_values=(255,)),
+        intensity=bool(np.asarray(arr["intensity"]).any()),
+    )
+
+
+def reads_labels(header: laspy.LasHeader, facts: LasFacts) -> bool:
+    """Whether classification becomes labels: a file marked by jointseg, or one classified."""
+    return _labels_vlr(header) or facts.classified
+
+
+def log_facts(header: laspy.LasHeader, facts: LasFacts, path: Path) -> None:
+    """Log, once per file, the warnings reading its points gives (odd classification values)."""
+    if reads_labels(header, facts):
+        log_outside_labels(
+            facts.labels, path=path, source="classification", raw_field="classification"
+        )
+
+
+def points_to_scan(
+    points: laspy.PackedPointRecord,
+    header: laspy.LasHeader,
+    facts: LasFacts,
+    path: Path,
+    *,
+    start: int | None = None,
+) -> Scan:
+    """Turn LAS point records into a :class:`Scan`, deciding as ``facts`` (the whole file's) say.
+
+    Parameters
+    ----------
+    points : laspy.PackedPointRecord
+        All of the file's points, or one chunk of them.
+    header : laspy.LasHeader
+        The file's header (scales, offsets, VLRs).
+    facts : LasFacts
+        The whole file's facts.
+    path : Path
+        The file, for messages.
+    start : int, optional
+        Index of the first point in the file when ``points`` is one chunk, for messages.
+
+    Returns
+    -------
+    Scan
+    """
+    arr = points.array
+    scales, offsets = header.scales, header.offsets
+    xyz = np.empty((len(points), 3), dtype=np.float64)
+    for i, axis in enumerate("XYZ"):
+        np.multiply(arr[axis], scales[i], out=xyz[:, i])
+        xyz[:, i] += offsets[i]
+    rgb = None
+    if facts.colour is not None and facts.colour[1] > 0:  # colour 0 everywhere means none
+        rgb = to_rgb8(np.stack([arr[c] for c in _RGB], axis=1), path=path, value_range=facts.colour)
+    fields: dict[str, np.ndarray] = {}
+    labels = None
+    if reads_labels(header, facts):
+        labels, fields = normalise_labels(
+            np.asarray(points.classification),
+            path=path,
+            source="classification",
+            raw_field="classification",
+            unlabelled_values=(255,),
+            summary=facts.labels,
+            start=start or 0,
+        )
+    if facts.intensity:
+        fields["intensity"] = np.array(arr["intensity"])
+    ours = _written_by_jointseg(header)
+    for name in points.point_format.extra_dimension_names:
+        key = name
+        if ours and name.startswith("extra_") and name[6:] not in fields:
+            key = name[6:]  # undo the renaming done by write_las
+        fields[key] = np.array(points[name])
+    fmt = "laz" if header.are_points_compressed else "las"
+    return build_scan(path, fmt, xyz, rgb, labels, fields, start=start)
+
+
+def point_read_error(path: Path, header: laspy.LasHeader, exc: Exception) -> ScanFormatError:
+    """The error for points laspy could not read or decompress."""
+    what = "decompress the LAZ" if header.are_points_compressed else "read the LAS"
+    return ScanFormatError(f"{path}: cannot {what} points (truncated or corrupt file?): {exc}")
+
+
+def short_read_error(path: Path, header: laspy.LasHeader, got: int) -> ScanFormatError:
+    """The error for a file with fewer points than its header declares."""
+    return ScanFormatError(
+        f"{path}: truncated LAS: the header declares {header.point_count:,} points but "
+        f"only {got:,} could be read"
+    )
+
+
 def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
     """Read a LAS or LAZ file.
 
@@ -121,59 +281,22 @@ def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None)
         stream, non-finite coordinates or too many points.
     """
     report(progress, "read", 0.0)
-    with _open(path) as reader:
+    with open_reader(path) as reader:
         header = reader.header
         check_max_points(header.point_count, max_points, path)
-        _check_body_size(path, header)
+        check_body_size(path, header)
         try:
             points = reader.read_points(header.point_count)
-        except _LASPY_ERRORS as exc:
-            what = "decompress the LAZ" if header.are_points_compressed else "read the LAS"
-            raise ScanFormatError(
-                f"{path}: cannot {what} points (truncated or corrupt file?): {exc}"
-            ) from exc
+        except LASPY_ERRORS as exc:
+            raise point_read_error(path, header, exc) from exc
     if len(points) != header.point_count:
-        raise ScanFormatError(
-            f"{path}: truncated LAS: the header declares {header.point_count:,} points but "
-            f"only {len(points):,} could be read"
-        )
+        raise short_read_error(path, header, len(points))
     report(progress, "read", 0.7)
-    arr = points.array
-    scales, offsets = header.scales, header.offsets
-    xyz = np.empty((len(points), 3), dtype=np.float64)
-    for i, axis in enumerate("XYZ"):
-        np.multiply(arr[axis], scales[i], out=xyz[:, i])
-        xyz[:, i] += offsets[i]
-    dims = set(points.point_format.dimension_names)
-    rgb = None
-    if {"red", "green", "blue"} <= dims and (
-        arr["red"].any() or arr["green"].any() or arr["blue"].any()
-    ):
-        rgb = to_rgb8(np.stack([arr["red"], arr["green"], arr["blue"]], axis=1), path=path)
-    fields: dict[str, np.ndarray] = {}
-    labels = None
-    cls = np.asarray(points.classification)
-    if _labels_vlr(header) or cls.any():
-        labels, fields = normalise_labels(
-            cls,
-            path=path,
-            source="classification",
-            raw_field="classification",
-            unlabelled_values=(255,),
-        )
-    intensity = np.asarray(arr["intensity"])
-    if intensity.any():
-        fields["intensity"] = intensity.copy()
-    ours = _written_by_jointseg(header)
-    for name in points.point_format.extra_dimension_names:
-        key = name
-        if ours and name.startswith("extra_") and name[6:] not in fields:
-            key = name[6:]  # undo the renaming done by write_las
-        fields[key] = np.array(points[name])
+    facts = las_facts(points, path)
+    log_facts(header, facts, path)
+    scan = points_to_scan(points, header, facts, path)
     report(progress, "read", 1.0)
-    return build_scan(
-        path, "laz" if header.are_points_compressed else "las", xyz, rgb, labels, fields
-    )
+    return scan
 
 
 def probe_las(path: Path, *, max_points: int) -> ScanInfo:
@@ -196,10 +319,10 @@ def probe_las(path: Path, *, max_points: int) -> ScanInfo:
     ScanFormatError
         On a wrong signature, a wrong point block size or too many points.
     """
-    with _open(path) as reader:
+    with open_reader(path) as reader:
         header = reader.header
     check_max_points(header.point_count, max_points, path)
-    _check_body_size(path, header)
+    check_body_size(path, header)
     fmt = header.point_format
     dims = set(fmt.dimension_names)
     has_rgb = {"red", "green", "blue"} <= dims
@@ -263,6 +386,181 @@ def _fits_uint(values: np.ndarray, top: int) -> bool:
     return bool(values.min() >= 0 and values.max() <= top)
 
 
+def _extra_dtype(dtype: np.dtype, name: str, path: Path) -> np.dtype:
+    """The little-endian dtype a field is stored with as LAS extra bytes."""
+    if dtype.kind == "b":
+        dtype = np.dtype(np.uint8)
+    elif dtype.kind == "f" and dtype.itemsize == 2:
+        dtype = np.dtype(np.float32)
+    if dtype.kind not in _EXTRA_KINDS or dtype.itemsize > 8:
+        raise ScanFormatError(
+            f"{path}: field {name!r} has dtype {dtype}; LAS extra bytes hold only "
+            f"integers and float32/float64"
+        )
+    return dtype.newbyteorder("<")
+
+
+@dataclass(frozen=True)
+class LasLayout:
+    """How a scan's arrays go into LAS point records: the header and the choices behind it.
+
+    Made once per file by :func:`las_layout`, so :func:`write_las` and a writer that goes chunk
+    by chunk follow the same conventions.
+
+    Attributes
+    ----------
+    header : laspy.LasHeader
+        LAS 1.4, point format 7 (6 without colour), scales, offsets, extra bytes, labels VLR.
+    scale : float
+        The coordinate scale (the same on all axes).
+    offsets : ndarray of shape (3,)
+        The coordinate offsets: the scan's minimum.
+    columns : tuple of FieldColumn
+        The scan's fields as scalar columns.
+    std_intensity : bool
+        Column ``intensity`` goes into the standard intensity dimension.
+    std_classification : bool
+        Column ``classification`` goes into the standard classification (under the labels).
+    extras : dict of str to tuple of (str, numpy.dtype)
+        Every other column: its extra-bytes dimension name and dtype.
+    """
+
+    header: laspy.LasHeader
+    scale: float
+    offsets: np.ndarray
+    columns: tuple[FieldColumn, ...]
+    std_intensity: bool
+    std_classification: bool
+    extras: dict[str, tuple[str, np.dtype]]
+
+
+def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLayout:
+    """Build the header (and its conventions) for writing scans like ``like`` as LAS.
+
+    Point format 7, or 6 when ``like`` has no colour; scale 0.1 mm, coarser by powers of ten
+    while the extent ``hi - lo`` would overflow 32-bit integers; offsets at ``lo``; the labels
+    VLR when ``like`` has labels; one extra-bytes dimension per field column. A field
+    ``intensity`` (``classification``) goes into the standard dimension when ``like``'s values
+    are whole numbers in 0..65535 (0..255).
+
+    Parameters
+    ----------
+    like : Scan
+        The scan to write, or a sample with the same fields and dtypes (the standard-dimension
+        choices then follow the sample's values).
+    lo, hi : ndarray of shape (3,)
+        Minimum and maximum coordinates of everything that will be written.
+    path : Path
+        Target file, for messages.
+
+    Returns
+    -------
+    LasLayout
+
+    Raises
+    ------
+    ScanFormatError
+        On a field LAS cannot store (dtype or name too long).
+    """
+    header = laspy.LasHeader(point_format=7 if like.rgb is not None else 6, version="1.4")
+    header.generating_software = "jointseg"
+    standard = {d.lower() for d in header.point_format.dimension_names} | {"x", "y", "z"}
+    scale = _BASE_SCALE
+    while float((hi - lo).max()) / scale > _INT32_SPAN:
+        scale *= 10.0
+    header.scales = np.full(3, scale)
+    header.offsets = lo
+    columns = field_columns(like.fields, path=path)
+    values = {col.name: col.take(like.fields) for col in columns}
+    intensity = values.get("intensity")
+    std_intensity = intensity is not None and _fits_uint(intensity, 65535)
+    raw_cls = values.get("classification")
+    std_cls = raw_cls is not None and _fits_uint(raw_cls, 255)
+    extras: dict[str, tuple[str, np.dtype]] = {}
+    for name, column in values.items():
+        if (name == "intensity" and std_intensity) or (name == "classification" and std_cls):
+            continue
+        dtype = _extra_dtype(column.dtype, name, path)
+        extras[name] = (_extra_name(name, standard, path), dtype)
+    if extras:
+        header.add_extra_dims(
+            [laspy.ExtraBytesParams(name=dim, type=dtype) for dim, dtype in extras.values()]
+        )
+    if like.labels is not None:
+        header.vlrs.append(
+            laspy.VLR(
+                user_id=LABELS_VLR_USER_ID,
+                record_id=LABELS_VLR_RECORD_ID,
+                description="classification = S3DIS labels",
+                record_data=b"",
+            )
+        )
+    return LasLayout(header, scale, lo, tuple(columns), std_intensity, std_cls, extras)
+
+
+def las_record(scan: Scan, layout: LasLayout) -> laspy.ScaleAwarePointRecord:
+    """The LAS point records of ``scan`` (all of it, or one chunk) in ``layout``.
+
+    The values that decided the standard dimensions are not checked again here; a writer that
+    took the layout from a sample checks each chunk with :func:`check_layout_fits`.
+    """
+    record = laspy.ScaleAwarePointRecord.zeros(len(scan), header=layout.header)
+    arr = record.array
+    lo, scale = layout.offsets, layout.scale
+    for i, axis in enumerate("XYZ"):
+        arr[axis] = np.rint((scan.xyz[:, i] - lo[i]) / scale).astype(np.int32)
+    if scan.rgb is not None:
+        for i, channel in enumerate(_RGB):
+            arr[channel] = scan.rgb[:, i].astype(np.uint16) * np.uint16(257)
+    columns = {col.name: col for col in layout.columns}
+    raw_cls = columns["classification"].take(scan.fields) if layout.std_classification else None
+    if scan.labels is not None:
+        cls = np.where(scan.labels < 0, 255, scan.labels).astype(np.uint8)
+        if raw_cls is not None:
+            cls = np.where(scan.labels < 0, raw_cls.astype(np.uint8), cls)
+        arr["classification"] = cls
+    elif raw_cls is not None:
+        arr["classification"] = raw_cls.astype(np.uint8)
+    if layout.std_intensity:
+        arr["intensity"] = columns["intensity"].take(scan.fields).astype(np.uint16)
+    for name, (dim, dtype) in layout.extras.items():
+        arr[dim] = columns[name].take(scan.fields).astype(dtype)
+    return record
+
+
+def check_layout_fits(scan: Scan, layout: LasLayout, path: Path) -> None:
+    """Refuse a chunk whose values the layout (made from a sample) cannot store exactly.
+
+    Coordinates must fit 32-bit integers at the layout's scale and offsets, and fields put into
+    the standard intensity or classification dimension must be whole numbers in their range.
+
+    Raises
+    ------
+    ScanFormatError
+        Naming what does not fit and what to do about it.
+    """
+    if len(scan):
+        steps = (scan.xyz - layout.offsets) / layout.scale
+        if float(np.abs(steps).max()) > 2**31 - 1:
+            raise ScanFormatError(
+                f"{path}: coordinates up to {scan.xyz.max(axis=0).tolist()} (from "
+                f"{scan.xyz.min(axis=0).tolist()}) do not fit LAS's 32-bit integers at offsets "
+                f"{layout.offsets.tolist()} and scale {layout.scale}; the bounds given for the "
+                f"whole scan are wrong"
+            )
+    columns = {col.name: col for col in layout.columns}
+    for name, flag, top in (
+        ("intensity", layout.std_intensity, 65535),
+        ("classification", layout.std_classification, 255),
+    ):
+        if flag and not _fits_uint(columns[name].take(scan.fields), top):
+            raise ScanFormatError(
+                f"{path}: field {name!r} went into LAS's standard {name} dimension because the "
+                f"first chunk held whole numbers in 0..{top}, but a later chunk does not; "
+                f"convert the field to float32 (stored as extra bytes) before writing"
+            )
+
+
 def write_las(
     scan: Scan, path: Path, *, compress: bool, progress: ProgressFn | None = None
 ) -> None:
@@ -284,79 +582,21 @@ def write_las(
         On a field LAS cannot store (dtype or name too long).
     """
     report(progress, "write", 0.0)
-    header = laspy.LasHeader(point_format=7 if scan.rgb is not None else 6, version="1.4")
-    header.generating_software = "jointseg"
-    standard = {d.lower() for d in header.point_format.dimension_names} | {"x", "y", "z"}
-    n = len(scan)
-    if n:
+    if len(scan):
         lo, hi = scan.xyz.min(axis=0), scan.xyz.max(axis=0)
     else:
         lo = hi = np.zeros(3)
-    scale = _BASE_SCALE
-    while float((hi - lo).max()) / scale > _INT32_SPAN:
-        scale *= 10.0
-    header.scales = np.full(3, scale)
-    header.offsets = lo
-    fields = flatten_fields(scan.fields, path=path)
-    intensity = fields.get("intensity")
-    std_intensity = intensity is not None and _fits_uint(intensity, 65535)
-    raw_cls = fields.get("classification")
-    std_cls = raw_cls is not None and _fits_uint(raw_cls, 255)
-    extras: dict[str, np.ndarray] = {}
-    for name, values in fields.items():
-        if (name == "intensity" and std_intensity) or (name == "classification" and std_cls):
-            continue
-        if values.dtype.kind == "b":
-            values = values.astype(np.uint8)
-        elif values.dtype.kind == "f" and values.dtype.itemsize == 2:
-            values = values.astype(np.float32)
-        if values.dtype.kind not in _EXTRA_KINDS or values.dtype.itemsize > 8:
-            raise ScanFormatError(
-                f"{path}: field {name!r} has dtype {values.dtype}; LAS extra bytes hold only "
-                f"integers and float32/float64"
-            )
-        extras[_extra_name(name, standard, path)] = values.astype(values.dtype.newbyteorder("<"))
-    if extras:
-        header.add_extra_dims(
-            [laspy.ExtraBytesParams(name=k, type=v.dtype) for k, v in extras.items()]
-        )
-    if scan.labels is not None:
-        header.vlrs.append(
-            laspy.VLR(
-                user_id=LABELS_VLR_USER_ID,
-                record_id=LABELS_VLR_RECORD_ID,
-                description="classification = S3DIS labels",
-                record_data=b"",
-            )
-        )
-    record = laspy.ScaleAwarePointRecord.zeros(n, header=header)
-    arr = record.array
-    for i, axis in enumerate("XYZ"):
-        arr[axis] = np.rint((scan.xyz[:, i] - lo[i]) / scale).astype(np.int32)
-    if scan.rgb is not None:
-        for i, channel in enumerate(("red", "green", "blue")):
-            arr[channel] = scan.rgb[:, i].astype(np.uint16) * np.uint16(257)
-    if scan.labels is not None:
-        cls = np.where(scan.labels < 0, 255, scan.labels).astype(np.uint8)
-        if std_cls:
-            assert raw_cls is not None
-            cls = np.where(scan.labels < 0, raw_cls.astype(np.uint8), cls)
-        arr["classification"] = cls
-    elif std_cls:
-        assert raw_cls is not None
-        arr["classification"] = raw_cls.astype(np.uint8)
-    if std_intensity:
-        assert intensity is not None
-        arr["intensity"] = intensity.astype(np.uint16)
-    for name, values in extras.items():
-        arr[name] = values
-    las = laspy.LasData(header=header, points=record)
+    layout = las_layout(scan, lo, hi, path)
+    las = laspy.LasData(header=layout.header, points=las_record(scan, layout))
     report(progress, "write", 0.3)
     with atomic_open(path) as fh:
         try:
-            las.write(
-                fh, do_compress=compress, laz_backend=laspy.LazBackend.Lazrs if compress else None
-            )
+            las.write(fh, do_compress=compress, laz_backend=laz_backend(compress))
         except laspy.errors.LaspyException as exc:
             raise ScanFormatError(f"{path}: cannot write LAS: {exc}") from exc
     report(progress, "write", 1.0)
+
+
+def laz_backend(compress: bool) -> laspy.LazBackend | None:
+    """The LAZ backend jointseg writes with (lazrs), or None for uncompressed LAS."""
+    return laspy.LazBackend.Lazrs if compress else None

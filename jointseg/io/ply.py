@@ -24,11 +24,18 @@ from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
 from jointseg.io.common import (
     LABEL_NAMES,
+    ColourRange,
+    FieldColumn,
+    LabelSummary,
     ScanInfo,
     build_scan,
     check_max_points,
-    flatten_fields,
+    colour_range,
+    field_columns,
+    label_summary,
+    merge_colour_ranges,
     narrow_dtype,
+    narrow_like,
     normalise_labels,
     pick_colour_names,
     pick_name,
@@ -212,7 +219,20 @@ def vertex_element(header: PlyHeader, path: Path) -> PlyElement:
     raise ScanFormatError(f"{path}: PLY file has no 'vertex' element (elements: {found})")
 
 
-def _read_binary(path: Path, header: PlyHeader) -> np.ndarray:
+def binary_vertex_block(path: Path, header: PlyHeader) -> tuple[int, np.dtype] | None:
+    """Where the vertices of a binary PLY start and their record dtype, checked against the size.
+
+    Returns
+    -------
+    tuple of (int, numpy.dtype) or None
+        Byte offset and structured dtype (in the file's byte order); None when an element with
+        list properties comes before the vertices, so their offset is unknown without parsing.
+
+    Raises
+    ------
+    ScanFormatError
+        When the file is shorter or longer than the header's counts need.
+    """
     order = _FORMATS[header.encoding]
     offset = header.body_offset
     vertex = vertex_element(header, path)
@@ -220,10 +240,18 @@ def _read_binary(path: Path, header: PlyHeader) -> np.ndarray:
         if element is vertex:
             break
         if not element.fixed_size:
-            return _read_with_plyfile(path)
+            return None
         offset += element.count * element.dtype(order).itemsize
-    dtype = vertex.dtype(order)
     _check_binary_size(path, header, os.path.getsize(path), offset)
+    return offset, vertex.dtype(order)
+
+
+def _read_binary(path: Path, header: PlyHeader) -> np.ndarray:
+    block = binary_vertex_block(path, header)
+    if block is None:
+        return _read_with_plyfile(path)
+    offset, dtype = block
+    vertex = vertex_element(header, path)
     with open(path, "rb") as fh:
         fh.seek(offset)
         data = np.fromfile(fh, dtype=dtype, count=vertex.count)
@@ -340,15 +368,94 @@ def _read_ascii(
     return out, first_line + before
 
 
-def _probe_header(path: Path) -> PlyHeader:
+def probe_header(path: Path) -> PlyHeader:
+    """Read and parse the header at the start of ``path``."""
     with open(path, "rb") as fh:
         head = fh.read(_MAX_HEADER_BYTES)
     return parse_header(head, path)
 
 
-def _split_vertex(
-    data: np.ndarray, path: Path
+@dataclass(frozen=True)
+class VertexFacts:
+    """What the whole vertex element says that changes how each vertex is read.
+
+    :func:`read_ply` decides from all vertices at once how colour is encoded (8-bit, 16-bit,
+    0-1 floats) and whether raw label values are kept as a field. A reader that goes chunk by
+    chunk gathers these facts in a first pass (:func:`vertex_facts` per chunk, :meth:`merge`).
+
+    Attributes
+    ----------
+    colour : tuple of (float, float) or None
+        Smallest and largest colour value; None when there is no colour or it is uint8.
+    labels : LabelSummary or None
+        Label values that are no S3DIS class; None without a label property.
+    """
+
+    colour: ColourRange | None = None
+    labels: LabelSummary | None = None
+
+    def merge(self, other: VertexFacts) -> VertexFacts:
+        """The facts of two consecutive chunks together."""
+        labels = other.labels
+        if self.labels is not None:
+            labels = self.labels if other.labels is None else self.labels.merge(other.labels)
+        return VertexFacts(merge_colour_ranges(self.colour, other.colour), labels)
+
+
+def vertex_columns(names: list[str]) -> tuple[tuple[str, str, str] | None, str | None]:
+    """The colour properties and the label property among a vertex element's ``names``."""
+    return pick_colour_names(names), pick_name(names, LABEL_NAMES)
+
+
+def _colour_what(colour: tuple[str, str, str]) -> str:
+    return "colour " + "/".join(colour)
+
+
+def vertex_facts(data: np.ndarray, path: Path, *, start: int = 0) -> VertexFacts:
+    """The :class:`VertexFacts` of ``data`` (all vertices, or one chunk starting at ``start``).
+
+    Raises
+    ------
+    ScanFormatError
+        On non-finite colour or labels that are not whole numbers (naming the vertex).
+    """
+    colour, label = vertex_columns(list(data.dtype.names or ()))
+    rng = None
+    if colour is not None:
+        channels = np.stack([data[c] for c in colour], axis=1)
+        rng = colour_range(channels, path=path, what=_colour_what(colour), start=start)
+    labels = None
+    if label is not None:
+        labels = label_summary(data[label], path=path, source=label, start=start)
+    return VertexFacts(rng, labels)
+
+
+def split_vertex(
+    data: np.ndarray,
+    path: Path,
+    facts: VertexFacts | None = None,
+    *,
+    start: int = 0,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, dict[str, np.ndarray]]:
+    """Split vertex records into xyz, rgb, labels and fields, as :func:`read_ply` returns them.
+
+    Parameters
+    ----------
+    data : structured ndarray
+        Vertex records: all of them, or one chunk.
+    path : Path
+        The file, for messages.
+    facts : VertexFacts, optional
+        The whole element's facts when ``data`` is one chunk (the caller has logged the
+        warnings); by default ``data`` is the whole element.
+    start : int
+        Index of the first vertex of ``data`` in the file, for messages.
+
+    Returns
+    -------
+    xyz, rgb, labels, fields
+        New arrays (no views of ``data``, except a raw label field).
+    """
     names = list(data.dtype.names or ())
     axes = [pick_name(names, (a,)) for a in "xyz"]
     xyz = np.empty((data.shape[0], 3), dtype=np.float64)
@@ -356,20 +463,26 @@ def _split_vertex(
         xyz[:, i] = data[axis]
     used = set(axes)
     rgb = None
-    colour = pick_colour_names(names)
+    colour, label_name = vertex_columns(names)
     if colour is not None:
         used.update(colour)
         rgb = to_rgb8(
             np.stack([data[c] for c in colour], axis=1),
             path=path,
-            what="colour " + "/".join(colour),
+            what=_colour_what(colour),
+            value_range=None if facts is None else facts.colour,
         )
     labels = None
     fields: dict[str, np.ndarray] = {}
-    label_name = pick_name(names, LABEL_NAMES)
     if label_name is not None:
         used.add(label_name)
-        labels, fields = normalise_labels(data[label_name], path=path, source=label_name)
+        labels, fields = normalise_labels(
+            data[label_name],
+            path=path,
+            source=label_name,
+            summary=None if facts is None else facts.labels,
+            start=start,
+        )
     for name in names:
         if name not in used:
             col = data[name]
@@ -398,7 +511,7 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
         On a bad header, a body shorter or longer than declared, unparsable ASCII lines,
         non-finite coordinates or too many vertices.
     """
-    header = _probe_header(path)
+    header = probe_header(path)
     vertex = vertex_element(header, path)
     check_max_points(vertex.count, max_points, path)
     report(progress, "read", 0.0)
@@ -407,7 +520,7 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
         data, first_line = _read_ascii(path, header, progress)
     else:
         data = _read_binary(path, header)
-    xyz, rgb, labels, fields = _split_vertex(data, path)
+    xyz, rgb, labels, fields = split_vertex(data, path)
     report(progress, "read", 1.0)
     if first_line:
         return build_scan(
@@ -433,7 +546,7 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     ScanFormatError
         On a bad header, too many vertices, or (binary) a body shorter or longer than declared.
     """
-    header = _probe_header(path)
+    header = probe_header(path)
     vertex = vertex_element(header, path)
     check_max_points(vertex.count, max_points, path)
     idx = header.elements.index(vertex)
@@ -459,6 +572,107 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     )
 
 
+def _vertex_columns(
+    scan: Scan, path: Path, fields: tuple[FieldColumn, ...], dtype: np.dtype | None = None
+) -> dict[str, np.ndarray]:
+    """The vertex properties of ``scan`` in writing order: xyz, colour, label, field columns.
+
+    Field columns are narrowed to what PLY stores (:func:`narrow_dtype`), or to the property
+    types of ``dtype`` when the header was made from a sample (:func:`narrow_like`).
+    """
+    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
+    if scan.rgb is not None:
+        columns.update(red=scan.rgb[:, 0], green=scan.rgb[:, 1], blue=scan.rgb[:, 2])
+    if scan.labels is not None:
+        columns["label"] = scan.labels
+    for col in fields:
+        if col.name in columns:
+            raise ScanFormatError(f"{path}: field {col.name!r} clashes with a PLY vertex property")
+        values = col.take(scan.fields)
+        if dtype is None:
+            columns[col.name] = narrow_dtype(values, name=col.name, path=path)
+        else:
+            columns[col.name] = narrow_like(values, dtype[col.name], name=col.name, path=path)
+    return columns
+
+
+@dataclass(frozen=True)
+class PlyLayout:
+    """The vertex properties :func:`write_ply` gives a scan, fixed once per file.
+
+    So :func:`write_ply` and a writer that goes chunk by chunk write the same header and
+    records.
+
+    Attributes
+    ----------
+    fields : tuple of FieldColumn
+        The scan's fields as scalar properties.
+    dtype : numpy.dtype
+        The little-endian vertex record.
+    """
+
+    fields: tuple[FieldColumn, ...]
+    dtype: np.dtype
+
+    def header(self, count: int) -> bytes:
+        """The PLY header for ``count`` vertices."""
+        lines = [
+            "ply",
+            "format binary_little_endian 1.0",
+            "comment written by jointseg",
+            f"element vertex {count}",
+        ]
+        assert self.dtype.names is not None
+        lines += [
+            f"property {_WRITE_TYPES[self.dtype[name].str[1:]]} {name}" for name in self.dtype.names
+        ]
+        lines.append("end_header\n")
+        return "\n".join(lines).encode("ascii")
+
+    def record(self, scan: Scan, path: Path) -> np.ndarray:
+        """The vertex records of ``scan`` (one chunk of the scan the layout was made for).
+
+        Raises
+        ------
+        ScanFormatError
+            When a 64-bit integer field holds values the chosen property type cannot.
+        """
+        return _fill(self.dtype, _vertex_columns(scan, path, self.fields, self.dtype))
+
+
+def _fill(dtype: np.dtype, columns: dict[str, np.ndarray]) -> np.ndarray:
+    n = len(next(iter(columns.values())))
+    record = np.empty(n, dtype=dtype)
+    for name, col in columns.items():
+        record[name] = col
+    return record
+
+
+def _layout(columns: dict[str, np.ndarray], fields: list[FieldColumn]) -> PlyLayout:
+    dtype = np.dtype([(name, "<" + col.dtype.str[1:]) for name, col in columns.items()])
+    return PlyLayout(tuple(fields), dtype)
+
+
+def ply_layout(like: Scan, path: Path) -> PlyLayout:
+    """The :class:`PlyLayout` :func:`write_ply` would use for ``like``.
+
+    Parameters
+    ----------
+    like : Scan
+        The scan, or a sample with the same fields and dtypes (64-bit integer fields are
+        narrowed by the sample's values).
+    path : Path
+        Target file, for messages.
+
+    Raises
+    ------
+    ScanFormatError
+        On a field that PLY cannot store (name or dtype).
+    """
+    fields = field_columns(like.fields, path=path)
+    return _layout(_vertex_columns(like, path, tuple(fields)), fields)
+
+
 def write_ply(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> None:
     """Write a binary little-endian PLY keeping colour, labels and every field.
 
@@ -475,29 +689,12 @@ def write_ply(scan: Scan, path: Path, *, progress: ProgressFn | None = None) -> 
     ScanFormatError
         On a field that PLY cannot store (name or dtype).
     """
-    columns: dict[str, np.ndarray] = {"x": scan.xyz[:, 0], "y": scan.xyz[:, 1], "z": scan.xyz[:, 2]}
-    if scan.rgb is not None:
-        columns.update(red=scan.rgb[:, 0], green=scan.rgb[:, 1], blue=scan.rgb[:, 2])
-    if scan.labels is not None:
-        columns["label"] = scan.labels
-    for name, values in flatten_fields(scan.fields, path=path).items():
-        if name in columns:
-            raise ScanFormatError(f"{path}: field {name!r} clashes with a PLY vertex property")
-        columns[name] = narrow_dtype(values, name=name, path=path)
-    dtype = np.dtype([(name, "<" + col.dtype.str[1:]) for name, col in columns.items()])
-    record = np.empty(len(scan), dtype=dtype)
-    for name, col in columns.items():
-        record[name] = col
-    lines = [
-        "ply",
-        "format binary_little_endian 1.0",
-        "comment written by jointseg",
-        f"element vertex {len(scan)}",
-    ]
-    lines += [f"property {_WRITE_TYPES[col.dtype.str[1:]]} {name}" for name, col in columns.items()]
-    lines.append("end_header\n")
+    fields = field_columns(scan.fields, path=path)
+    columns = _vertex_columns(scan, path, tuple(fields))
+    layout = _layout(columns, fields)
+    record = _fill(layout.dtype, columns)
     report(progress, "write", 0.0)
     with atomic_open(path) as fh:
-        fh.write("\n".join(lines).encode("ascii"))
+        fh.write(layout.header(len(scan)))
         fh.write(record.tobytes())
     report(progress, "write", 1.0)

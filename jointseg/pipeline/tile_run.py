@@ -21,17 +21,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, cast
 
 import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.learned import normalised_entropy
+from jointseg.network.anchored import CropPlan
 from jointseg.network.backends import Predictor, TilePredictor
 from jointseg.network.predict import NetworkResult
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.stages import network_and_geometry
-from jointseg.pipeline.tile_store import TilePlan, load_tile, read_crops, read_plan, tile_folder
+from jointseg.pipeline.tile_store import TilePlan, load_tile, read_plan, tile_folder
 from jointseg.progress import CancelToken, ProgressFn, check_cancel
 
 log = logging.getLogger(__name__)
@@ -188,7 +189,7 @@ def run_tile(
                 mine,
                 progress,
                 cancel,
-                seed=seed,  # type: ignore[arg-type]
+                seed=seed,
             )
     else:
 
@@ -222,7 +223,8 @@ def run_tile(
             lambda fh: np.savez(fh, ids=cells.ids, sums=cells.sums, seen=cells.seen),
         )
         extra = {"point_cell": cells.point_cell[core]}
-    _save(result_path(workdir, index), lambda fh: np.savez(fh, **common, **extra))
+    savez = cast(Any, np.savez)  # numpy's stubs take ** arrays for its own keywords
+    _save(result_path(workdir, index), lambda fh: savez(fh, **common, **extra))
     timings["save"] = time.perf_counter() - t
     log.info(
         "tile %d: %d points (%d core), %d segments",
@@ -266,6 +268,20 @@ def load_result(workdir: Path, index: int) -> TileResult:
         probs=np.load(probs_path(workdir, index), mmap_mode="r"),
         entropy_sum=float(arrays["entropy_sum"]),
     )
+
+
+def read_crops(workdir: Path, plan: TilePlan) -> CropPlan:
+    """The whole-scan crop plan :func:`~jointseg.pipeline.tile_store.prepare` saved.
+
+    Raises
+    ------
+    ConfigError
+        When the plan has none (a network that runs each tile on its own).
+    """
+    if plan.anchoring is None:
+        raise ConfigError(f"{workdir}: this tile plan has no crop plan")
+    with np.load(workdir / "crops.npz") as data:
+        return CropPlan(data["centres"], data["radius"], plan.anchoring.crop_size)
 
 
 def load_cells(workdir: Path, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

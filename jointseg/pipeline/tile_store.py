@@ -24,7 +24,7 @@ import math
 import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import BinaryIO
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -92,14 +92,6 @@ class TilePlan(BaseModel):
     geometry: ResolvedGeometryParams
     params: TileParams
     anchoring: Anchoring | None = None
-
-
-class CropPlanArrays(NamedTuple):
-    """The fields of :class:`jointseg.network.anchored.CropPlan`, without importing it."""
-
-    centres: np.ndarray
-    radius: np.ndarray
-    crop_size: int
 
 
 class _Columns:
@@ -269,14 +261,6 @@ def _anchor(
         crop_size=crops.crop_size,
         outside=outside,
     )
-
-
-def read_crops(workdir: Path, plan: TilePlan) -> CropPlanArrays:
-    """The whole-scan crop plan saved by :func:`prepare` (centres, radius, crop size)."""
-    if plan.anchoring is None:
-        raise ConfigError(f"{workdir}: this tile plan has no crop plan")
-    with np.load(workdir / "crops.npz") as data:
-        return CropPlanArrays(data["centres"], data["radius"], plan.anchoring.crop_size)
 
 
 def _triple(values: np.ndarray) -> tuple[float, float, float]:
