@@ -13,7 +13,7 @@ from jointseg.exceptions import Cancelled
 from jointseg.io import read_scan, write_scan
 from jointseg.pipeline import PipelineConfig, load_predictor, run
 from jointseg.pipeline.tile_merge import MIN_LINK_POINTS, _Gathered, join_segments, merge
-from jointseg.pipeline.tile_run import cells_path, result_path, run_tile
+from jointseg.pipeline.tile_run import cells_path, load_result, result_path, run_tile
 from jointseg.pipeline.tile_store import prepare
 from jointseg.pipeline.tiled import run_tiled
 from jointseg.scan import Scan
@@ -218,3 +218,38 @@ def test_cancel_between_tiles_stops_and_leaves_no_output(
         )
     assert not output.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["floor.ply"]
+
+
+def test_a_network_without_a_shared_crop_plan_runs_each_tile_on_its_own(
+    dgcnn_random_weights: Path, tmp_path: Path
+) -> None:
+    """DGCNN labels blocks, not planned crops: each tile is labelled on its own and a point
+    takes the output of the tile whose core holds it."""
+    small = make_floor(6, rooms=2, points=12_000)
+    cfg = PipelineConfig.model_validate(
+        {
+            "network": {"name": "dgcnn", "weights": str(dgcnn_random_weights), "device": "cpu"},
+            "tiles": {"max_points": 5_000, "overlap": 1.0},
+            "fusion": {"mode": "soft"},
+        }
+    )
+    predictor = load_predictor(cfg.network)
+    plan = prepare(
+        chunks(small, 5_000),
+        len(small),
+        tmp_path,
+        source="small",
+        tiles=cfg.tiles,
+        geometry=cfg.geometry,
+        predictor=predictor,
+    )
+    assert plan.anchoring is None and len(plan.tiles) >= 3
+    for box in plan.tiles:
+        run_tile(tmp_path, box.index, cfg, predictor=predictor, plan=plan)
+    merged = merge(tmp_path, cfg, plan=plan)
+    assert merged.network_confidence.min() > 0  # every point got an owner's output
+    assert merged.network_label.max() <= 12 and merged.fused_label.max() <= 12
+    first = load_result(tmp_path, 0)
+    assert first.probs is not None and first.labels is not None
+    assert first.probs.shape == (len(first.core_index), 13)
+    assert np.array_equal(merged.network_label[first.core_index], first.labels)
