@@ -210,10 +210,12 @@ def network_and_geometry(
     timings: dict[str, float],
     *,
     resolved: ResolvedGeometryParams | None = None,
+    geometry_scan: Scan | None = None,
 ) -> tuple[T, GeometryResult]:
     """The network (``network(progress, cancel)``) and the geometry, side by side when
     ``config.concurrent`` (their times go into ``timings``); ``resolved`` fixes the geometry's
-    thresholds (a tile of a big scan).
+    thresholds and ``geometry_scan`` gives the geometry fewer points than the network (a tile
+    of a big scan: the network needs a wider margin than the geometry).
 
     Raises
     ------
@@ -235,7 +237,14 @@ def network_and_geometry(
         return network(serialised, token)
 
     def geometry_stage() -> GeometryResult:
-        return segment(scan, config.geometry, serialised, token, seed=seed, resolved=resolved)
+        return segment(
+            geometry_scan if geometry_scan is not None else scan,
+            config.geometry,
+            serialised,
+            token,
+            seed=seed,
+            resolved=resolved,
+        )
 
     if config.concurrent:
         return _both(network_stage, geometry_stage, stop, cancel, timings)

@@ -209,8 +209,9 @@ def _gather(
             assert tile.labels is not None and tile.confidence is not None
             out.labels[core_idx] = tile.labels
             out.confidence[core_idx] = tile.confidence
-        out.link_from.append(tile.segments[~tile.core].astype(np.int64) + offset)
-        out.link_point.append(tile.index[~tile.core])
+        margin = ~tile.core & (tile.segments >= 0)
+        out.link_from.append(tile.segments[margin].astype(np.int64) + offset)
+        out.link_point.append(tile.index[margin])
         owners.append(np.full(tile.n_segments, box.index, dtype=np.int32))
         out.entropy_sum += tile.entropy_sum
         out.tile_timings.append(tile.timings)

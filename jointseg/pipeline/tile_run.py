@@ -54,7 +54,8 @@ class TileResult:
     core : ndarray of shape (M,), bool
         Outer points inside the core.
     segments : ndarray of shape (M,), int32
-        Segment 0..S-1 of every outer point, in this tile.
+        Segment 0..S-1 of every outer point in this tile, -1 beyond the geometry's margin
+        (``TileParams.geometry_overlap``).
     main_plane : ndarray of shape (M,), bool
     point_cell : ndarray of shape (C,), int64, optional
         With a shared crop plan: the sub-sampled cell each core point takes its network
@@ -165,6 +166,9 @@ def run_tile(
         raise ConfigError(f"tile {index} holds {len(scan)} points, too few to segment")
     box = plan.tiles[index]
     core = box.tile().core_mask(scan.xyz[:, :2])
+    margin = min(plan.params.geometry_overlap, plan.params.overlap)
+    segmented = box.tile().near_core_mask(scan.xyz[:, :2], margin) | core
+    geometry_scan = scan.subset(segmented) if not segmented.all() else scan
     timings["load"] = time.perf_counter() - t
     check_cancel(cancel)
     seed = config.seed
@@ -197,13 +201,24 @@ def run_tile(
             return predictor.predict(scan, progress, cancel, seed=seed)
 
     net, geo = network_and_geometry(
-        scan, config, network, progress, cancel, timings, resolved=plan.geometry
+        scan,
+        config,
+        network,
+        progress,
+        cancel,
+        timings,
+        resolved=plan.geometry,
+        geometry_scan=geometry_scan,
     )
     check_cancel(cancel)
     t = time.perf_counter()
+    segments = np.full(len(scan), -1, dtype=np.int32)
+    segments[segmented] = geo.segments
+    main_plane = np.zeros(len(scan), dtype=bool)
+    main_plane[segmented] = geo.main_plane
     common = {
-        "segments": geo.segments.astype(np.int32),
-        "main_plane": geo.main_plane,
+        "segments": segments,
+        "main_plane": main_plane,
         "core": core,
         "timings": np.array([timings.get(k, 0.0) for k in STEPS]),
     }
