@@ -183,7 +183,7 @@ def _gather(
     """Fill the per-point arrays from each tile's core; keep each tile's margin links."""
     n = plan.points
     out = _Gathered(
-        segment=np.full(n, -1, dtype=np.int64),
+        segment=np.full(n, -1, dtype=np.int32),
         labels=np.zeros(n, dtype=np.uint8),
         confidence=np.zeros(n, dtype=np.float32),
         main_plane=np.zeros(n, dtype=bool),
@@ -263,7 +263,7 @@ def join_segments(gathered: _Gathered) -> tuple[np.ndarray, int]:
     n_total = len(gathered.segment_tile)
     a = np.concatenate(gathered.link_from) if gathered.link_from else np.zeros(0, np.int64)
     points = np.concatenate(gathered.link_point) if gathered.link_point else np.zeros(0, np.int64)
-    b = gathered.segment[points]
+    b = gathered.segment[points].astype(np.int64)
     if len(a) == 0:
         return np.arange(n_total), 0
     pairs, counts = np.unique(a * n_total + b, return_counts=True)
@@ -307,7 +307,7 @@ def _vote(
     confidence = np.empty(n, dtype=np.float32)
     totals = ScanTotals(points=n, mean_entropy=gathered.entropy_sum / max(n, 1))
     seg_batch, n_batches = _batches(segment, plan.params.max_points)
-    point_batch = seg_batch[segment]
+    point_batch = seg_batch.astype(np.int32)[segment]
     del seg_batch
     for b in range(n_batches):
         check_cancel(cancel)
