@@ -1,7 +1,8 @@
 """What the routes (and the viewer) do with jobs: create, list, look up, cancel, delete.
 
 Functions take a SQLAlchemy session and return :class:`server.schemas.JobView`, the pydantic
-model the API answers with, so callers never hold ORM objects.
+model the API answers with, so callers never hold ORM objects. A tiled job's view carries its
+tiles' counts (from ``job_tiles``, :mod:`server.tiles`).
 """
 
 from __future__ import annotations
@@ -12,8 +13,9 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
+from server import tiles
 from server.models import FINAL_STATUSES, Job, utcnow
-from server.schemas import JobStatus, JobView
+from server.schemas import JobStatus, JobView, TileCounts
 from server.storage import check_job_id
 
 __all__ = [
@@ -29,8 +31,14 @@ __all__ = [
 ]
 
 
-def _view(job: Job) -> JobView:
-    return JobView.model_validate(job)
+def _view(job: Job, counts: TileCounts | None = None) -> JobView:
+    view = JobView.model_validate(job)
+    return view if counts is None else view.model_copy(update={"tiles": counts})
+
+
+def _views(session: Session, rows: list[Job]) -> list[JobView]:
+    counts = tiles.tile_counts(session, [job.id for job in rows])
+    return [_view(job, counts.get(job.id)) for job in rows]
 
 
 def _row(session: Session, job_id: str) -> Job:
@@ -79,7 +87,7 @@ def get_job(session: Session, job_id: str) -> JobView:
     JobNotFound
         For an unknown (or malformed) id.
     """
-    return _view(_row(session, job_id))
+    return _views(session, [_row(session, job_id)])[0]
 
 
 def list_jobs(
@@ -89,7 +97,7 @@ def list_jobs(
     query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
     if status is not None:
         query = query.where(Job.status == status)
-    return [_view(job) for job in session.scalars(query)]
+    return _views(session, list(session.scalars(query)))
 
 
 def count_jobs(session: Session, *, status: str | None = None) -> int:
@@ -105,7 +113,9 @@ def cancel_job(session: Session, job_id: str) -> JobView:
 
     A queued job becomes ``cancelled`` immediately (its worker will skip it); a running one gets
     its cancel flag, which the worker reads within about half a second and then marks the job
-    cancelled.
+    cancelled. A tiled job none of whose tiles runs right now is cancelled at once (its queued
+    tiles are skipped); otherwise its running tiles stop at their next cancel check and the
+    last to stop marks it cancelled. The caller removes a cancelled job's tile folder.
 
     Raises
     ------
@@ -128,10 +138,12 @@ def cancel_job(session: Session, job_id: str) -> JobView:
         )
         changed = running.rowcount  # type: ignore[attr-defined]
     session.commit()
+    if changed:
+        tiles.settle_cancel(session, job.id)
     session.refresh(job)
     if not changed:
         raise JobStateError(f"job {job_id} has already finished ({job.status})")
-    return _view(job)
+    return _views(session, [job])[0]
 
 
 def delete_job_row(session: Session, job_id: str) -> JobView:
@@ -146,7 +158,8 @@ def delete_job_row(session: Session, job_id: str) -> JobView:
     job = _row(session, job_id)
     if job.status not in FINAL_STATUSES:
         raise JobStateError(f"job {job_id} is {job.status}; cancel it before deleting it")
-    view = _view(job)
+    view = _views(session, [job])[0]
     session.delete(job)
+    tiles.delete_parts(session, job.id)
     session.commit()
     return view

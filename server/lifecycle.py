@@ -5,6 +5,10 @@ Every transition is one conditional UPDATE on the job row. A worker's claim incr
 ``running``: when the reaper has meanwhile given the job to another worker (or failed it), the
 stale worker's writes change nothing. Several reapers (the API's and each worker's) can run at
 once for the same reason.
+
+A job whose scan is cut into tiles leaves this module's hands once its plan is made: its row
+stays ``running`` while the tiles and the merge, rows of their own (:mod:`server.tiles`), are
+claimed, stamped and reaped one by one; :func:`reap_stale` leaves such a job alone.
 """
 
 from __future__ import annotations
@@ -16,10 +20,10 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
-from sqlalchemy import delete, func, select, update
+from sqlalchemy import delete, exists, func, select, update
 from sqlalchemy.orm import Session
 
-from server.models import Job, Worker, utcnow
+from server.models import Job, JobTile, Worker, utcnow
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +37,7 @@ class Claim:
     filename: str
     format: str
     config: dict[str, Any]
+    points: int | None = None
 
 
 def worker_id() -> str:
@@ -66,7 +71,7 @@ def claim_job(session: Session, job_id: str, worker: str) -> Claim | None:
         return None
     job = session.get(Job, job_id, populate_existing=True)
     assert job is not None  # just claimed
-    return Claim(job.id, job.attempts, job.filename, job.format, dict(job.config))
+    return Claim(job.id, job.attempts, job.filename, job.format, dict(job.config), job.points)
 
 
 def record_progress(session: Session, claim: Claim, stage: str, progress: float) -> None:
@@ -81,10 +86,14 @@ def record_progress(session: Session, claim: Claim, stage: str, progress: float)
 
 def heartbeat(session: Session, claim: Claim | None, worker: str) -> None:
     """Stamp the worker (and its running job) as alive."""
-    now = utcnow()
     if claim is not None:
-        session.execute(update(Job).where(*_attempt(claim)).values(heartbeat_at=now))
-    job_id = None if claim is None else claim.job_id
+        session.execute(update(Job).where(*_attempt(claim)).values(heartbeat_at=utcnow()))
+    stamp_worker(session, worker, None if claim is None else claim.job_id)
+
+
+def stamp_worker(session: Session, worker: str, job_id: str | None) -> None:
+    """Stamp the worker row as alive, busy with ``job_id`` (or idle), and commit."""
+    now = utcnow()
     seen = session.execute(
         update(Worker).where(Worker.id == worker).values(seen_at=now, job_id=job_id)
     )
@@ -180,7 +189,9 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
     """Recover running jobs whose worker stopped sending heartbeats.
 
     A stale job is re-queued when it has attempts left, failed with the reason when not, and
-    cancelled when a cancel was requested. Workers not seen for ``timeout_s`` are forgotten.
+    cancelled when a cancel was requested. A job fanned out into tiles is not stale as long as
+    it has parts (their own reaper: :func:`server.tile_reaper.reap_parts`). Workers not seen for
+    ``timeout_s`` are forgotten.
 
     Returns
     -------
@@ -191,7 +202,7 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
     cutoff = now - timedelta(seconds=timeout_s)
     stale = session.execute(
         select(Job.id, Job.attempts, Job.cancel_requested, Job.worker).where(
-            Job.status == "running", Job.heartbeat_at < cutoff
+            Job.status == "running", Job.heartbeat_at < cutoff, ~fanned_out()
         )
     ).all()
     requeued: list[str] = []
@@ -201,6 +212,7 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
             Job.status == "running",
             Job.attempts == attempts,
             Job.heartbeat_at < cutoff,
+            ~fanned_out(),
         )
         lost = f"worker {worker} stopped responding (no heartbeat for {timeout_s:g} s)"
         if cancel:
@@ -222,6 +234,11 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
     session.execute(delete(Worker).where(Worker.seen_at < cutoff))
     session.commit()
     return requeued
+
+
+def fanned_out() -> Any:
+    """SQL condition on a job row: its scan was cut into tiles (it has parts in job_tiles)."""
+    return exists().where(JobTile.job_id == Job.id)
 
 
 def live_workers(session: Session, *, timeout_s: float) -> list[Worker]:

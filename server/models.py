@@ -1,8 +1,10 @@
-"""The job table and the worker table (SQLAlchemy 2 declarative models).
+"""The job table, the worker table and the table of a tiled job's parts (SQLAlchemy 2
+declarative models).
 
 The job row is the single source of truth about a job: its status, stage and progress, its
-heartbeat and attempts (for recovering from lost workers) and its cancel flag. The queue only
-carries job ids.
+heartbeat and attempts (for recovering from lost workers) and its cancel flag. A job whose scan
+is tiled also has rows in ``job_tiles``: its plan, one per tile and its merge, each with the
+status, attempts and heartbeat of a queue task. The queue only carries ids.
 """
 
 from __future__ import annotations
@@ -84,3 +86,31 @@ class Worker(Base):
     started_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     seen_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     job_id: Mapped[str | None] = mapped_column(String(32), nullable=True)
+
+
+class JobTile(Base):
+    """One part of a tiled job: ``kind`` ``plan`` (made by the job's own task), ``tile``
+    (``tile`` = its index in the plan) or ``merge``.
+
+    A tile and the merge are queue tasks of their own: claimed by one worker at a time
+    (``attempts`` fences a stale worker's writes, as on the job row), stamped alive through
+    ``heartbeat_at``, re-queued by the reaper when the stamps stop. ``status``: ``waiting``
+    (the merge until every tile is done), ``queued``, ``running``, then ``done``, ``failed`` or
+    ``cancelled`` (skipped: the job was cancelled or failed).
+    """
+
+    __tablename__ = "job_tiles"
+
+    job_id: Mapped[str] = mapped_column(String(32), primary_key=True)
+    kind: Mapped[str] = mapped_column(String(8), primary_key=True)
+    tile: Mapped[int] = mapped_column(Integer, primary_key=True)
+    status: Mapped[str] = mapped_column(String(16), index=True)
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    worker: Mapped[str | None] = mapped_column(String(128), nullable=True)
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    seconds: Mapped[float | None] = mapped_column(Float, nullable=True)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    queued_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    started_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(UTCDateTime, nullable=True)

@@ -1,8 +1,10 @@
-"""The job queue: Huey, with SQLite, PostgreSQL or Redis storage, carrying job ids only.
+"""The job queue: Huey, with SQLite, PostgreSQL or Redis storage, carrying ids only.
 
 The API and the workers build the same Huey instance from :class:`Settings` and register the
-same task, :func:`run_job`; only a worker process installs a handler that does the work
-(:func:`set_handler`). Everything about a job other than its id lives in the job row.
+same tasks: :func:`run_job` (a job id), and for a job whose scan is cut into tiles
+:func:`run_tile` (job id, tile index) and :func:`merge_tiles` (job id). Only a worker process
+installs the handlers that do the work (:func:`set_handler`). Everything about a job other than
+its id lives in the job row, everything about a tile in its row of ``job_tiles``.
 """
 
 from __future__ import annotations
@@ -19,20 +21,41 @@ from server.settings import Settings
 
 log = logging.getLogger(__name__)
 
-_handler: Callable[[str], None] | None = None
+#: The tasks' names in the queue; a part of a tiled job is ``(job id, "tile" | "merge", index)``.
+RUN_JOB, RUN_TILE, MERGE_TILES = "run_job", "run_tile", "merge_tiles"
+PART_TASKS = {RUN_TILE: "tile", MERGE_TILES: "merge"}
+
+_handlers: dict[str, Callable[..., None]] = {}
 
 
-def set_handler(handler: Callable[[str], None] | None) -> None:
-    """Install what :func:`run_job` calls in this process (a worker's job runner)."""
-    global _handler
-    _handler = handler
+def set_handler(handler: Callable[..., None] | None, task: str = RUN_JOB) -> None:
+    """Install what the task ``task`` calls in this process (a worker's job runner)."""
+    if handler is None:
+        _handlers.pop(task, None)
+    else:
+        _handlers[task] = handler
+
+
+def _dispatch(task: str, *args: object) -> None:
+    handler = _handlers.get(task)
+    if handler is None:
+        raise RuntimeError(f"no {task} handler installed in this process (not a worker)")
+    handler(*args)
 
 
 def run_job(job_id: str) -> None:
     """The Huey task: hand ``job_id`` to this process's handler."""
-    if _handler is None:
-        raise RuntimeError("no job handler installed in this process (not a worker)")
-    _handler(job_id)
+    _dispatch(RUN_JOB, job_id)
+
+
+def run_tile(job_id: str, tile: int) -> None:
+    """The Huey task of one tile of a tiled job."""
+    _dispatch(RUN_TILE, job_id, tile)
+
+
+def merge_tiles(job_id: str) -> None:
+    """The Huey task of the merge of a tiled job."""
+    _dispatch(MERGE_TILES, job_id)
 
 
 def peewee_url(database_url: str) -> str:
@@ -80,7 +103,9 @@ class JobQueue:
     def __init__(self, settings: Settings) -> None:
         self.kind = settings.queue
         self.huey = make_huey(settings)
-        self._task = self.huey.task(retries=0, name="run_job")(run_job)
+        self._task = self.huey.task(retries=0, name=RUN_JOB)(run_job)
+        self._tile = self.huey.task(retries=0, name=RUN_TILE)(run_tile)
+        self._merge = self.huey.task(retries=0, name=MERGE_TILES)(merge_tiles)
 
     def enqueue(self, job_id: str) -> None:
         """Put ``job_id`` in the queue.
@@ -90,10 +115,26 @@ class JobQueue:
         QueueUnavailable
             When the queue's storage cannot be reached.
         """
+        self._put(f"job {job_id}", self._task, job_id)
+
+    def enqueue_part(self, job_id: str, kind: str, tile: int = 0) -> None:
+        """Put a part of a tiled job in the queue: tile ``tile``, or (``kind="merge"``) its
+        merge.
+
+        Raises
+        ------
+        QueueUnavailable
+        """
+        if kind == "merge":
+            self._put(f"job {job_id} merge", self._merge, job_id)
+        else:
+            self._put(f"job {job_id} tile {tile}", self._tile, job_id, tile)
+
+    def _put(self, what: str, task: Callable[..., object], *args: object) -> None:
         try:
-            self._task(job_id)
+            task(*args)
         except Exception as exc:
-            log.exception("cannot enqueue job %s", job_id)
+            log.exception("cannot enqueue %s", what)
             raise QueueUnavailable(f"the {self.kind} queue is unavailable: {exc}") from exc
 
     def pending(self) -> int:
@@ -102,7 +143,20 @@ class JobQueue:
 
     def pending_ids(self) -> set[str]:
         """The job ids waiting in the queue (reads the whole queue: call it rarely)."""
-        return {str(task.args[0]) for task in self.huey.pending() if task.args}
+        return {
+            str(task.args[0]) for task in self.huey.pending() if task.args and task.name == RUN_JOB
+        }
+
+    def pending_parts(self) -> set[tuple[str, str, int]]:
+        """The parts of tiled jobs waiting in the queue, as ``(job id, kind, tile)`` (reads the
+        whole queue: call it rarely)."""
+        parts: set[tuple[str, str, int]] = set()
+        for task in self.huey.pending():
+            kind = PART_TASKS.get(task.name)
+            if kind is not None and task.args:
+                tile = int(task.args[1]) if kind == "tile" and len(task.args) > 1 else 0
+                parts.add((str(task.args[0]), kind, tile))
+        return parts
 
     def close(self) -> None:
         """Release the storage's connections."""

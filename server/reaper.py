@@ -1,7 +1,9 @@
-"""Recovering jobs of lost workers: stale running jobs and queued jobs missing from the queue.
+"""Recovering jobs of lost workers: stale running jobs and queued jobs missing from the queue,
+and the same for the tiles and merges of tiled jobs.
 
 Both the API process and every worker sweep periodically, so jobs are recovered even when
-every worker is gone (see :func:`server.lifecycle.reap_stale`).
+every worker is gone (see :func:`server.lifecycle.reap_stale` and
+:func:`server.tile_reaper.reap_parts`).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from server import lifecycle
 from server.db import SessionFactory
 from server.queue import JobQueue
 from server.settings import Settings
+from server.storage import Storage
+from server.tile_reaper import queued_parts_before, reap_parts
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +40,33 @@ def reap_and_requeue(sessions: SessionFactory, queue: JobQueue, settings: Settin
         requeued += orphans
     for job_id in requeued:
         queue.enqueue(job_id)
+    reap_tiles(sessions, queue, settings)
     return requeued
+
+
+def reap_tiles(sessions: SessionFactory, queue: JobQueue, settings: Settings) -> None:
+    """The sweep over tiled jobs' parts: re-queue stale ones, queue lost merges, enqueue
+    queued parts missing from the queue, finish cancels, remove the tile folders of jobs that
+    ended."""
+    with sessions() as session:
+        sweep = reap_parts(
+            session, timeout_s=settings.heartbeat_timeout_s, max_attempts=settings.max_attempts
+        )
+        waiting = set(queued_parts_before(session, timeout_s=settings.heartbeat_timeout_s))
+    waiting -= set(sweep.enqueue)
+    if waiting:
+        orphans = sorted(waiting - queue.pending_parts())
+        for job_id, kind, tile in orphans:
+            log.warning(
+                "job %s: %s %d was queued without a queue entry; enqueueing it", job_id, kind, tile
+            )
+        sweep.enqueue += orphans
+    for job_id, kind, tile in sweep.enqueue:
+        queue.enqueue_part(job_id, kind, tile)
+    if sweep.idle:
+        storage = Storage(settings.data_dir)
+        for job_id in sweep.idle:
+            storage.remove_tiles(job_id)
 
 
 class ReaperThread:

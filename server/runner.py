@@ -1,5 +1,8 @@
 """Running one job id in a worker process: claim, pipeline, result files, final status.
 
+A job whose scan has more points than its config's ``tiles.max_points`` is only planned here;
+its tiles and merge are queue tasks of their own that any worker runs (:mod:`server.fanout`).
+
 Loaded networks are kept between jobs (a few configurations, least recently used dropped), so
 a stream of jobs with the same network pays the loading once per process.
 """
@@ -18,8 +21,9 @@ from pydantic import ValidationError
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError
 from jointseg.io import read_scan, write_scan
 from jointseg.pipeline import PipelineConfig, annotate, load_predictor, report_body, run
-from server import lifecycle
+from server import lifecycle, tiles
 from server.db import SessionFactory
+from server.fanout import FanOut
 from server.lru import LRUCache
 from server.messages import public_message
 from server.queue import JobQueue
@@ -53,8 +57,9 @@ class JobRunner:
         self.queue = queue
         self.stopping = stopping
         self.worker = lifecycle.worker_id()
-        self.current: lifecycle.Claim | None = None
+        self.current: lifecycle.Claim | tiles.PartClaim | None = None
         self.predictors: LRUCache[str, Predictor] = LRUCache(MAX_PREDICTORS)
+        self.fanout = FanOut(self)
 
     def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
         """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""
@@ -86,7 +91,11 @@ class JobRunner:
         progress = RowProgress(self.sessions, claim)
         upload = self.storage.upload_path(claim.job_id, f".{claim.format}")
         try:
-            points, timings = self._pipeline(claim, upload, progress, token)
+            config = PipelineConfig.model_validate(claim.config)
+            if self.fanout.wants(claim, config, upload):
+                self.fanout.plan(claim, config, upload, token)
+                return
+            points, timings = self._pipeline(claim, config, upload, progress, token)
         except Cancelled:
             self._stopped(claim, token)
             return
@@ -105,11 +114,11 @@ class JobRunner:
     def _pipeline(
         self,
         claim: lifecycle.Claim,
+        config: PipelineConfig,
         upload: Path,
         progress: RowProgress,
         token: RowCancelToken,
     ) -> tuple[int, dict[str, float]]:
-        config = PipelineConfig.model_validate(claim.config)
         progress("read", 0.0)
         progress.flush()
         predictor, load_s = self.predictor(config)
@@ -137,6 +146,7 @@ class JobRunner:
                 released = lifecycle.release_job(session, claim)
             if released:
                 log.info("job %s: worker stopping, job re-queued", claim.job_id)
+                self.storage.remove_tiles(claim.job_id)  # a plan cut short, if any
                 self.queue.enqueue(claim.job_id)
                 return
         self._finish(claim, "cancelled", error="cancelled by request")
@@ -144,8 +154,11 @@ class JobRunner:
 
     def _finish(self, claim: lifecycle.Claim, status: str, **values: Any) -> None:
         with self.sessions() as session:
-            if not lifecycle.finish_job(session, claim, status, **values):
-                log.warning("job %s: attempt %d no longer ours", claim.job_id, claim.attempt)
+            finished = lifecycle.finish_job(session, claim, status, **values)
+        if not finished:
+            log.warning("job %s: attempt %d no longer ours", claim.job_id, claim.attempt)
+        elif status != "succeeded":
+            self.storage.remove_tiles(claim.job_id)  # a plan that failed or was cancelled
 
 
 def _failure_message(exc: BaseException, upload: Path, filename: str) -> str:

@@ -14,6 +14,14 @@ from server.models import FINAL_STATUSES
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
+class TileCounts(BaseModel):
+    """How far the tiles of a job whose scan was cut into tiles have come."""
+
+    total: int = Field(description="Tiles in the job's plan.")
+    done: int = Field(description="Tiles finished.")
+    running: int = Field(description="Tiles a worker is running now.")
+
+
 class JobView(BaseModel):
     """A job as the API shows it (built from a job row)."""
 
@@ -23,13 +31,22 @@ class JobView(BaseModel):
     filename: str = Field(description="The uploaded file's name (no folders).")
     format: str = Field(description="Scan format read from the extension (ply, las, ...).")
     status: JobStatus
-    stage: str | None = Field(None, description="Current stage: read, network, geometry, ...")
+    stage: str | None = Field(
+        None,
+        description="Current stage: read, network, geometry, ...; for a tiled scan plan, "
+        "`tiles 3/8` (tiles done), join, fusion, write.",
+    )
     progress: float = Field(0.0, ge=0, le=1, description="Overall progress, 0 to 1.")
     points: int | None = Field(None, description="Points in the scan (from the upload's header).")
     timings: dict[str, float] | None = Field(None, description="Seconds per stage and total.")
     error: str | None = Field(None, description="Why the job failed or was cancelled.")
     network: str = Field(description="Network backend (randlanet, dgcnn).")
     attempts: int = Field(0, description="Times a worker started the job.")
+    tiles: TileCounts | None = Field(
+        None,
+        description="For a scan cut into tiles (more points than the config's "
+        "`tiles.max_points`), run by any number of workers: the tiles' counts; null otherwise.",
+    )
     created_at: datetime
     started_at: datetime | None = None
     finished_at: datetime | None = None

@@ -5,6 +5,9 @@ Layout of the data directory::
     jobs/<job id>/input.<ext>     the upload, under a fixed name (the user's name is in the job row)
     jobs/<job id>/result.ply      what `jointseg segment` writes (result.las / .laz on request)
     jobs/<job id>/report.json     the report of `jointseg segment --report`
+    jobs/<job id>/tiles/<n>/      a tiled job's work folder while it runs, per attempt of its
+                                  plan (spilled scan, tile results: jointseg.pipeline.tile_store);
+                                  removed when the job ends
     incoming/                     uploads still streaming (temporary names)
 
 Every file appears by rename after an fsync (:mod:`jointseg.io.atomic`), and job ids are checked
@@ -94,6 +97,27 @@ class Storage:
     def report_path(self, job_id: str) -> Path:
         """The job's report.json; it may not exist yet."""
         return self.job_dir(job_id) / "report.json"
+
+    def tiles_dir(self, job_id: str, attempt: int | None = None) -> Path:
+        """The tile folders of a job, or the work folder of its plan's attempt ``attempt``
+        (:mod:`jointseg.pipeline.tile_store`; not created)."""
+        folder = self.job_dir(job_id) / "tiles"
+        return folder if attempt is None else folder / str(int(attempt))
+
+    def remove_tiles(self, job_id: str) -> bool:
+        """Remove a tiled job's work folder; returns whether there was one."""
+        folder = self.tiles_dir(job_id)
+        if not folder.exists():
+            return False
+        # renamed first, so a new plan can start at once and nobody sees half a folder
+        trash = self.incoming_dir / f"tiles-{job_id}-{os.getpid()}-{time.monotonic_ns()}"
+        try:
+            os.replace(folder, trash)
+        except FileNotFoundError:  # another process removed it meanwhile
+            return False
+        shutil.rmtree(trash, ignore_errors=True)
+        log.info("removed the tile folder of job %s", job_id)
+        return True
 
     def new_incoming(self, suffix: str) -> Path:
         """An empty temporary file for an upload that is still streaming.

@@ -1,7 +1,8 @@
-"""A worker process: Huey's consumer (one thread) running jobs through :class:`JobRunner`.
+"""A worker process: Huey's consumer (one thread) running jobs through :class:`JobRunner`,
+and the tiles and merges of tiled jobs through its :class:`server.fanout.FanOut`.
 
 This module only wires the process together: settings, database, queue, the runner as the
-queue's task handler, signals. The main thread stamps the worker as alive, runs the reaper and
+queue's task handlers, signals. The main thread stamps the worker as alive, runs the reaper and
 waits for SIGTERM / SIGINT, upon which the running job stops at its next cancel check and goes
 back to the queue for another worker.
 """
@@ -15,10 +16,10 @@ import threading
 from collections.abc import Callable
 from types import FrameType
 
-from server import lifecycle
+from server import lifecycle, tiles
 from server.db import SessionFactory, init_db, make_engine, make_sessions
 from server.logs import configure_logging
-from server.queue import JobQueue, set_handler
+from server.queue import MERGE_TILES, RUN_TILE, JobQueue, set_handler
 from server.reaper import reap_and_requeue
 from server.runner import JobRunner
 from server.settings import Settings
@@ -59,6 +60,8 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     stopping = threading.Event()
     runner = JobRunner(settings, sessions, storage, queue, stopping)
     set_handler(runner)
+    set_handler(runner.fanout.tile, RUN_TILE)
+    set_handler(runner.fanout.merge, MERGE_TILES)
     consumer = queue.huey.create_consumer(
         workers=1,
         worker_type="thread",
@@ -93,8 +96,12 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
 
 def _beat(sessions: SessionFactory, runner: JobRunner) -> None:
     try:
+        current = runner.current
         with sessions() as session:
-            lifecycle.heartbeat(session, runner.current, runner.worker)
+            if isinstance(current, tiles.PartClaim):
+                tiles.heartbeat(session, current, runner.worker)
+            else:
+                lifecycle.heartbeat(session, current, runner.worker)
     except Exception:  # noqa: BLE001 - the next beat may succeed
         log.warning("worker %s: heartbeat failed", runner.worker, exc_info=True)
 

@@ -118,7 +118,10 @@ def delete_job(job_id: JobId, services: ServicesDep, session: SessionDep) -> Any
     """Cancel a queued or running job (202); delete a finished job and its files (204)."""
     view = jobs.get_job(session, job_id)
     if view.status not in FINAL_STATUSES:
-        return JobResponse.from_view(jobs.cancel_job(session, job_id))
+        view = jobs.cancel_job(session, job_id)
+        if view.finished:  # a queued job, or a tiled one with no tile running: its folder goes
+            services.storage.remove_tiles(job_id)
+        return JobResponse.from_view(view)
     jobs.delete_job_row(session, job_id)
     services.storage.delete(job_id)
     return Response(status_code=204)

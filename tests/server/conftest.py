@@ -1,14 +1,15 @@
-"""Fixtures of the server tests: a locked service, job configs (the shared `service` is in
-tests/conftest.py)."""
+"""Fixtures of the server tests: a locked service, job configs, a fresh PostgreSQL database
+and Redis queue name (the shared `service` is in tests/conftest.py)."""
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from service_process import Service, running
+from service_process import REDIS, Service, fresh_database, running
 
 
 @pytest.fixture(scope="session")
@@ -29,3 +30,29 @@ def locked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     folder = tmp_path_factory.mktemp("locked")
     with running(folder, workers=0, api_keys="key-one,key-two", max_upload_bytes=65536) as svc:
         yield svc
+
+
+@pytest.fixture
+def postgres_url() -> Iterator[str]:
+    """A fresh database for this test, dropped afterwards."""
+    with fresh_database() as url:
+        yield url
+
+
+@pytest.fixture
+def redis_queue() -> Iterator[str]:
+    """A fresh queue name (Redis key prefix), its keys deleted afterwards."""
+    redis = pytest.importorskip("redis")
+    client = redis.Redis.from_url(REDIS, socket_connect_timeout=3)
+    try:
+        client.ping()
+    except redis.RedisError as exc:
+        pytest.skip(f"Redis at {REDIS} not reachable (.ci/run starts it): {exc}")
+    name = f"jointseg-test-{uuid.uuid4().hex[:12]}"
+    try:
+        yield name
+    finally:
+        keys = list(client.scan_iter(match=f"*{name}*"))
+        if keys:
+            client.delete(*keys)
+        client.close()

@@ -22,7 +22,7 @@ from typing import Any
 import httpx
 
 from jointseg.io import write_scan
-from jointseg.synth import make_room
+from jointseg.synth import make_floor, make_room
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 #: Fast heartbeats so recovery is tested in seconds, not minutes.
@@ -34,6 +34,9 @@ FAST = {
     "JOINTSEG_LOG_LEVEL": "INFO",
 }
 FINAL = ("succeeded", "failed", "cancelled")
+#: This machine's servers for the many-machines modes (.ci/run starts them).
+PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
+REDIS = "redis://127.0.0.1:6379/0"
 
 
 def free_port() -> int:
@@ -170,6 +173,40 @@ def scan_file(folder: Path, suffix: str = ".ply", *, points: int = 3000, seed: i
     if not path.exists():
         write_scan(make_room(seed, points=points), path)
     return path
+
+
+def floor_file(folder: Path, *, points: int = 120_000, rooms: int = 4, seed: int = 0) -> Path:
+    """A synthetic labelled floor (rooms along a corridor), written once per name: wide enough
+    to be cut into several tiles."""
+    path = folder / f"floor_{seed}_{rooms}_{points}.ply"
+    if not path.exists():
+        write_scan(make_floor(seed, rooms=rooms, points=points), path)
+    return path
+
+
+@contextmanager
+def fresh_database() -> Iterator[str]:
+    """A new PostgreSQL database on this machine's server, dropped afterwards (skips the test
+    when the server is not reachable)."""
+    import uuid
+
+    import pytest
+
+    psycopg2 = pytest.importorskip("psycopg2")
+    try:
+        admin = psycopg2.connect(PG_ADMIN, connect_timeout=3)
+    except psycopg2.OperationalError as exc:
+        pytest.skip(f"PostgreSQL at {PG_ADMIN} not reachable (.ci/run starts it): {exc}")
+    admin.autocommit = True
+    name = f"jointseg_test_{uuid.uuid4().hex[:12]}"
+    with admin.cursor() as cur:
+        cur.execute(f'CREATE DATABASE "{name}"')
+    try:
+        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
+    finally:
+        with admin.cursor() as cur:
+            cur.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
+        admin.close()
 
 
 def wait_for(

@@ -4,54 +4,9 @@ and two separate `jointseg worker` processes, as on other machines sharing the d
 
 from __future__ import annotations
 
-import uuid
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 
-import pytest
-from service_process import post_scan, running, scan_file, wait_for
-
-PG_ADMIN = "postgresql://postgres@127.0.0.1:5432/test"
-REDIS = "redis://127.0.0.1:6379/0"
-
-
-@pytest.fixture
-def postgres_url() -> Iterator[str]:
-    """A fresh database for this test, dropped afterwards."""
-    psycopg2 = pytest.importorskip("psycopg2")
-    try:
-        admin = psycopg2.connect(PG_ADMIN, connect_timeout=3)
-    except psycopg2.OperationalError as exc:
-        pytest.skip(f"PostgreSQL at {PG_ADMIN} not reachable (.ci/run starts it): {exc}")
-    admin.autocommit = True
-    name = f"jointseg_test_{uuid.uuid4().hex[:12]}"
-    with admin.cursor() as cur:
-        cur.execute(f'CREATE DATABASE "{name}"')
-    try:
-        yield f"postgresql://postgres@127.0.0.1:5432/{name}"
-    finally:
-        with admin.cursor() as cur:
-            cur.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
-        admin.close()
-
-
-@pytest.fixture
-def redis_queue() -> Iterator[str]:
-    """A fresh queue name (Redis key prefix), its keys deleted afterwards."""
-    redis = pytest.importorskip("redis")
-    client = redis.Redis.from_url(REDIS, socket_connect_timeout=3)
-    try:
-        client.ping()
-    except redis.RedisError as exc:
-        pytest.skip(f"Redis at {REDIS} not reachable (.ci/run starts it): {exc}")
-    name = f"jointseg-test-{uuid.uuid4().hex[:12]}"
-    try:
-        yield name
-    finally:
-        keys = list(client.scan_iter(match=f"*{name}*"))
-        if keys:
-            client.delete(*keys)
-        client.close()
+from service_process import REDIS, post_scan, running, scan_file, wait_for
 
 
 def _run_jobs(service, scans, job_config, n: int = 4) -> list[dict]:
