@@ -18,13 +18,30 @@ The first pick reads the result file (cold), later ones reuse the viewer's cache
 median is shown). Bytes are counted from the same socket counters. Target (issue 8): <= 5 s
 from choosing a 1 M-point job to its three panels received.
 
-    .venv/bin/python bench/viewer.py [--points 1000000] [--repeats 3] [--cache bench/_cache]
+Big results (issue 16): ``--part big`` opens results of 1 M, 4 M and 20 M points (``--sizes``),
+more than a panel shows (2 M points), and follows the viewer's own process: its resident memory
+before, after opening a result, and after opening and closing results of the same size
+several times (flat: no growth), and the time from a fresh tab's request to a usable scene.
+These results are not made by the pipeline (minutes at 20 M points): each is a synthetic
+28-room floor (``jointseg synth --floor 28 --points N``, through ``jointseg.synth.make_floor``)
+with its ground truth, and the pipeline's five fields filled with plausible values
+(:func:`make_big_result`), written by ``jointseg.io.write_scan`` as the service writes a result.
+The viewer runs in its own process (as in ``jointseg serve``), driven over its stdin; memory
+is read a moment after each tab closes, once the viewer has handed freed memory back
+(``web.memory``). Target (issue 16): a 20 M-point result opened within 5 s, memory flat over
+repeated opens.
+
+    .venv/bin/python bench/viewer.py [--part pick|big|both] [--points 1000000] [--repeats 3]
+        [--sizes 1000000,4000000,20000000] [--opens 6] [--cache bench/_cache]
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import json
+import logging
+import os
 import re
 import statistics
 import subprocess
@@ -32,7 +49,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -62,6 +79,75 @@ def make_results(points: int, cache: Path) -> tuple[Path, Path]:
             print(f"made {path} in {time.perf_counter() - t:.0f} s", flush=True)
         out[name] = path
     return out["big"], out["small"]
+
+
+def make_big_result(points: int, cache: Path, *, seed: int = 0) -> Path:
+    """A result file of ``points`` points as the pipeline writes one, without running it.
+
+    The scan is a synthetic 28-room floor (``jointseg.synth.make_floor``, what ``jointseg synth
+    --floor 28 --points N`` writes) with its ground truth; the pipeline's five fields are filled
+    with plausible values instead of a network run (minutes at 20 M points): ``segment`` is one
+    id per 0.6 m cell and ground-truth class, ``network_label`` the ground truth with 8 % of the
+    segments and 3 % of the points given a wrong class, ``fused_label`` the ground truth with
+    half of those segments still wrong (the point noise voted away), confidences random. The
+    file is written by ``jointseg.io.write_scan`` after ``Scan.with_fields`` as
+    ``jointseg.pipeline.outputs.annotate`` does, with a report holding the scores.
+    """
+    import numpy as np
+
+    from jointseg.classes import NUM_CLASSES
+    from jointseg.grouping import compact_ids
+    from jointseg.io import write_scan
+    from jointseg.metrics import evaluate
+    from jointseg.synth import make_floor
+
+    cache.mkdir(parents=True, exist_ok=True)
+    path = cache / f"viewer_floor28_{points}.ply"
+    if path.exists():
+        return path
+    t = time.perf_counter()
+    scan = make_floor(seed, rooms=28, points=points)
+    assert scan.labels is not None
+    truth = scan.labels.astype(np.int32)
+    rng = np.random.default_rng(seed)
+    cell = np.floor((scan.xyz - scan.xyz.min(axis=0)) / 0.6).astype(np.int64)
+    dims = cell.max(axis=0) + 1
+    key = ((truth.astype(np.int64) + 1) * dims[0] + cell[:, 0]) * dims[1] + cell[:, 1]
+    key = key * dims[2] + cell[:, 2]
+    _, segment = compact_ids(key)
+    segment = segment.astype(np.int32)
+    del cell, key
+    n_seg = int(segment.max()) + 1
+    wrong = rng.random(n_seg) < 0.08
+    other = rng.integers(0, NUM_CLASSES, n_seg).astype(np.int32)
+    still = wrong & (rng.random(n_seg) < 0.5)
+    network = np.where(wrong[segment], other[segment], truth)
+    noise = rng.random(len(scan)) < 0.03
+    network[noise] = rng.integers(0, NUM_CLASSES, int(noise.sum()))
+    fused = np.where(still[segment], other[segment], truth).astype(np.int32)
+    confidence = rng.uniform(0.4, 1.0, len(scan)).astype(np.float32)
+    confidence[noise] *= 0.5
+    result = scan.with_fields(
+        network_label=network.astype(np.int32),
+        network_confidence=confidence,
+        segment=segment,
+        fused_label=fused,
+        fused_confidence=rng.uniform(0.5, 1.0, len(scan)).astype(np.float32),
+    )
+    write_scan(result, path)
+    report = {
+        "points": len(scan),
+        "segments": n_seg,
+        "labels_changed": int(np.count_nonzero(network != fused)),
+        "metrics": {
+            "network": evaluate(truth, network).model_dump(),
+            "fused": evaluate(truth, fused).model_dump(),
+        },
+        "note": "synthetic fields, no network run (bench/viewer.py make_big_result)",
+    }
+    path.with_suffix(".report.json").write_text(json.dumps(report))
+    print(f"made {path} in {time.perf_counter() - t:.0f} s", flush=True)
+    return path
 
 
 def stage_jobs(big: Path, small: Path, folder: Path) -> None:
@@ -180,19 +266,258 @@ def measure(viewer: Any, browser: Any, job_id: str, repeats: int) -> dict[str, A
     }
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--points", type=int, default=1_000_000)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--cache", type=Path, default=ROOT / "bench" / "_cache")
-    args = parser.parse_args()
+# ---------------------------------------------------------------- big results (issue 16)
+def memory() -> dict[str, int]:
+    """This process's memory from /proc/self/status, bytes: resident (VmRSS), its anonymous and
+    file-backed parts, and the peak resident since start or the last ``reset-peak`` (VmHWM)."""
+    keys = {"VmRSS": "rss", "RssAnon": "anon", "RssFile": "file", "VmHWM": "peak"}
+    out = {}
+    for line in Path("/proc/self/status").read_text().splitlines():
+        name, _, value = line.partition(":")
+        if name in keys:
+            out[keys[name]] = int(value.split()[0]) * 1024
+    return out
 
+
+def serve_viewer(folder: Path, port: int) -> None:
+    """The viewer process of ``--part big``: a Viewer on ``folder`` taking one command per line
+    on stdin and answering each with one JSON line on stdout.
+
+    ``memory``: :func:`memory` after a garbage collection; ``reset-peak``: restart the peak;
+    ``sent JOB``: wait until the newest tab shows JOB and has handed every panel to its socket;
+    ``scene JOB``: wait until that tab's browser has handled every message (:func:`in_scene`);
+    ``views``: tabs connected; ``quit``.
+    """
+    # the answers get the process's stdout to themselves; anything printed goes to stderr
+    out: TextIO = os.fdopen(os.dup(sys.stdout.fileno()), "w")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+
+    from web.sources import DirectorySource
+    from web.viewer import Viewer
+
+    try:
+        from web.memory import TRIM_DELAY_S
+    except ImportError:  # measuring a viewer from before web.memory
+        TRIM_DELAY_S = 1.0
+
+    logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+    viewer = Viewer(DirectorySource(folder), port=port)
+    loads: list[float] = []
+    load = viewer.cache.load
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        t = time.perf_counter()
+        try:
+            return load(*args, **kwargs)
+        finally:
+            loads.append(time.perf_counter() - t)
+
+    viewer.cache.load = timed  # type: ignore[method-assign]
+    out.write(json.dumps({"port": viewer.port}) + "\n")
+    out.flush()
+    view: Any = None
+    for line in sys.stdin:
+        command, _, arg = line.strip().partition(" ")
+        reply: dict[str, Any] = {}
+        if command == "memory":
+            # after what the viewer does once a tab closes or a job is shown: viser drops what
+            # it was sending, and web.memory gives the freed heap back TRIM_DELAY_S later
+            time.sleep(TRIM_DELAY_S + 1.0)
+            gc.collect()
+            reply = memory()
+        elif command == "reset-peak":
+            Path("/proc/self/clear_refs").write_text("5")
+        elif command == "sent":
+            view = sent_by(viewer, arg, timeout=300)
+            data = view.data
+            reply = {
+                "t": time.monotonic(),
+                "load_s": loads[-1] if loads else float("nan"),
+                "shown": int(data.xyz.shape[0]),
+                "total": int(data.total_points),
+                "panels": len(view.visible_panels()),
+                "per_panel": max(
+                    sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == p.key)
+                    for p in view.visible_panels()
+                ),
+            }
+        elif command == "scene":
+            in_scene(view, timeout=300)
+            reply = {"t": time.monotonic()}
+            view = None
+        elif command == "views":
+            reply = {"views": len(viewer.views)}
+        elif command == "quit":
+            break
+        out.write(json.dumps(reply) + "\n")
+        out.flush()
+    viewer.stop()
+
+
+class ViewerProcess:
+    """``bench/viewer.py --serve-viewer FOLDER`` in a child process, and its commands."""
+
+    def __init__(self, folder: Path, port: int) -> None:
+        cmd = [sys.executable, __file__, "--serve-viewer", str(folder), "--port", str(port)]
+        self.process = subprocess.Popen(
+            cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        self.port = int(self._read()["port"])
+
+    def _read(self) -> dict[str, Any]:
+        assert self.process.stdout is not None
+        line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError(f"the viewer process ended (exit code {self.process.wait()})")
+        return dict(json.loads(line))
+
+    def ask(self, command: str) -> dict[str, Any]:
+        assert self.process.stdin is not None
+        self.process.stdin.write(command + "\n")
+        self.process.stdin.flush()
+        return self._read()
+
+    def wait_for_views(self, count: int, timeout: float = 30.0) -> None:
+        """Until ``count`` tabs are connected (a closed tab's view is dropped)."""
+        deadline = time.monotonic() + timeout
+        while self.ask("views")["views"] != count:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the viewer still has tabs other than {count}")
+            time.sleep(0.1)
+
+    def close(self) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write("quit\n")
+        self.process.stdin.close()
+        self.process.wait(60)
+
+
+def open_tab(viewer: ViewerProcess, browser: Any, job_id: str) -> tuple[Any, dict[str, float]]:
+    """A fresh tab requesting ``job_id`` by its link, as the job page's view link does; seconds
+    from the request until the viewer has loaded the result, handed every panel to the socket,
+    the browser has acknowledged the panels' bytes, and has them in its scene."""
+    from web.viewer import viewer_link
+
+    page = browser.new_page(viewport={"width": 1600, "height": 900})
+    before = socket_bytes(viewer.port)
+    t0 = time.monotonic()
+    page.goto(viewer_link(f"http://127.0.0.1:{viewer.port}", job_id))
+    sent = viewer.ask(f"sent {job_id}")
+    payload = 15 * sent["per_panel"] * sent["panels"]  # float32 xyz + rgb per point and panel
+    while grown(before, socket_bytes(viewer.port))[1] < payload:
+        time.sleep(0.02)
+    t_received = time.monotonic()
+    scene = viewer.ask(f"scene {job_id}")
+    return page, {
+        "load_s": sent["load_s"],
+        "sent_s": sent["t"] - t0,
+        "received_s": t_received - t0,
+        "scene_s": scene["t"] - t0,
+        "shown": sent["shown"],
+        "per_panel": sent["per_panel"],
+        "panels": sent["panels"],
+        "total": sent["total"],
+    }
+
+
+def measure_big(result: Path, browser: Any, opens: int, port: int) -> dict[str, Any]:
+    """One viewer process on three names of ``result`` (the cache keeps two, so every open
+    reads the file): memory before, with the first open's tab showing it, after closing that
+    tab, and after ``opens`` more tabs opened and closed in turn over the three names."""
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        names = [f"{result.stem}_{c}" for c in "abc"]
+        for name in names:
+            (folder / f"{name}.ply").symlink_to(result.resolve())
+            (folder / f"{name}.report.json").symlink_to(result.with_suffix(".report.json"))
+        viewer = ViewerProcess(folder, port)
+        try:
+            before = viewer.ask("memory")
+            viewer.ask("reset-peak")
+            page, first = open_tab(viewer, browser, names[0])
+            opened = viewer.ask("memory")
+            page.close()
+            viewer.wait_for_views(0)
+            closed = viewer.ask("memory")
+            runs, after = [first], [closed]
+            for i in range(opens):
+                page, run = open_tab(viewer, browser, names[(i + 1) % 3])
+                runs.append(run)
+                page.close()
+                viewer.wait_for_views(0)
+                after.append(viewer.ask("memory"))
+        finally:
+            viewer.close()
+    later = runs[1:] or runs
+    median = {k: statistics.median(r[k] for r in later) for k in first}
+    return {
+        "result": result.name,
+        "first": first,
+        "median": {k: v if k.endswith("_s") else int(v) for k, v in median.items()},
+        "worst_scene_s": max(r["scene_s"] for r in runs),
+        "before": before,
+        "opened": opened,
+        "closed": closed,
+        "after": after[-1],
+        "rss_after_each": [m["rss"] for m in after],
+    }
+
+
+def print_big(rows: list[dict[str, Any]], opens: int) -> None:
+    mb = 1 << 20
+    print()
+    print(
+        "| points | per panel (panels) | open | load (s) | sent (s) | received (s) | in scene (s) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        for kind in ("first", "median"):
+            m = r[kind]
+            label = "first" if kind == "first" else f"median of {opens} more"
+            print(
+                f"| {m['total']:,} | {m['per_panel']:,} ({m['panels']}) | {label} | "
+                f"{m['load_s']:.2f} | {m['sent_s']:.2f} | {m['received_s']:.2f} | "
+                f"{m['scene_s']:.2f} |"
+            )
+    print()
+    print(
+        "| points | RSS before (MB) | with it open (MB) | peak while opening (MB) "
+        f"| after closing (MB) | after {opens} more opens and closes (MB) | RSS after each (MB) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        each = " ".join(f"{v / mb:.0f}" for v in r["rss_after_each"])
+        print(
+            f"| {r['first']['total']:,} | {r['before']['rss'] / mb:.0f} | "
+            f"{r['opened']['rss'] / mb:.0f} | {r['opened']['peak'] / mb:.0f} | "
+            f"{r['closed']['rss'] / mb:.0f} | {r['after']['rss'] / mb:.0f} | {each} |"
+        )
+
+
+def run_big(sizes: list[int], opens: int, cache: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    results = [make_big_result(n, cache) for n in sizes]
+    rows = []
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            for result in results:
+                row = measure_big(result, browser, opens, port=8191)
+                rows.append(row)
+                print(f"{result.name}: {json.dumps(row)}", flush=True)
+        finally:
+            browser.close()
+    print_big(rows, opens)
+
+
+def run_pick(points: int, repeats: int, cache: Path) -> None:
     from playwright.sync_api import sync_playwright
 
     from web.sources import DirectorySource
     from web.viewer import Viewer
 
-    big, small = make_results(args.points, args.cache)
+    big, small = make_results(points, cache)
     rows = []
     with tempfile.TemporaryDirectory() as tmp, sync_playwright() as pw:
         folder = Path(tmp)
@@ -201,7 +526,7 @@ def main() -> None:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         try:
             for job_id in ("big_plain", "big_truth"):
-                row = measure(viewer, browser, job_id, args.repeats)
+                row = measure(viewer, browser, job_id, repeats)
                 rows.append(row)
                 print(f"{job_id}: {row}", flush=True)
         finally:
@@ -223,6 +548,27 @@ def main() -> None:
                 f"{m['bytes'] / 1e6:.1f} | {m['bytes'] / r['total']:.1f} | "
                 f"{m['bytes'] / (r['shown'] * r['panels']):.1f} |"
             )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--part", choices=("pick", "big", "both"), default="both")
+    parser.add_argument("--points", type=int, default=1_000_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--sizes", default="1000000,4000000,20000000")
+    parser.add_argument("--opens", type=int, default=6, help="opens after the first (--part big)")
+    parser.add_argument("--cache", type=Path, default=ROOT / "bench" / "_cache")
+    parser.add_argument("--serve-viewer", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--port", type=int, default=8191, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+
+    if args.serve_viewer is not None:
+        serve_viewer(args.serve_viewer, args.port)
+        return
+    if args.part in ("pick", "both"):
+        run_pick(args.points, args.repeats, args.cache)
+    if args.part in ("big", "both"):
+        run_big([int(n) for n in args.sizes.split(",")], args.opens, args.cache)
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ from jointseg.classes import NUM_CLASSES, UNLABELLED
 from jointseg.exceptions import JointsegError
 from web.layout import CameraPose, overview_camera, panel_offsets, title_position
 from web.legend import class_title, iou_html, legend_html, present_classes
+from web.memory import release_soon
 from web.scene import NETWORK, SEGMENTS, TRUTH, Panel, SceneCache, SceneData, group_points
 from web.sources import JobEntry, JobSource
 
@@ -183,6 +184,7 @@ class ClientView:
                 self._update_job_gui(data)
                 self.redraw(camera=True)
             self.client.flush()
+            release_soon()  # the previous job's clouds and the reading's buffers are freed
             log.info(
                 "client %d shows %s: loaded in %.2f s, sent in %.2f s",
                 self.client.client_id,

@@ -22,6 +22,7 @@ from urllib.parse import quote, unquote
 import viser
 
 from web.client_view import ClientView
+from web.memory import release_soon
 from web.scene import MAX_PANEL_POINTS, SceneCache
 from web.sources import JobSource
 
@@ -106,6 +107,7 @@ class Viewer:
             view = self.views.pop(client.client_id, None)
         if view is not None:
             view.data = None  # drop the tab's reference to its points at once
+        release_soon()  # and give the freed memory back once viser has dropped the tab
 
     def _request_path(self, client: viser.ClientHandle) -> str | None:
         """The path the client's websocket was opened on.

@@ -9,7 +9,7 @@ import numpy as np
 
 from jointseg.classes import CLASS_NAMES, PALETTE
 from web.legend import class_title, iou_html, legend_html, present_classes
-from web.scene import class_counts
+from web.result_reader import class_counts
 
 
 def test_legend_lists_present_classes_with_palette_and_counts() -> None:

@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
 
+import web
 from server.app import create_app
 from server.serve_parts import load_serve_parts
 from server.settings import Settings
@@ -77,3 +79,66 @@ def test_serve_finds_the_viewer_through_its_entry_point() -> None:
     paths = {route.path for router in parts.routers for route in router.routes}  # type: ignore[attr-defined]
     assert {"/", "/web/config.json"} <= paths
     assert [p.__module__ + "." + p.__name__ for p in parts.processes] == ["web.serve.run_viewer"]
+
+
+def test_the_job_page_shows_tiles_done_of_total_when_the_api_gives_them(browser: Any) -> None:
+    """In Debian's chromium, on the page's own files, with the API's answers made up: a tiled
+    job shows "tiles done/total" (and how many run), one with `tiles: null` or without the
+    field (a service from before tiles) shows no tiles note."""
+    static = Path(web.__file__).parent / "static"
+    base = "http://jobpage.test"
+    job = {
+        "filename": "floor.laz",
+        "format": "laz",
+        "points": 20_000_000,
+        "network": "randlanet",
+        "created_at": "2026-11-24T06:00:00Z",
+        "progress": 0.4,
+    }
+    items = [
+        {**job, "id": "a" * 32, "status": "running", "stage": "tiles 3/8",
+         "tiles": {"total": 8, "done": 3, "running": 2}},
+        {**job, "id": "b" * 32, "status": "succeeded", "stage": "write", "progress": 1.0,
+         "tiles": {"total": 8, "done": 8, "running": 0}},
+        {**job, "id": "c" * 32, "status": "running", "stage": "network", "tiles": None},
+        {**job, "id": "d" * 32, "status": "queued", "stage": None},  # no tiles field at all
+    ]  # fmt: skip
+    answers = {
+        "/": ("text/html", (static / "index.html").read_bytes()),
+        "/web/jobs.js": ("text/javascript", (static / "jobs.js").read_bytes()),
+        "/web/style.css": ("text/css", (static / "style.css").read_bytes()),
+        "/web/config.json": (
+            "application/json",
+            json.dumps({"viewer_port": 8080, "networks": ["randlanet"]}).encode(),
+        ),
+        "/v1/jobs": (
+            "application/json",
+            json.dumps({"items": items, "total": len(items)}).encode(),
+        ),
+    }
+
+    def answer(route: Any) -> None:
+        path = route.request.url[len(base) :].split("?")[0]
+        kind, body = answers[path]
+        route.fulfill(status=200, content_type=kind, body=body)
+
+    page = browser.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    try:
+        page.route(f"{base}/**", answer)
+        page.goto(f"{base}/")
+        page.wait_for_selector("tr[data-job-id]", timeout=15_000)
+
+        def progress(job_id: str) -> str:
+            return str(page.locator(f'tr[data-job-id="{job_id}"] [data-col=progress]').inner_text())
+
+        assert "tiles 3/8, 2 running" in progress("a" * 32)
+        assert "40%" in progress("a" * 32)
+        assert progress("a" * 32).count("tiles") == 1  # the stage "tiles 3/8" is not repeated
+        assert "tiles 8/8" in progress("b" * 32) and "running" not in progress("b" * 32)
+        assert "tiles" not in progress("c" * 32) and "network 40%" in progress("c" * 32)
+        assert "tiles" not in progress("d" * 32)
+        assert errors == []
+    finally:
+        page.close()

@@ -148,8 +148,22 @@ function newRow(job) {
   bar.max = 1;
   const label = document.createElement("span");
   label.className = "note";
-  cell(row, "progress").append(bar, " ", label);
+  const tiles = document.createElement("span");
+  tiles.className = "note tiles";
+  tiles.hidden = true;
+  cell(row, "progress").append(bar, " ", label, " ", tiles);
   return row;
+}
+
+// "tiles 3/8, 2 running" for a job whose scan was cut into tiles (the API's `tiles` object);
+// null for any other job, and for a service whose jobs have no `tiles` field at all.
+function tilesText(job) {
+  const tiles = job.tiles;
+  if (!tiles || typeof tiles !== "object") return null;
+  const { total, done, running } = tiles;
+  if (!Number.isFinite(total) || !Number.isFinite(done)) return null;
+  const busy = job.status === "running" && Number.isFinite(running) && running > 0;
+  return `tiles ${done}/${total}` + (busy ? `, ${running} running` : "");
 }
 
 function actionButton(text, onClick) {
@@ -198,10 +212,15 @@ function renderJob(job) {
   status.textContent = job.status;
   status.className = `status status-${job.status}`;
   status.title = job.error || "";
-  const [bar, , label] = cell(row, "progress").childNodes;
+  const [bar, , label, , tilesNote] = cell(row, "progress").childNodes;
   bar.value = job.progress;
-  const stage = job.status === "running" && job.stage ? `${job.stage} ` : "";
+  const tiles = tilesText(job);
+  // the tiles' own note replaces a stage that only repeats their count ("tiles 3/8")
+  const repeats = tiles !== null && /^tiles\b/.test(job.stage || "");
+  const stage = job.status === "running" && job.stage && !repeats ? `${job.stage} ` : "";
   label.textContent = job.status === "failed" ? job.error || "" : `${stage}${Math.round(job.progress * 100)}%`;
+  tilesNote.textContent = tiles || "";
+  tilesNote.hidden = tiles === null;
   renderActions(row, job);
   return row;
 }
