@@ -72,8 +72,8 @@ def segment(scan: Path, out: Path, tile_points: int) -> dict[str, float]:
     return {
         "wall": wall,
         "peak_gb": peak_kib / 1024**2,
-        "tiles": tiles["count"],
         **body["timings_s"],
+        "tile_count": tiles["count"],
     }
 
 
