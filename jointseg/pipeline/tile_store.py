@@ -18,7 +18,6 @@ Memory while preparing: one chunk, the sample and one tile's index list at a tim
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -450,10 +449,3 @@ def load_tile(workdir: Path, plan: TilePlan, index: int) -> tuple[Scan, np.ndarr
         if labels is not None and clab is not None:
             labels[a:b] = clab[local]
     return Scan(xyz, rgb, labels), wanted
-
-
-def write_json(path: Path, body: dict[str, object]) -> None:
-    """Write ``body`` as JSON through a temporary file, so readers never see half of it."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(body, indent=1))
-    os.replace(tmp, path)
