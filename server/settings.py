@@ -31,11 +31,12 @@ QueueKind = Literal["sqlite", "postgres", "redis"]
 GIB = 1 << 30
 MIB = 1 << 20
 
-#: The service's default point limit: what one worker is measured to handle untiled on the
-#: 24 GB / 2-core reference machine. `bench/big.py`: a 20 M-point floor through `jointseg segment`
-#: peaks at 8.7 GB (321 s); memory grows by ~0.45 GB per million points, so the library's
-#: 50 M-point default would need ~22 GB in one worker, and two such jobs would kill both.
-SERVICE_MAX_POINTS = 20_000_000
+#: The service's default point limit: what one worker is measured to handle on the 24 GB /
+#: 2-core reference machine. `bench/big.py`: a 50 M-point floor through `jointseg segment`, cut
+#: into 4 M-point tiles, peaks at 4.65 GB (449 s); untiled, 20 M points already took 8.7 GB.
+SERVICE_MAX_POINTS = 50_000_000
+#: The largest tile a job may ask for: a 20 M-point floor in 4 M-point tiles peaks at 3.0 GB.
+TILE_POINTS_LIMIT = 4_000_000
 
 
 class Settings(BaseSettings):
@@ -80,7 +81,14 @@ class Settings(BaseSettings):
         SERVICE_MAX_POINTS,
         gt=0,
         description="Largest scan accepted (422); the default is what one worker is measured to "
-        "handle untiled on 24 GB (bench/big.py).",
+        "handle in tiles (4.65 GB at 50 M points; bench/big.py).",
+    )
+    max_tile_points: int = Field(
+        TILE_POINTS_LIMIT,
+        gt=0,
+        description="Largest tiles.max_points a job config may ask for (422): a scan is held "
+        "in a worker's memory one tile at a time, so this, not max_points, sizes a worker "
+        "(about 3 GB at 4 M points a tile; bench/big.py).",
     )
     full_check_max_bytes: int = Field(
         64 * MIB,

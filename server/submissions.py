@@ -59,6 +59,12 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
         )
     if network.weights is not None:
         _check_weights(network.weights, settings)
+    if config.tiles.max_points > settings.max_tile_points:
+        raise ConfigError(
+            f"config.tiles.max_points: {config.tiles.max_points:,} is above this service's "
+            f"limit of {settings.max_tile_points:,} points per tile (the memory one worker "
+            f"is sized for)"
+        )
     return config
 
 

@@ -149,6 +149,11 @@ def test_bad_scan_gets_4xx_with_the_readers_message(locked, bad_files, case) -> 
             "dgcnn-s3dis-6 is not pulled on this service",
         ),
         (json.dumps([1, 2]), "config"),
+        (
+            json.dumps({"tiles": {"max_points": 50_000_000}}),
+            "config.tiles.max_points: 50,000,000 is above this service's limit",
+        ),
+        (json.dumps({"tiles": {"overlap": -1}}), "config.tiles.overlap"),
     ],
 )
 def test_bad_config_names_the_field(locked, scans, config, needle) -> None:
