@@ -37,25 +37,16 @@ from typing import Any
 import httpx
 import psutil
 
+sys.path.insert(0, str(Path(__file__).parent))
+from big import make_floor  # noqa: E402 - the same cached floors as bench/big.py
+
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
-#: Points per synthetic room of the floor (as bench/big.py).
-POINTS_PER_ROOM = 700_000
 
 
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
-
-
-def make_floor(points: int, folder: Path) -> Path:
-    """A cached synthetic floor of ``points`` points as LAZ, made by `jointseg synth`."""
-    path = folder / f"floor_{points}.laz"
-    if not path.exists():
-        rooms = min(32, max(2, round(points / POINTS_PER_ROOM)))
-        cmd = [JOINTSEG, "synth", "-o", str(path), "--floor", str(rooms), "--points", str(points)]
-        subprocess.run([*cmd, "--seed", "1"], check=True, capture_output=True, text=True)
-    return path
 
 
 class Memory:

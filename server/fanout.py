@@ -85,7 +85,7 @@ class FanOut:
         """
         # deferred: the tile store loads the geometry (open3d) when it plans
         from jointseg.io.stream import open_chunks
-        from jointseg.pipeline.tile_store import CHUNK_POINTS, prepare
+        from jointseg.pipeline.tiled import prepare_from
 
         work = self.storage.tiles_dir(claim.job_id, claim.attempt)
         _clear(work.parent)  # what earlier (interrupted) attempts left
@@ -97,14 +97,11 @@ class FanOut:
         # together label the scan as one run would)
         predictor, _ = self.runner.predictor(config)
         with open_chunks(upload, max_points=self.settings.max_points) as chunks:
-            plan = prepare(
-                chunks.chunks(CHUNK_POINTS),
-                chunks.count,
+            plan = prepare_from(
+                chunks,
                 work,
+                config,
                 source=claim.filename,
-                tiles=config.tiles,
-                geometry=config.geometry,
-                seed=config.seed,
                 predictor=predictor,
                 progress=progress,
                 cancel=token,

@@ -22,6 +22,7 @@ from jointseg.io.atomic import atomic_open
 from jointseg.network.registry import BACKENDS
 
 if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
+    from jointseg.metrics import SegmentationMetrics
     from jointseg.network.backends import Predictor
     from jointseg.pipeline.config import PipelineConfig
 
@@ -85,7 +86,6 @@ def segment_scan(
     with the same labels as a run on the whole scan on all but a few border points.
     """
     from jointseg.pipeline import annotate, load_predictor, report_body, run
-    from jointseg.pipeline.tables import format_score
 
     cfg = _config(config, network, weights)
     if tile_points is not None:
@@ -119,19 +119,7 @@ def segment_scan(
     body: dict[str, Any] = {"input": str(source), "output": str(output)}
     extra = {"load_network": load_s, "read": read_s, "write": write_s}
     body.update(report_body(scan, result, extra_timings=extra))
-    if report is not None:
-        _write_text(report, json.dumps(body, indent=2))
-    line = (
-        f"{len(scan):,} points -> {result.geometry.n_segments:,} segments, "
-        f"{body['labels_changed']:,} labels changed by fusion, "
-        f"{body['timings_s']['total']:.1f} s -> {output}"
-    )
-    if result.metrics is not None:
-        network, fused, oracle = (
-            format_score(result.metrics[k].miou) for k in ("network", "fused", "oracle")
-        )
-        line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
-    typer.echo(line, err=True)
+    _finish(body, report, output, result.metrics)
 
 
 def _segment_tiled(
@@ -145,7 +133,6 @@ def _segment_tiled(
     load_s: float,
 ) -> None:
     """`jointseg segment` for a scan above the tile size: tile by tile, streamed output."""
-    from jointseg.pipeline.tables import format_score
     from jointseg.pipeline.tiled import run_tiled
 
     with progress_bar() as progress:
@@ -161,17 +148,30 @@ def _segment_tiled(
     body: dict[str, Any] = {"input": str(source), "output": str(output), **done.report}
     body["timings_s"] = {"load_network": load_s, **body["timings_s"]}
     body["timings_s"]["total"] += load_s
+    _finish(body, report, output, done.merged.metrics, where=f" in {len(done.plan.tiles)} tiles")
+
+
+def _finish(
+    body: dict[str, Any],
+    report: Path | None,
+    output: Path,
+    metrics: dict[str, SegmentationMetrics] | None,
+    *,
+    where: str = "",
+) -> None:
+    """Write the report (when asked for) and print the one-line summary of a run."""
+    from jointseg.pipeline.tables import format_score
+
     if report is not None:
         _write_text(report, json.dumps(body, indent=2))
-    merged = done.merged
     line = (
-        f"{done.plan.points:,} points in {len(done.plan.tiles)} tiles -> "
-        f"{merged.n_segments:,} segments, {merged.labels_changed:,} labels changed by fusion, "
+        f"{body['points']:,} points{where} -> {body['segments']:,} segments, "
+        f"{body['labels_changed']:,} labels changed by fusion, "
         f"{body['timings_s']['total']:.1f} s -> {output}"
     )
-    if merged.metrics is not None:
+    if metrics is not None:
         network, fused, oracle = (
-            format_score(merged.metrics[k].miou) for k in ("network", "fused", "oracle")
+            format_score(metrics[k].miou) for k in ("network", "fused", "oracle")
         )
         line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)

@@ -27,7 +27,7 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.learned import normalised_entropy
-from jointseg.network.anchored import CropPlan
+from jointseg.network.anchored import CropPlan, crops_inside
 from jointseg.network.backends import Predictor, TilePredictor
 from jointseg.network.predict import NetworkResult
 from jointseg.pipeline.config import PipelineConfig
@@ -177,11 +177,7 @@ def run_tile(
         crops = read_crops(workdir, plan)
         lower = np.array(plan.lower)
         mine = np.flatnonzero(
-            np.all(
-                (crops.centres[:, :2] + lower[:2] >= box.core_min)
-                & (crops.centres[:, :2] + lower[:2] < box.core_max),
-                axis=1,
-            )
+            crops_inside(crops, lower, np.array(box.core_min), np.array(box.core_max))
         )
         tile_predictor = predictor
 

@@ -100,14 +100,11 @@ def run_tiled(
     try:
         with open_chunks(source, max_points=max_points) as chunks:
             t = time.perf_counter()
-            plan = prepare(
-                chunks.chunks(CHUNK_POINTS),
-                chunks.count,
+            plan = prepare_from(
+                chunks,
                 work,
+                config,
                 source=source.name,
-                tiles=config.tiles,
-                geometry=config.geometry,
-                seed=config.seed,
                 predictor=predictor,
                 progress=progress,
                 cancel=cancel,
@@ -139,6 +136,32 @@ def run_tiled(
             shutil.rmtree(work, ignore_errors=True)
     timings["total"] = time.perf_counter() - started
     return TiledRun(merged, plan, tiled_report(merged, plan, config, timings))
+
+
+def prepare_from(
+    chunks: ScanChunks,
+    workdir: Path,
+    config: PipelineConfig,
+    *,
+    source: str,
+    predictor: Predictor,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+) -> TilePlan:
+    """:func:`~jointseg.pipeline.tile_store.prepare` of an opened scan with the run's tile,
+    geometry and seed settings (the one-process run and the service's plan task)."""
+    return prepare(
+        chunks.chunks(CHUNK_POINTS),
+        chunks.count,
+        workdir,
+        source=source,
+        tiles=config.tiles,
+        geometry=config.geometry,
+        seed=config.seed,
+        predictor=predictor,
+        progress=progress,
+        cancel=cancel,
+    )
 
 
 def annotated_chunks(chunks: Iterator[Scan], merged: MergedScan) -> Iterator[Scan]:
