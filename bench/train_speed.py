@@ -1,12 +1,21 @@
-"""Training steps per second with and without the background batch builder, in one process.
+"""Training speed: batches per second from worker processes, and whole training steps per second.
 
-A step is: draw crops, augment, five KD-tree searches per crop (the data side), then forward,
-loss, backward and the optimiser (the network side). Runs the same steps twice on the same
-rooms, once building each batch in the loop and once a step ahead in a thread
-(`TrainConfig.prefetch`), and prints steps per second and the share of a plain step spent on
-data. Default data: the real S3DIS Area_6 rooms when ../shared holds them, else synthetic rooms.
+Two tables, both measured in this one process against a baseline from the same run:
 
-    .venv/bin/python bench/train_speed.py [--steps 20] [--threads 1] [--num-points 8192]
+1. **Batch building** (the data side alone: draw crops from the sources, density and cut
+   augmentation, grid sub-sampling, rotation, colour, and the five layers' KD-tree searches):
+   batches per second with 1, 2, ... worker processes, the consumer doing nothing else.
+2. **Training steps** (batches + forward, loss, backward, Adam): steps per second of the
+   trainer as it was before workers (batches built a step ahead in one thread of the training
+   process, neighbours searched on the CPU) against workers (and, on a GPU, neighbour searches
+   on the device), with the GPU's utilisation sampled from ``nvidia-smi`` while the steps run.
+
+Default data: the real S3DIS Area_6 and ScanNet scans when ../shared holds them, with synthetic
+rooms; else synthetic rooms only.
+
+    .venv/bin/python bench/train_speed.py [--workers 1 2] [--batch-size 2 --num-points 8192]
+    .venv/bin/python bench/train_speed.py --device cuda --batch-size 4 --num-points 16384 \\
+        --workers 4 8 12
 """
 
 from __future__ import annotations
@@ -14,81 +23,170 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
+import subprocess
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from jointseg.network.batches import Prefetcher, calls
-from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.registry import DEFAULT_WEIGHTS
-from jointseg.network.train_data import centre_weights
-from jointseg.network.training import TrainConfig, class_weights, draw_batch, load_clouds
+from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.train_batches import BatchMaker, batch_stream
+from jointseg.network.training import TrainConfig, _device_batch, _Run, training_data
 
-AREA6 = Path(__file__).resolve().parents[2] / "shared" / "data" / "s3dis_area6"
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def default_data() -> list[str]:
+    area6, scannet = SHARED / "s3dis_area6", SHARED / "scannet"
+    if area6.is_dir() and scannet.is_dir():
+        return [f"a6={area6}:0.45", f"scannet={scannet}:0.4", "synth:0.15"]
+    return ["synth"]
+
+
+class GpuSampler:
+    """GPU utilisation (%) sampled from nvidia-smi every half second while active."""
+
+    def __init__(self) -> None:
+        self.samples: list[float] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.5):
+            out = subprocess.run(
+                ["nvidia-smi", "--query-gpu=utilization.gpu", "--format=csv,noheader,nounits"],
+                capture_output=True,
+                text=True,
+                check=False,
+            )
+            if out.returncode == 0 and out.stdout.strip():
+                self.samples.append(float(out.stdout.split()[0]))
+
+    def __enter__(self) -> GpuSampler:
+        if shutil.which("nvidia-smi"):
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def mean(self) -> str:
+        return f"{np.mean(self.samples):.0f} %" if self.samples else "n/a"
+
+
+def batch_rate(maker: BatchMaker, workers: int, warmup: int) -> float:
+    """Batches per second from ``workers`` processes (0: built in this process, no thread)."""
+    with batch_stream(maker, workers=workers, prefetch=False, pin=False) as batches:
+        for i, _ in enumerate(batches):
+            if i == warmup - 1:
+                started = time.perf_counter()
+        return (len(maker) - warmup) / (time.perf_counter() - started)
+
+
+def step_rate(
+    maker: BatchMaker, run: _Run, workers: int, on_device: bool, warmup: int
+) -> tuple[float, str]:
+    """Training steps per second (and mean GPU utilisation) with the given batch source."""
+    maker.neighbours_on_device = on_device
+    loss_fn = torch.nn.CrossEntropyLoss(ignore_index=-1)
+    pin = run.device.type == "cuda"
+    stream = batch_stream(maker, workers=workers, prefetch=True, pin=pin)
+    with stream as batches, GpuSampler() as gpu:
+        for i, item in enumerate(batches):
+            if i == warmup:
+                if pin:
+                    torch.cuda.synchronize()
+                started = time.perf_counter()
+                gpu.samples.clear()
+            batch = _device_batch(item, run)
+            logits = run.model(
+                batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+            )
+            assert batch.labels is not None
+            loss = loss_fn(logits.reshape(-1, logits.shape[-1]), batch.labels.reshape(-1))
+            run.optimiser.zero_grad()
+            loss.backward()
+            run.optimiser.step()
+        if pin:
+            torch.cuda.synchronize()
+        return (len(maker) - warmup) / (time.perf_counter() - started), gpu.mean()
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=20)
-    parser.add_argument("--warmup", type=int, default=2)
-    parser.add_argument("--threads", type=int, default=max(1, len(os.sched_getaffinity(0)) - 1))
-    parser.add_argument("--num-points", type=int, default=8192)
+    parser.add_argument("--data", action="append", default=None)
+    parser.add_argument("--batches", type=int, default=40, help="batches per worker setting")
+    parser.add_argument("--steps", type=int, default=20, help="training steps per setting")
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--batch-size", type=int, default=2)
-    parser.add_argument("--data", default=str(AREA6) if AREA6.is_dir() else "synth")
+    parser.add_argument("--num-points", type=int, default=8192)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads for the steps")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--skip-steps", action="store_true", help="only the batch table")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(args.threads)
     cfg = TrainConfig(
-        data=args.data,
+        data=args.data or default_data(),
         out=Path("unused.pt"),
         num_points=args.num_points,
         batch_size=args.batch_size,
         synth_rooms=8,
-        synth_floors=0,
+        synth_floors=1,
+        val_rooms=0,
     )
-    model, _, _ = load_checkpoint(DEFAULT_WEIGHTS["randlanet"])
-    clouds, draw_p, _, text = load_clouds(cfg, model.config.grid_size)
-    weights = class_weights([c.labels for c in clouds if c.labels is not None])
-    centre_p = [centre_weights(c.labels, weights.numpy()) for c in clouds]
-    loss_fn = torch.nn.CrossEntropyLoss(weight=weights, ignore_index=-1)
-    optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
-    model.train()
-    print(f"# training speed, {text}; {args.batch_size} x {args.num_points} points per step,")
-    print(f"# torch threads {args.threads}, {os.cpu_count()} cores, {time.strftime('%F')}")
-    print()
-    print("| batches | steps/s | s per step | data s per step |")
+    model_cfg = RandLANetConfig(num_points=args.num_points)
+    data = training_data(cfg, model_cfg.grid_size)
+    maker = BatchMaker(
+        data.clouds,
+        data.draw_p,
+        data.centre_p,
+        model_cfg,
+        cfg.augmentation(),
+        batch_size=args.batch_size,
+        num_points=args.num_points,
+        seed=0,
+        count=args.batches + args.warmup,
+    )
+    gpu_name = torch.cuda.get_device_name() if args.device == "cuda" else "no GPU"
+    print(f"# training speed, {args.batch_size} x {args.num_points} points per batch, ")
+    print(f"# {len(os.sched_getaffinity(0))} cores, {gpu_name}, torch {torch.__version__}, ")
+    print(f"# sources: {', '.join(f'{s.spec.name} {s.share:.0%}' for s in data.sources)}, ")
+    print(f"# {time.strftime('%F %H:%M')}")
+    print("\n## batch building (no network)\n")
+    print("| workers | batches/s | vs 1 worker |")
+    print("|---|---|---|")
+    rates = {w: batch_rate(maker, w, args.warmup) for w in args.workers}
+    first = rates[args.workers[0]]
+    for w, rate in rates.items():
+        print(f"| {w} | {rate:.2f} | {rate / first:.2f}x |")
+    if args.skip_steps:
+        return
+    device = torch.device(args.device)
+    model = RandLANet(model_cfg).to(device)
+    run = _Run(model, device, torch.optim.Adam(model.parameters(), lr=1e-4), None, 0, [])  # type: ignore[arg-type]
+    maker.count = args.steps + args.warmup
+    print(f"\n## training steps on {args.device} (torch threads {args.threads})\n")
+    print("| batches | steps/s | vs before | GPU utilisation |")
     print("|---|---|---|---|")
-    rows = {}
-    for mode in ("in the loop", "a step ahead (thread)"):
-        rng = np.random.default_rng(0)
-        spent = [0.0]
-
-        def make(rng: np.random.Generator = rng, spent: list[float] = spent):
-            t = time.perf_counter()
-            batch = draw_batch(clouds, draw_p, centre_p, cfg, model.config, rng)
-            spent[0] += time.perf_counter() - t
-            return batch
-
-        n = args.steps + args.warmup
-        stream = Prefetcher(calls(make, n)) if "thread" in mode else calls(make, n)
-        for i, batch in enumerate(stream):
-            if i == args.warmup:
-                started, spent[0] = time.perf_counter(), 0.0
-            logits = model(
-                batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
-            )
-            loss = loss_fn(logits.reshape(-1, logits.shape[-1]), batch.labels.reshape(-1))
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-        seconds = (time.perf_counter() - started) / args.steps
-        rows[mode] = seconds
-        print(f"| {mode} | {1 / seconds:.2f} | {seconds:.3f} | {spent[0] / args.steps:.3f} |")
-    speedup = rows["in the loop"] / rows["a step ahead (thread)"]
-    print()
-    print(f"**{speedup:.2f}x** steps per second with the batch built a step ahead")
+    base, util = step_rate(maker, run, 0, False, args.warmup)
+    print(
+        f"| before: one thread in the training process, CPU KD-trees | {base:.2f} | 1.00x "
+        f"| {util} |"
+    )
+    settings = [(w, False) for w in args.workers]
+    if device.type == "cuda":
+        settings += [(w, True) for w in args.workers]
+    for w, on_device in settings:
+        rate, util = step_rate(maker, run, w, on_device, args.warmup)
+        where = "device knn" if on_device else "CPU KD-trees"
+        print(f"| {w} workers, {where} | {rate:.2f} | {rate / base:.2f}x | {util} |")
 
 
 if __name__ == "__main__":

@@ -68,28 +68,40 @@ def predict(
 
 
 def train(
-    data: str = typer.Option(
-        "synth",
-        help="'synth', a Stanford3dDataset_v1.2 folder, or a folder of labelled scans "
-        "(any format jointseg reads, with a label field).",
+    data: list[str] = typer.Option(
+        ["synth"],
+        help="A source, '[NAME=]PATH[:SHARE]' or 'synth[:SHARE]': a folder of labelled scans "
+        "(any format jointseg reads, with a label field) or a Stanford3dDataset_v1.2 folder; "
+        "repeat to mix sources (shares add up to 1; sources without one split the rest).",
     ),
-    out: Path = typer.Option(..., "--out", help="Checkpoint to write (after every epoch)."),
+    out: Path = typer.Option(
+        ..., "--out", help="Checkpoint to write after every epoch (the best one beside it)."
+    ),
     epochs: int = typer.Option(20, min=1),
     steps: int = typer.Option(100, min=1, help="Steps per epoch."),
     batch_size: int = typer.Option(2, min=1),
     num_points: int = typer.Option(16_384, min=1024, help="Points per training crop."),
     lr: float = typer.Option(0.01, min=0.0),
+    gamma: float = typer.Option(0.95, min=0.01, max=1.0, help="Learning-rate decay per epoch."),
     test_area: int = typer.Option(5, min=1, max=6, help="S3DIS area held out."),
     synth_rooms: int = typer.Option(40, min=1, help="Synthetic training rooms."),
     synth_floors: int = typer.Option(4, min=0, help="Synthetic training floors."),
+    synth_val_rooms: int = typer.Option(4, min=0, help="Synthetic validation rooms."),
     val_scan: list[str] = typer.Option(
-        [], help="Folder data: a scan (file stem) kept out of training for validation; repeat."
+        [],
+        help="Folder data: a scan (file stem, or a pattern such as 'scene0002_*' to keep every "
+        "re-scan of a room together) kept out of training for validation; repeat.",
     ),
     val_count: int = typer.Option(
-        5, min=1, help="Folder data without --val-scan: hold out this many scans."
+        5, min=1, help="Folder data without --val-scan: hold out this many scans per folder."
+    ),
+    exclude_scan: list[str] = typer.Option(
+        [],
+        help="Folder data: a scan (stem or pattern) kept out of training and validation, to "
+        "judge the result on; repeat.",
     ),
     synth_share: float = typer.Option(
-        0.0, min=0.0, max=0.95, help="Real data: share of crops from synthetic rooms."
+        0.0, min=0.0, max=0.95, help="Share of crops from synthetic rooms (or --data synth:S)."
     ),
     balanced: bool = typer.Option(True, help="Centre crops on rare classes more often."),
     channels: float = typer.Option(
@@ -98,19 +110,39 @@ def train(
     elastic: float = typer.Option(
         0.3, min=0.0, max=1.0, help="Share of crops given an elastic distortion."
     ),
+    density: float = typer.Option(
+        0.5, min=0.0, max=1.0, help="Share of crops sub-sampled at a random 1-6 cm first."
+    ),
+    partial: float = typer.Option(
+        0.15, min=0.0, max=1.0, help="Share of crops cut by a vertical plane (partial rooms)."
+    ),
+    slices: float = typer.Option(
+        0.1, "--slice", min=0.0, max=1.0, help="Share of crops keeping only a band above floor."
+    ),
+    tilt: float = typer.Option(3.0, min=0.0, max=15.0, help="Largest tilt in degrees."),
+    workers: int | None = typer.Option(
+        None,
+        min=0,
+        max=64,
+        help="Processes building batches (0: in this process; default: one per spare core, "
+        "at most 8). The batches are the same for any number.",
+    ),
     prefetch: bool = typer.Option(
-        True, help="Build the next batch in a background thread while the network runs."
+        True, help="Without workers: build the next batch in a background thread."
     ),
     threads: int | None = typer.Option(None, min=1, help="CPU threads for torch."),
     device: str | None = typer.Option(
-        None, help="cpu or cuda (default: cuda when present); crops stay on the CPU."
+        None,
+        help="cpu or cuda (default: cuda when present); on cuda the neighbour searches "
+        "run there too.",
     ),
     seed: int = typer.Option(0),
     init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
 ) -> None:
-    """Train RandLA-Net on synthetic rooms, S3DIS, or a folder of labelled scans (mixable)."""
-    from jointseg.network.training import TrainConfig
+    """Train RandLA-Net on synthetic rooms, S3DIS, folders of labelled scans, or a mix."""
+    from jointseg.network.augment import AugmentParams
+    from jointseg.network.training import TrainConfig, default_workers
     from jointseg.network.training import train as run_training
 
     cfg = TrainConfig(
@@ -121,26 +153,38 @@ def train(
         batch_size=batch_size,
         num_points=num_points,
         lr=lr,
+        gamma=gamma,
         test_area=test_area,
         synth_rooms=synth_rooms,
         synth_floors=synth_floors,
+        val_rooms=synth_val_rooms,
         seed=seed,
         resume=resume,
         init=init,
         val_scans=val_scan,
         val_count=val_count,
+        exclude_scans=exclude_scan,
         synth_share=synth_share,
         balanced_crops=balanced,
         num_channels_scale=channels,
         threads=threads,
         elastic=elastic,
+        augment=AugmentParams(density=density, partial=partial, slice=slices, tilt_degrees=tilt),
+        workers=default_workers() if workers is None else workers,
         prefetch=prefetch,
         device=device,
         command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )
     with progress_bar() as progress:
         path = run_training(cfg, progress=progress)
-    typer.echo(f"wrote {path}", err=True)
+    typer.echo(f"wrote {path} (best by validation: {best_path_of(path)})", err=True)
+
+
+def best_path_of(path: Path) -> Path:
+    """The best-by-validation checkpoint kept beside ``path``."""
+    from jointseg.network.training import best_path
+
+    return best_path(path)
 
 
 @models_app.command("list")

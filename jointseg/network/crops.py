@@ -6,7 +6,7 @@ stacked into tensors once.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +17,16 @@ from jointseg.network.randlanet import RandLANetConfig
 from jointseg.voxels import cell_majority, cell_means, voxel_index
 
 MIN_CROP = 1024
+
+#: Threads of each KD-tree search (-1: all cores). Batch-building worker processes set 1: the
+#: processes are the parallelism there, and threads of each would only contend.
+_search_threads = -1
+
+
+def set_search_threads(threads: int) -> None:
+    """Threads per KD-tree search in this process (-1 for all cores)."""
+    global _search_threads
+    _search_threads = threads
 
 
 @dataclass(frozen=True)
@@ -53,7 +63,7 @@ def crop_indices(cloud: GridCloud, centre: np.ndarray, num_points: int) -> np.nd
     n = len(cloud.xyz)
     if n <= num_points:
         return np.arange(n)
-    _, idx = cloud.tree.query(centre[None, :], k=num_points, workers=-1)
+    _, idx = cloud.tree.query(centre[None, :], k=num_points, workers=_search_threads)
     return np.asarray(idx).reshape(-1)
 
 
@@ -69,16 +79,25 @@ class Batch:
     indices: np.ndarray  # (B, N) indices into the GridCloud
     labels: torch.Tensor | None
 
-    def to(self, device: torch.device) -> Batch:
-        """Move every tensor to ``device``."""
+    def to(self, device: torch.device | str, *, non_blocking: bool = False) -> Batch:
+        """Move every tensor to ``device`` (without waiting, from pinned memory, when
+        ``non_blocking``)."""
+        return self._map(lambda t: t.to(device, non_blocking=non_blocking))
+
+    def pin_memory(self) -> Batch:
+        """Every tensor in page-locked memory, for fast asynchronous copies to a GPU (what a
+        DataLoader with ``pin_memory`` calls)."""
+        return self._map(lambda t: t.pin_memory())
+
+    def _map(self, move: Callable[[torch.Tensor], torch.Tensor]) -> Batch:
         return Batch(
-            self.features.to(device),
-            [t.to(device) for t in self.coords],
-            [t.to(device) for t in self.neighbours],
-            [t.to(device) for t in self.pools],
-            [t.to(device) for t in self.upsamples],
+            move(self.features),
+            [move(t) for t in self.coords],
+            [move(t) for t in self.neighbours],
+            [move(t) for t in self.pools],
+            [move(t) for t in self.upsamples],
             self.indices,
-            None if self.labels is None else self.labels.to(device),
+            None if self.labels is None else move(self.labels),
         )
 
 
@@ -140,13 +159,13 @@ def _layer_indices(
     for ratio in config.ratios:
         tree = cKDTree(current)
         k = min(config.k, len(current))
-        _, nb = tree.query(current, k=k, workers=-1)
+        _, nb = tree.query(current, k=k, workers=_search_threads)
         nb = np.asarray(nb).reshape(len(current), k)
         if k < config.k:
             nb = np.concatenate([nb, np.repeat(nb[:, :1], config.k - k, axis=1)], axis=1)
         keep = max(1, len(current) // ratio)
         sub = current[:keep]
-        _, up = cKDTree(sub).query(current, k=1, workers=-1)
+        _, up = cKDTree(sub).query(current, k=1, workers=_search_threads)
         coords.append(current)
         neighbours.append(nb.astype(np.int64))
         pools.append(nb[:keep].astype(np.int64))

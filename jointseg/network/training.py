@@ -1,10 +1,12 @@
-"""Training RandLA-Net on synthetic rooms, S3DIS's own folder layout, a folder of labelled scans,
-or real scans mixed with synthetic rooms.
+"""Training RandLA-Net on several sources at once: folders of labelled scans, S3DIS's own
+folder layout, synthetic rooms, each with a share of the crops.
 
-Weighted cross-entropy, Adam with exponential decay, augmentation (rotation about z, mirror,
-anisotropic scaling, elastic distortion, jitter, colour jitter and drop, point drop),
-class-balanced crop centres, batches built a step ahead in a background thread,
-validation mIoU per epoch, resumable checkpoints with a model card.
+Weighted cross-entropy (weights from the class mixture the crops have), Adam with exponential
+decay, augmentation for other sensors (:mod:`jointseg.network.augment`), class-balanced crop
+centres per source, batches built by worker processes (:mod:`jointseg.network.train_batches`),
+neighbour searches on the GPU when training on one, validation mIoU per source every epoch,
+resumable checkpoints with a model card, and the best checkpoint by validation kept beside the
+last.
 """
 
 from __future__ import annotations
@@ -14,19 +16,18 @@ import os
 import platform
 import time
 from collections.abc import Iterator
-from contextlib import nullcontext
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
-from scipy import ndimage
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
-from jointseg.network.batches import Prefetcher, calls
+from jointseg.network.augment import AugmentParams
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.crops import (
     MIN_CROP,
@@ -34,17 +35,27 @@ from jointseg.network.crops import (
     GridCloud,
     build_batch,
     crop_indices,
-    grid_subsample,
     pad_to,
 )
+from jointseg.network.knn import layer_indices
 from jointseg.network.predict import pick_device
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
-from jointseg.network.train_data import (
-    centre_weights,
-    load_folder,
-    mix_weights,
+from jointseg.network.train_batches import BatchMaker, CropBatch, batch_stream
+from jointseg.network.train_data import centre_weights
+from jointseg.network.train_sources import (
+    S3DIS_TERMS,
+    SCANNET_TERMS,
+    SYNTH_TERMS,
+    Source,
+    SourceOptions,
+    load_sources,
+    parse_source,
+    resolve_shares,
+    terms_for,
 )
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+
+__all__ = ["S3DIS_TERMS", "SCANNET_TERMS", "SYNTH_TERMS", "TrainConfig", "train"]
 
 log = logging.getLogger(__name__)
 STAGE = "train"
@@ -55,25 +66,35 @@ class TrainConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    data: str = Field(
-        "synth",
-        description="'synth', a Stanford3dDataset_v1.2 folder, or a folder of labelled scans",
+    data: list[str] = Field(
+        default_factory=lambda: ["synth"],
+        description="sources, each '[NAME=]PATH[:SHARE]' or 'synth[:SHARE]': a folder of "
+        "labelled scans or a Stanford3dDataset_v1.2 folder (see jointseg.network.train_sources)",
     )
     out: Path
     test_area: int = Field(5, ge=1, le=6, description="S3DIS area held out for validation")
     synth_rooms: int = Field(40, ge=1, description="synthetic training rooms")
     synth_floors: int = Field(4, ge=0, description="synthetic training floors")
     synth_points: int = Field(300_000, ge=10_000, description="points per synthetic room")
-    val_rooms: int = Field(4, ge=1, description="synthetic validation rooms")
+    val_rooms: int = Field(4, ge=0, description="synthetic validation rooms")
     val_scans: list[str] = Field(
         default_factory=list,
-        description="folder data: file stems kept out of training for validation",
+        description="folder data: file stems (or fnmatch patterns, e.g. 'scene0002_*' for every "
+        "re-scan of a room) kept out of training for validation",
     )
     val_count: int = Field(
         5, ge=1, description="folder data without val_scans: this many, in a name-hash order"
     )
+    exclude_scans: list[str] = Field(
+        default_factory=list,
+        description="folder data: file stems or patterns kept out of training and validation "
+        "alike (scans kept to judge the result)",
+    )
     synth_share: float = Field(
-        0.0, ge=0, lt=1, description="folder/S3DIS data: share of crops from synthetic rooms"
+        0.0,
+        ge=0,
+        lt=1,
+        description="share of crops from synthetic rooms (the same as adding 'synth:SHARE')",
     )
     balanced_crops: bool = Field(True, description="centre crops on rare classes more often")
     init: Path | None = Field(None, description="start from these weights (fresh optimiser)")
@@ -92,17 +113,52 @@ class TrainConfig(BaseModel):
     elastic: float = Field(
         0.3, ge=0, le=1, description="share of training crops given an elastic distortion"
     )
+    augment: AugmentParams = Field(
+        default_factory=AugmentParams,
+        description="density, partial-room, slice, tilt and colour augmentation",
+    )
     prefetch: bool = Field(
-        True, description="build the next batch in a background thread while the network runs"
+        True,
+        description="without workers: build the next batch in a background thread while the "
+        "network runs",
     )
-    device: str | None = Field(
+    workers: int = Field(
+        0,
+        ge=0,
+        le=64,
+        description="processes building batches (0: in the training process); the batches "
+        "are the same for any number",
+    )
+    neighbours_on_device: bool | None = Field(
         None,
-        description="'cpu' or 'cuda' (default: cuda when present); crops and neighbour search "
-        "stay on the CPU, a step ahead in the batch thread",
+        description="run the per-layer neighbour searches on the training device (default: "
+        "on CUDA devices, where they are faster than the workers' KD-trees)",
     )
+    device: str | None = Field(None, description="'cpu' or 'cuda' (default: cuda when present)")
     command: str | None = Field(
         None, description="the command line that started the run, kept in the model card"
     )
+
+    @field_validator("data", mode="before")
+    @classmethod
+    def _one_or_many(cls, value: object) -> object:
+        """A single source (as older cards store it) is a list of one."""
+        return [value] if isinstance(value, str) else value
+
+    def sources(self) -> list[str]:
+        """The source specs, with ``synth_share`` as a synthetic source when none is named."""
+        specs = list(self.data)
+        if self.synth_share > 0 and not any(parse_source(s).is_synth for s in specs):
+            real = [parse_source(s) for s in specs]
+            if any(r.share is not None for r in real):
+                raise ConfigError("give synth a share with --data synth:SHARE, not synth_share")
+            specs = [f"{r.name}={r.path}:{(1 - self.synth_share) / len(real):.6g}" for r in real]
+            specs.append(f"synth:{self.synth_share:.6g}")
+        return specs
+
+    def augmentation(self) -> AugmentParams:
+        """The augmentation settings, ``elastic`` included."""
+        return self.augment.model_copy(update={"elastic": self.elastic})
 
 
 def _model_config(cfg: TrainConfig) -> RandLANetConfig:
@@ -119,167 +175,80 @@ def _model_config(cfg: TrainConfig) -> RandLANetConfig:
     )
 
 
-def class_weights(labels: list[np.ndarray]) -> torch.Tensor:
+def weights_from_frequency(freq: np.ndarray) -> torch.Tensor:
     """RandLA-Net's weights 1 / (frequency + 0.02), so rare classes are not ignored."""
+    return torch.tensor(1.0 / (np.asarray(freq) + 0.02), dtype=torch.float32)
+
+
+def class_weights(labels: list[np.ndarray]) -> torch.Tensor:
+    """:func:`weights_from_frequency` of the labels' class frequencies (-1 left out)."""
     counts = np.bincount(np.concatenate([lab[lab >= 0] for lab in labels]), minlength=NUM_CLASSES)
-    freq = counts / max(counts.sum(), 1)
-    return torch.tensor(1.0 / (freq + 0.02), dtype=torch.float32)
+    return weights_from_frequency(counts / max(counts.sum(), 1))
 
 
-def _synthetic(cfg: TrainConfig, grid: float) -> tuple[list[GridCloud], list[GridCloud], str]:
-    from jointseg.synth import make_floor, make_room
-
-    train: list[GridCloud] = []
-    val: list[GridCloud] = []
-    for i in range(cfg.synth_rooms):
-        scan = make_room(1000 + i, points=cfg.synth_points, shape="L" if i % 3 == 2 else "box")
-        train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-    for i in range(cfg.synth_floors):
-        scan = make_floor(3000 + i, points=cfg.synth_points * 3)
-        train.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-    for i in range(cfg.val_rooms):
-        scan = make_room(2000 + i, points=cfg.synth_points, shape="L" if i % 2 else "box")
-        val.append(grid_subsample(scan.xyz, scan.rgb, scan.labels, grid))
-    text = (
-        f"jointseg.synth: {cfg.synth_rooms} rooms (seeds 1000+, box and L, random yaw, "
-        f"{cfg.synth_points} points) and {cfg.synth_floors} floors (seeds 3000+)"
+def source_options(cfg: TrainConfig, grid: float) -> SourceOptions:
+    """How :func:`load_sources` reads the configuration's sources."""
+    return SourceOptions(
+        grid=grid,
+        val_patterns=list(cfg.val_scans),
+        exclude_patterns=list(cfg.exclude_scans),
+        val_count=cfg.val_count,
+        test_area=cfg.test_area,
+        synth_rooms=cfg.synth_rooms,
+        synth_floors=cfg.synth_floors,
+        synth_val_rooms=cfg.val_rooms,
+        synth_points=cfg.synth_points,
     )
-    return train, val, text
 
 
-def load_clouds(
-    cfg: TrainConfig, grid: float
-) -> tuple[list[GridCloud], np.ndarray, list[GridCloud], str]:
-    """Training clouds, their draw probabilities, validation clouds and a card description.
+@dataclass
+class TrainingData:
+    """What the steps draw from: every source's clouds, their draw and centre probabilities, and
+    the loss weights of the mixture."""
 
-    Validation is on real scans whenever there are any; synthetic rooms mixed into a real
-    source only train.
-    """
-    if cfg.data == "synth":
-        train, val, text = _synthetic(cfg, grid)
-        return (
-            train,
-            mix_weights(len(train), 0, 0.0),
-            val,
-            text + "; validation rooms seeds 2000+; no real scans",
-        )
-    root = Path(cfg.data)
-    if root.is_dir() and any(root.glob("Area_*/*/Annotations")):
-        train, val, text = _load_s3dis(root, cfg.test_area, grid)
-    else:
-        train, val, train_names, val_names = load_folder(
-            root, grid, val=cfg.val_scans, val_count=cfg.val_count
-        )
-        text = (
-            f"{len(train_names)} labelled scans from {root} ({', '.join(train_names)}); "
-            f"validation (never trained on): {', '.join(val_names)}"
-        )
-    n_real = len(train)
-    if cfg.synth_share > 0:
-        synth, _, synth_text = _synthetic(cfg, grid)
-        train += synth
-        text += f"; mixed with {synth_text} at {cfg.synth_share:.0%} of the crops"
-    return train, mix_weights(n_real, len(train) - n_real, cfg.synth_share), val, text
+    sources: list[Source]
+    clouds: list[GridCloud]
+    draw_p: np.ndarray
+    centre_p: list[np.ndarray | None]
+    loss_weights: torch.Tensor
+    description: str
 
 
-def _load_s3dis(
-    root: Path, test_area: int, grid: float
-) -> tuple[list[GridCloud], list[GridCloud], str]:
-    from jointseg.io import read_scan
-
-    rooms = sorted(root.glob("Area_*/*/Annotations"))
-    if not rooms:
-        raise ConfigError(
-            f"{root}: no Area_N/<room>/Annotations folders (expected the "
-            "Stanford3dDataset_v1.2_Aligned_Version layout)"
-        )
-    train: list[GridCloud] = []
-    val: list[GridCloud] = []
-    for ann in rooms:
-        scan = read_scan(ann.parent)
-        cloud = grid_subsample(scan.xyz, scan.rgb, scan.labels, grid)
-        (val if ann.parent.parent.name == f"Area_{test_area}" else train).append(cloud)
-    return train, val, f"S3DIS at {root}, Area_{test_area} held out ({len(train)} rooms)"
-
-
-#: Elastic distortion: a random displacement field on a grid of this pitch (m), smoothed over
-#: neighbouring grid cells, scaled to about this many metres of displacement.
-ELASTIC_PITCH = 0.4
-ELASTIC_MAGNITUDE = 0.02
+def training_data(cfg: TrainConfig, grid: float) -> TrainingData:
+    """Load the sources; class statistics per source: crop centres are balanced within each
+    source, and the loss weights follow the class mixture the crops actually have."""
+    sources = load_sources(cfg.sources(), source_options(cfg, grid))
+    clouds: list[GridCloud] = []
+    draw: list[float] = []
+    centre_p: list[np.ndarray | None] = []
+    mixture = np.zeros(NUM_CLASSES)
+    for src in sources:
+        freq = src.class_frequency
+        mixture += src.share * freq
+        weights = weights_from_frequency(freq).numpy()
+        for cloud in src.train:
+            clouds.append(cloud)
+            draw.append(src.share / len(src.train))
+            assert cloud.labels is not None
+            centre_p.append(centre_weights(cloud.labels, weights) if cfg.balanced_crops else None)
+    text = "; ".join(f"{s.spec.name} ({s.share:.0%} of crops): {s.description}" for s in sources)
+    draw_p = np.asarray(draw) / np.sum(draw)
+    return TrainingData(sources, clouds, draw_p, centre_p, weights_from_frequency(mixture), text)
 
 
-def elastic_distortion(
-    xyz: np.ndarray,
-    rng: np.random.Generator,
-    pitch: float = ELASTIC_PITCH,
-    magnitude: float = ELASTIC_MAGNITUDE,
-) -> np.ndarray:
-    """Points moved by a smooth random field: walls bow and tables tilt a little, as in real
-    scans whose registration is not perfect (grid noise, box-smoothed, trilinearly sampled)."""
-    lo = xyz.min(axis=0) - pitch
-    shape = tuple(int(n) for n in np.ceil((xyz.max(axis=0) - lo) / pitch) + 3)
-    moved = xyz.astype(np.float32).copy()
-    coords = ((xyz - lo) / pitch).T
-    for axis in range(3):
-        field = ndimage.uniform_filter(rng.normal(0, 1, shape), size=3, mode="nearest")
-        field *= magnitude / max(float(field.std()), 1e-6)
-        moved[:, axis] += ndimage.map_coordinates(field, coords, order=1, mode="nearest")
-    return moved
-
-
-def augment(
-    xyz: np.ndarray, rgb: np.ndarray, rng: np.random.Generator, *, elastic: float = 0.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation about z, a mirror half of the time, scaling 0.9-1.1 per axis, an elastic
-    distortion for a share ``elastic`` of the crops, 1 mm jitter, brightness, per-channel gain
-    and colour noise; one crop in ten loses its colour (grey), so a scan with poor colour does
-    not throw the network."""
-    theta = rng.uniform(0, 2 * np.pi)
-    c, s = np.cos(theta), np.sin(theta)
-    centre = xyz.mean(axis=0)
-    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], dtype=np.float32)
-    scale = rng.uniform(0.9, 1.1, 3)
-    if rng.random() < 0.5:
-        scale[0] = -scale[0]
-    xyz = (xyz - centre) @ rot.T * scale.astype(np.float32) + centre
-    if elastic and rng.random() < elastic:
-        xyz = elastic_distortion(xyz, rng)
-    xyz = xyz + rng.normal(0, 0.001, xyz.shape).astype(np.float32)
-    rgb = rgb * rng.uniform(0.8, 1.2) * rng.uniform(0.95, 1.05, 3) + rng.normal(0, 0.02, rgb.shape)
-    if rng.random() < 0.1:
-        rgb = np.repeat(rgb.mean(axis=1, keepdims=True), 3, axis=1)
-    return xyz.astype(np.float32), np.clip(rgb, 0, 1).astype(np.float32)
-
-
-def random_crop(
-    cloud: GridCloud,
-    num_points: int,
-    rng: np.random.Generator,
-    *,
-    train: bool,
-    centre_p: np.ndarray | None = None,
-    elastic: float = 0.0,
-):
-    """A shuffled crop around a random point (drawn with ``centre_p`` when given), augmented
-    for training, where up to a tenth of its points are also dropped (then re-padded)."""
-    centre = (
-        rng.choice(len(cloud.xyz), p=centre_p)
-        if centre_p is not None
-        else rng.integers(len(cloud.xyz))
-    )
+def validation_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator):
+    """A crop of the validation cloud around a random point, as inference sees it."""
+    centre = rng.integers(len(cloud.xyz))
     idx = crop_indices(cloud, cloud.xyz[centre], num_points)
-    if train and len(idx) > MIN_CROP:
-        idx = idx[rng.random(len(idx)) >= rng.uniform(0, 0.1)]
     idx = rng.permutation(pad_to(idx, min(num_points, max(len(idx), MIN_CROP)), rng))
-    xyz, rgb = cloud.xyz[idx], cloud.rgb[idx]
-    if train:
-        xyz, rgb = augment(xyz, rgb, rng, elastic=elastic)
     assert cloud.labels is not None
-    return xyz, rgb, cloud.labels[idx], idx
+    return cloud.xyz[idx], cloud.rgb[idx], cloud.labels[idx], idx
 
 
 def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> float | None:
     """mIoU on deterministic crops of each validation cloud (about twice its points)."""
+    if not clouds:
+        return None
     rng = np.random.default_rng(12345)
     gts, preds = [], []
     device = next(model.parameters()).device
@@ -287,7 +256,7 @@ def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> flo
     with torch.no_grad():
         for cloud in clouds:
             for _ in range(max(2, int(np.ceil(2 * len(cloud.xyz) / cfg.num_points)))):
-                xyz, rgb, lab, idx = random_crop(cloud, cfg.num_points, rng, train=False)
+                xyz, rgb, lab, idx = validation_crop(cloud, cfg.num_points, rng)
                 batch = build_batch([(xyz, rgb, lab, idx)], model.config).to(device)
                 logits = model(
                     batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
@@ -298,19 +267,89 @@ def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> flo
     return evaluate(np.concatenate(gts), np.concatenate(preds)).miou
 
 
+def validate_sources(
+    model: RandLANet, sources: list[Source], cfg: TrainConfig
+) -> tuple[float | None, dict[str, float | None]]:
+    """Validation mIoU per source, and the score that picks the best checkpoint: the mean over
+    the real sources that have validation scans (over synth when there is no real one)."""
+    per = {s.spec.name: validate(model, s.val, cfg) for s in sources}
+    real = [per[s.spec.name] for s in sources if not s.spec.is_synth]
+    pool = [v for v in real if v is not None] or [v for v in per.values() if v is not None]
+    return (float(np.mean(pool)) if pool else None), per
+
+
+def default_workers() -> int:
+    """Batch-building processes by default: one per core beside the training process, at most
+    8 (on a GPU machine the batches are the bottleneck; on two cores one worker)."""
+    return max(0, min(8, len(os.sched_getaffinity(0)) - 1))
+
+
+def best_path(out: Path) -> Path:
+    """Where the best checkpoint by validation is kept, beside the last one."""
+    return out.with_name(f"{out.stem}.best{out.suffix}")
+
+
 def train(
     cfg: TrainConfig, progress: ProgressFn | None = None, cancel: CancelToken | None = None
 ) -> Path:
-    """Train, writing ``cfg.out`` after every epoch (with optimiser state, for ``resume``).
+    """Train, writing ``cfg.out`` after every epoch (with optimiser state, for ``resume``) and
+    :func:`best_path` whenever the validation score is the best so far.
 
     Returns
     -------
-    Path of the checkpoint.
+    Path of the last checkpoint.
     """
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
-    rng = np.random.default_rng(cfg.seed)
+    cfg.out.parent.mkdir(parents=True, exist_ok=True)
+    run = _start(cfg)
+    report(progress, STAGE, 0.0)
+    data = training_data(cfg, run.model.config.grid_size)
+    if cfg.init is not None:
+        data.description += f"; started from {cfg.init.name}"
+    on_device = (
+        cfg.neighbours_on_device
+        if cfg.neighbours_on_device is not None
+        else run.device.type == "cuda"
+    )
+    maker = BatchMaker(
+        clouds=data.clouds,
+        draw_p=data.draw_p,
+        centre_p=data.centre_p,
+        model_config=run.model.config,
+        aug=cfg.augmentation(),
+        batch_size=cfg.batch_size,
+        num_points=cfg.num_points,
+        seed=cfg.seed,
+        first=run.start_epoch * cfg.steps_per_epoch,
+        count=(cfg.epochs - run.start_epoch) * cfg.steps_per_epoch,
+        neighbours_on_device=on_device,
+    )
+    loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights.to(run.device), ignore_index=-1)
+    run.model.train()
+    stream = batch_stream(
+        maker, workers=cfg.workers, prefetch=cfg.prefetch, pin=run.device.type == "cuda"
+    )
+    with stream as batches:
+        _train_epochs(cfg, run, loss_fn, batches, data, progress, cancel)
+    return cfg.out
+
+
+@dataclass
+class _Run:
+    """The model and optimiser of a run, where it starts and what it has recorded so far."""
+
+    model: RandLANet
+    device: torch.device
+    optimiser: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    start_epoch: int
+    history: list[dict]
+
+
+def _start(cfg: TrainConfig) -> _Run:
+    """A fresh, initialised or resumed model with its optimiser, on the training device."""
     history: list[dict] = []
     start_epoch = 0
     body: dict | None = None
@@ -324,7 +363,6 @@ def train(
         model, _, _ = load_checkpoint(cfg.init)
     else:
         model = RandLANet(_model_config(cfg))
-    model_cfg = model.config
     device = pick_device(cfg.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"device {cfg.device!r}: this machine's torch sees no CUDA device")
@@ -334,53 +372,7 @@ def train(
     if body is not None and "optimizer" in body:
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
-    report(progress, STAGE, 0.0)
-    train_clouds, draw_p, val_clouds, data_text = load_clouds(cfg, model_cfg.grid_size)
-    if cfg.init is not None:
-        data_text += f"; started from {cfg.init.name}"
-    weights = class_weights([c.labels for c in train_clouds if c.labels is not None])
-    centre_p = [
-        centre_weights(c.labels, weights.numpy())
-        if cfg.balanced_crops and c.labels is not None
-        else None
-        for c in train_clouds
-    ]
-    loss_fn = torch.nn.CrossEntropyLoss(weight=weights.to(device), ignore_index=-1)
-    model.train()
-
-    def make() -> Batch:
-        return draw_batch(train_clouds, draw_p, centre_p, cfg, model_cfg, rng).to(device)
-
-    count = (cfg.epochs - start_epoch) * cfg.steps_per_epoch
-    source = calls(make, count)
-    batches = Prefetcher(source) if cfg.prefetch else nullcontext(source)
-    with batches as stream:
-        _train_epochs(
-            cfg,
-            model,
-            optimiser,
-            scheduler,
-            loss_fn,
-            stream,
-            val_clouds,
-            data_text,
-            history,
-            start_epoch,
-            progress,
-            cancel,
-        )
-    return cfg.out
-
-
-#: What a network trained on S3DIS-derived rooms carries with it (S3DIS's terms of use).
-S3DIS_TERMS = (
-    "trained on data derived from the Stanford Large-Scale 3D Indoor Spaces Dataset (S3DIS; "
-    "Armeni et al., CVPR 2016), whose terms allow non-commercial research and educational use "
-    "and ask users to cite the dataset paper; weights derived from it carry the same terms"
-)
-
-
-SYNTH_TERMS = "synthetic rooms only (jointseg.synth); no third-party data"
+    return _Run(model, device, optimiser, scheduler, start_epoch, history)
 
 
 def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
@@ -388,9 +380,12 @@ def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
     validation figures and the data's terms of use."""
     scores = [(h["val_miou"], h["epoch"]) for h in history if h.get("val_miou") is not None]
     best = max(scores) if scores else None
-    real = cfg.data != "synth"
+    specs = [parse_source(s) for s in cfg.sources()]
+    shares = resolve_shares(specs)
+    real = any(not s.is_synth for s in specs)
     device = pick_device(cfg.device)
     gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else "no GPU"
+    terms = list(dict.fromkeys(terms_for(s) for s in specs))
     return {
         "hardware": (
             f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, "
@@ -401,60 +396,54 @@ def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
             "last_miou": scores[-1][0] if scores else None,
             "best_miou": best[0] if best else None,
             "best_epoch": best[1] if best else None,
-            "what": "mIoU on random crops of the held-out scans named in 'data'"
+            "what": "mean over the real sources of mIoU on random crops of their held-out "
+            "scans (per source in the history's val_by_source)"
             if real
             else "mIoU on random crops of held-out synthetic rooms",
         },
-        "synthetic_share": cfg.synth_share if real else 1.0,
-        "terms": S3DIS_TERMS
-        if real
-        else "synthetic rooms only (jointseg.synth); no third-party data",
+        "sources": {s.name: round(share, 4) for s, share in zip(specs, shares, strict=True)},
+        "synthetic_share": sum(share for s, share in zip(specs, shares, strict=True) if s.is_synth),
+        "terms": "; ".join(terms),
     }
 
 
-def draw_batch(
-    clouds: list[GridCloud],
-    draw_p: np.ndarray,
-    centre_p: list[np.ndarray | None],
-    cfg: TrainConfig,
-    model_cfg: RandLANetConfig,
-    rng: np.random.Generator,
-) -> Batch:
-    """One training batch: ``cfg.batch_size`` augmented crops from rooms drawn by ``draw_p``,
-    cut to a common size, with their per-layer neighbour indices."""
-    picks = rng.choice(len(clouds), size=cfg.batch_size, p=draw_p)
-    crops = [
-        random_crop(
-            clouds[k], cfg.num_points, rng, train=True, centre_p=centre_p[k], elastic=cfg.elastic
-        )
-        for k in picks
-    ]
-    size = min(len(c[0]) for c in crops)
-    crops = [(x[:size], r[:size], lab[:size], i[:size]) for x, r, lab, i in crops]
-    return build_batch(crops, model_cfg)
+def _device_batch(item: Batch | CropBatch, run: _Run) -> Batch:
+    """A batch on the training device; crops sent without neighbours get them there."""
+    if isinstance(item, Batch):
+        return item.to(run.device, non_blocking=True)
+    xyz = item.xyz.to(run.device, non_blocking=True)
+    rgb = item.rgb.to(run.device, non_blocking=True)
+    centred = xyz.clone()
+    centred[:, :, :2] -= centred[:, :, :2].mean(dim=1, keepdim=True)
+    coords, neighbours, pools, ups = layer_indices(centred, run.model.config)
+    return Batch(
+        torch.cat([centred, rgb], dim=2),
+        coords,
+        neighbours,
+        pools,
+        ups,
+        np.empty((0, 0), dtype=np.int64),
+        item.labels.to(run.device, non_blocking=True),
+    )
 
 
 def _train_epochs(
     cfg: TrainConfig,
-    model: RandLANet,
-    optimiser: torch.optim.Optimizer,
-    scheduler: torch.optim.lr_scheduler.LRScheduler,
+    run: _Run,
     loss_fn: torch.nn.Module,
-    batches: Iterator[Batch],
-    val_clouds: list[GridCloud],
-    data_text: str,
-    history: list[dict],
-    start_epoch: int,
+    batches: Iterator[Batch | CropBatch],
+    data: TrainingData,
     progress: ProgressFn | None,
     cancel: CancelToken | None,
 ) -> None:
-    """The epochs from ``start_epoch``: steps on ``batches``, validation, a checkpoint each."""
+    """The epochs from the run's start: steps on ``batches``, validation, checkpoints."""
     total_steps = cfg.epochs * cfg.steps_per_epoch
-    for epoch in range(start_epoch, cfg.epochs):
+    model, optimiser = run.model, run.optimiser
+    for epoch in range(run.start_epoch, cfg.epochs):
         started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
-            batch = next(batches)
+            batch = _device_batch(next(batches), run)
             logits = model(
                 batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
             )
@@ -468,38 +457,54 @@ def _train_epochs(
             hits += int((logits.detach().argmax(-1) == batch.labels)[known].sum())
             seen += int(known.sum())
             report(progress, STAGE, (epoch * cfg.steps_per_epoch + step + 1) / total_steps)
-        scheduler.step()
-        miou = validate(model, val_clouds, cfg)
-        history.append(
+        train_seconds = time.perf_counter() - started
+        run.scheduler.step()
+        miou, per_source = validate_sources(model, data.sources, cfg)
+        run.history.append(
             {
                 "epoch": epoch + 1,
                 "loss": float(np.mean(losses)),
                 "train_accuracy": hits / max(seen, 1),
                 "val_miou": miou,
+                "val_by_source": per_source,
                 "seconds": time.perf_counter() - started,
+                "steps_per_second": cfg.steps_per_epoch / max(train_seconds, 1e-9),
             }
         )
         log.info(
-            "epoch %d loss %.3f train accuracy %.3f val mIoU %s",
+            "epoch %d loss %.3f train accuracy %.3f val mIoU %s %s",
             epoch + 1,
             np.mean(losses),
             hits / max(seen, 1),
             miou,
+            per_source,
         )
-        card = {
-            "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
-            "classes": list(CLASS_NAMES),
-            "data": data_text,
-            "epochs": epoch + 1,
-            "steps": (epoch + 1) * cfg.steps_per_epoch,
-            "history": history,
-            "train_config": cfg.model_dump(mode="json"),
-            "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            **card_facts(cfg, history),
-        }
-        extra = {
-            "optimizer": optimiser.state_dict(),
-            "scheduler": scheduler.state_dict(),
-            "epoch": epoch + 1,
-        }
-        save_checkpoint(cfg.out, model, card, extra=extra)
+        _save(cfg, run, data, epoch + 1)
+
+
+def _save(cfg: TrainConfig, run: _Run, data: TrainingData, epochs: int) -> None:
+    """The last checkpoint, and the best one when this epoch's validation is the best yet."""
+    card = {
+        "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
+        "classes": list(CLASS_NAMES),
+        "data": data.description,
+        "class_frequency": {
+            s.spec.name: [round(float(f), 5) for f in s.class_frequency] for s in data.sources
+        },
+        "epochs": epochs,
+        "steps": epochs * cfg.steps_per_epoch,
+        "history": run.history,
+        "train_config": cfg.model_dump(mode="json"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        **card_facts(cfg, run.history),
+    }
+    extra = {
+        "optimizer": run.optimiser.state_dict(),
+        "scheduler": run.scheduler.state_dict(),
+        "epoch": epochs,
+    }
+    save_checkpoint(cfg.out, run.model, card, extra=extra)
+    scores = [h["val_miou"] for h in run.history if h.get("val_miou") is not None]
+    latest = run.history[-1].get("val_miou")
+    if latest is not None and latest >= max(scores):
+        save_checkpoint(best_path(cfg.out), run.model, {**card, "best_of_run": True}, extra=extra)

@@ -12,7 +12,6 @@ from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.train_data import (
     centre_weights,
     labelled_scan_files,
-    mix_weights,
     split_validation,
     stable_order,
 )
@@ -48,12 +47,6 @@ def test_a_folder_without_scans_is_refused(tmp_path) -> None:
         labelled_scan_files(tmp_path / "missing")
 
 
-def test_mix_weights_give_the_synthetic_share() -> None:
-    w = mix_weights(4, 6, 0.25)
-    assert np.isclose(w.sum(), 1) and np.isclose(w[4:].sum(), 0.25) and np.allclose(w[:4], 0.1875)
-    assert np.allclose(mix_weights(3, 0, 0.5), 1 / 3)
-
-
 def test_centre_weights_favour_rare_classes() -> None:
     labels = np.array([0] * 90 + [11] * 10 + [-1] * 5)
     class_weight = np.ones(13)
@@ -69,9 +62,10 @@ def test_training_on_a_folder_keeps_the_validation_scans_out(scan_folder, tiny_t
     _, card, _ = load_checkpoint(train(cfg))
     data = card["data"]
     assert "2 labelled scans" in data and "validation (never trained on): room_1" in data
-    trained = data.split("(")[1].split(")")[0]
+    trained = data.split("labelled scans from")[1].split("(")[1].split(")")[0]
     assert "room_1" not in trained and "room_0" in trained
-    assert "mixed with jointseg.synth" in data and "50%" in data
+    assert card["sources"] == {"rooms0": 0.5, "synth": 0.5}
+    assert "jointseg.synth" in data and "50% of crops" in data
     assert 0.0 <= card["history"][0]["val_miou"] <= 1.0
 
 

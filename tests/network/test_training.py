@@ -6,8 +6,9 @@ import pytest
 import torch
 
 from jointseg.exceptions import ConfigError
+from jointseg.network.augment import augment
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.training import augment, class_weights, train
+from jointseg.network.training import class_weights, train
 
 
 def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path, tiny_training) -> None:
@@ -84,7 +85,7 @@ def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
 def test_elastic_distortion_is_smooth_and_small() -> None:
     import numpy as np
 
-    from jointseg.network.training import ELASTIC_MAGNITUDE, elastic_distortion
+    from jointseg.network.augment import ELASTIC_MAGNITUDE, elastic_distortion
 
     rng = np.random.default_rng(0)
     xyz = rng.uniform(0, 3, (20_000, 3)).astype(np.float32)
@@ -156,7 +157,7 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
     from jointseg.network.checkpoint import save_checkpoint
 
     old = {k: v for k, v in card.items() if k not in ("hardware", "command", "terms")}
-    old["train_config"] = {**old["train_config"], "data": "rooms/", "command": None}
+    old["train_config"] = {**old["train_config"], "data": "s3dis_rooms/", "command": None}
     save_checkpoint(tmp_path / "old.pt", model, old)
     packed = pack_checkpoint(tmp_path / "old.pt", tmp_path / "ship.pt", command="jointseg x")
     _, shipped, _ = load_checkpoint(packed)

@@ -1,0 +1,75 @@
+"""Augmentation for other sensors: density, partial rooms and slices, tilt, colour."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jointseg.network.augment import (
+    AugmentParams,
+    augment_colour,
+    cut_region,
+    density_sample,
+    tilt_matrix,
+)
+from jointseg.network.crops import grid_subsample
+from jointseg.network.train_batches import region_crop
+from jointseg.network.train_sources import BASE_GRID
+from jointseg.synth import make_room
+
+
+def test_density_sampling_thins_to_one_point_per_cell() -> None:
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(0, 1, (20_000, 3)).astype(np.float32)
+    rgb = rng.uniform(0, 1, (20_000, 3)).astype(np.float32)
+    labels = (xyz[:, 0] > 0.5).astype(np.int32)
+    pts, colour, lab = density_sample(xyz, rgb, labels, 0.1, rng)
+    assert 1000 <= len(pts) <= 1331  # 10 x 10 x 10 cells, up to 11 per axis with the offset
+    assert colour.shape == pts.shape and lab.shape == (len(pts),)
+    # majority labels follow the points: cells well left of x = 0.5 are class 0
+    assert (lab[pts[:, 0] < 0.35] == 0).all() and (lab[pts[:, 0] > 0.65] == 1).all()
+
+
+def test_cuts_make_partial_rooms_and_floor_slices() -> None:
+    rng = np.random.default_rng(1)
+    xyz = rng.uniform(0, 4, (10_000, 3)).astype(np.float32)
+    centre = np.array([2, 2, 1.5], dtype=np.float32)
+    plane = cut_region(xyz, centre, rng, AugmentParams(partial=1.0, slice=0.0))
+    assert plane is not None and 0.4 < plane.mean() < 0.95
+    band = cut_region(xyz, centre, rng, AugmentParams(partial=0.0, slice=1.0))
+    assert band is not None and xyz[band, 2].max() <= xyz[:, 2].min() + 1.8
+    assert cut_region(xyz, centre, rng, AugmentParams(partial=0.0, slice=0.0)) is None
+
+
+def test_tilt_is_a_small_rotation() -> None:
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        m = tilt_matrix(rng, 3.0)
+        assert np.allclose(m @ m.T, np.eye(3), atol=1e-6)
+        up = m @ np.array([0, 0, 1.0])
+        assert np.degrees(np.arccos(np.clip(up[2], -1, 1))) <= 3.0 + 1e-4
+
+
+def test_colour_drop_and_grey() -> None:
+    rng = np.random.default_rng(3)
+    rgb = rng.uniform(0, 1, (500, 3)).astype(np.float32)
+    assert not augment_colour(rgb, rng, AugmentParams(colour_drop=1.0)).any()
+    grey = augment_colour(rgb, rng, AugmentParams(colour_drop=0.0, grey=1.0))
+    assert np.allclose(grey[:, 0], grey[:, 1]) and np.allclose(grey[:, 1], grey[:, 2])
+    shifted = augment_colour(rgb, rng, AugmentParams(colour_drop=0.0, grey=0.0))
+    assert shifted.min() >= 0 and shifted.max() <= 1 and not np.allclose(shifted, rgb)
+
+
+def test_sparse_crops_cover_more_ground_with_the_same_points() -> None:
+    """A crop sampled at 6 cm spans a wider area than one at the network's 4 cm grid, and both
+    hold about the points asked for: what a sparse scanner's crop looks like at inference."""
+    room = make_room(9, points=200_000)
+    cloud = grid_subsample(room.xyz, room.rgb, room.labels, BASE_GRID)
+    centre = cloud.xyz[len(cloud.xyz) // 2]
+    rng = np.random.default_rng(4)
+    spans = {}
+    for density, name in ((0.0, "grid"), (1.0, "sparse")):
+        aug = AugmentParams(density=density, density_range=(0.06, 0.06), partial=0, slice=0)
+        crop = region_crop(cloud, centre, 4096, 0.04, rng, aug)
+        assert 0.8 * 4096 <= len(crop.xyz) <= 4096
+        spans[name] = np.median(np.linalg.norm(crop.xyz - centre, axis=1))
+    assert spans["sparse"] > 1.25 * spans["grid"]  # about 6 / 4 on surfaces
