@@ -162,8 +162,9 @@ def network_output(spec: str, item: Item, predictors: dict) -> tuple[np.ndarray,
 
 
 #: Part of every cached network output's key: bump it when whole-scan inference changes what it
-#: computes (2: RandLA-Net's linear possibility weight), so no stale labels are reused.
-INFERENCE_VERSION = 2
+#: computes (2: RandLA-Net's linear possibility weight; 3: classes a scan does not hold taken
+#: out, RandLANetParams.absent_share), so no stale labels are reused.
+INFERENCE_VERSION = 3
 
 
 @functools.cache

@@ -96,7 +96,10 @@ def datasets(args: argparse.Namespace) -> dict[str, list[tuple[str, Callable[[],
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "--weights", action="append", default=[], help="'bundled' or a checkpoint; repeat"
+        "--weights",
+        action="append",
+        default=[],
+        help="'bundled', a RandLA-Net checkpoint or dgcnn:PATH; repeat",
     )
     parser.add_argument("--area6-judge", nargs="*", default=list(AREA6_JUDGE))
     parser.add_argument("--area6-all", action="store_true", help="also score the seen rooms")
@@ -107,9 +110,13 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     weights = args.weights or ["bundled"]
-    paths = [str(DEFAULT_WEIGHTS["randlanet"]) if w == "bundled" else w for w in weights]
+    backends = ["dgcnn" if w.startswith("dgcnn:") else "randlanet" for w in weights]
+    paths = [
+        str(DEFAULT_WEIGHTS["randlanet"]) if w == "bundled" else w.removeprefix("dgcnn:")
+        for w in weights
+    ]
     names = [w if w == "bundled" else Path(w).stem for w in weights]
-    predictors = [load("randlanet", p) for p in paths]
+    predictors = [load(b, p) for b, p in zip(backends, paths, strict=True)]
     print(
         f"# network labels alone per dataset, {time.strftime('%F')}, "
         f"torch {torch.__version__}, {torch.get_num_threads()} threads"

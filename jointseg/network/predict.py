@@ -34,7 +34,9 @@ from jointseg.network.backends import Predictor, card_summary
 from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.crops import Batch, build_batch
+from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet import RandLANet
+from jointseg.network.randlanet_params import RandLANetParams
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
 
@@ -126,10 +128,12 @@ class RandLANetPredictor(NetworkPredictor):
         batch_size: int = 1,
         num_points: int | None = None,
         min_possibility: float = 0.5,
+        params: RandLANetParams | None = None,
     ) -> None:
         super().__init__(model, card, device=device, batch_size=batch_size)
         self.num_points = num_points or model.config.num_points
         self.min_possibility = min_possibility
+        self.params = params or RandLANetParams()
 
     def _batches(
         self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int
@@ -215,6 +219,7 @@ class RandLANetPredictor(NetworkPredictor):
         timings["crops"] = time.perf_counter() - t
         t = time.perf_counter()
         sub_probs = (prob_sum / np.maximum(seen, 1)[:, None]).astype(np.float32)
+        sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
         probs_full = sub_probs[cloud.nearest(scan.xyz)]
         labels = probs_full.argmax(axis=1).astype(np.int32)
         timings["project"] = time.perf_counter() - t
@@ -296,7 +301,7 @@ class CellSums:
 
 
 def load_randlanet(
-    path: Path, *, device: str | None, batch_size: int, params: None = None
+    path: Path, *, device: str | None, batch_size: int, params: RandLANetParams | None = None
 ) -> Predictor:
     """The RandLA-Net backend's loader (see :mod:`jointseg.network.randlanet_backend`): a
     :class:`RandLANetPredictor`.
@@ -307,7 +312,9 @@ def load_randlanet(
         When the file is not a readable jointseg checkpoint.
     """
     model, card, _ = load_checkpoint(path)
-    return RandLANetPredictor(model, card, device=device, batch_size=batch_size)
+    return RandLANetPredictor(
+        model, card, device=device, batch_size=batch_size, params=params or RandLANetParams()
+    )
 
 
 def read_randlanet_card(path: Path) -> tuple[str, str]:

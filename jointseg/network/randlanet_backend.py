@@ -7,6 +7,7 @@ Imports no torch: the registry reads this record to know the backend.
 from __future__ import annotations
 
 from jointseg.network.backends import WEIGHTS_DIR, Backend
+from jointseg.network.randlanet_params import RandLANetParams
 
 BACKEND = Backend(
     name="randlanet",
@@ -19,4 +20,6 @@ BACKEND = Backend(
     ),
     bundled=WEIGHTS_DIR / "randlanet_s3dis_area6.pt",
     suffixes=(".pt", ".pth"),
+    params=RandLANetParams,
+    params_help="RandLA-Net's whole-scan inference (classes taken as absent)",
 )

@@ -29,6 +29,8 @@ from jointseg.fusion import ScanTotals, fuse
 from jointseg.fusion.learned import normalised_entropy
 from jointseg.grouping import compact_ids
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
+from jointseg.network.presence import drop_absent
+from jointseg.network.randlanet_params import RandLANetParams
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.tile_run import load_cells, load_result
 from jointseg.pipeline.tile_store import CHUNK_POINTS, TilePlan, column_chunks, read_plan
@@ -142,7 +144,7 @@ def merge(
     t = time.perf_counter()
     gathered = _gather(workdir, plan, progress, cancel)
     if gathered.point_cell is not None:
-        _network_outputs(workdir, plan, gathered)
+        _network_outputs(workdir, plan, gathered, config)
     joined, joins = join_segments(gathered)
     _, segment = compact_ids(joined[gathered.segment])
     segment = segment.astype(np.int32)
@@ -224,8 +226,11 @@ def _gather(
     return out
 
 
-def _network_outputs(workdir: Path, plan: TilePlan, gathered: _Gathered) -> None:
-    """Add the tiles' sums per cell; give every point its cell's label and confidence."""
+def _network_outputs(
+    workdir: Path, plan: TilePlan, gathered: _Gathered, config: PipelineConfig
+) -> None:
+    """Add the tiles' sums per cell, take out the classes the whole scan does not hold (as the
+    untiled inference does), give every point its cell's label and confidence."""
     ids_parts, sum_parts, seen_parts = [], [], []
     for box in plan.tiles:
         ids, sums, seen = load_cells(workdir, box.index)
@@ -243,6 +248,9 @@ def _network_outputs(workdir: Path, plan: TilePlan, gathered: _Gathered) -> None
             seen, 1
         )
     del sums, inverse
+    options = config.network.options()
+    if isinstance(options, RandLANetParams):
+        probs = drop_absent(probs, options.absent_share, options.absent_max_cells)
     gathered.cells = CellTable(ids, probs)
     assert gathered.point_cell is not None
     for start in range(0, plan.points, CHUNK_POINTS):

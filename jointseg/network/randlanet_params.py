@@ -1,0 +1,27 @@
+"""RandLA-Net's inference options (kept torch-free so configuration is checked without it)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class RandLANetParams(BaseModel):
+    """What RandLA-Net's whole-scan inference does beyond averaging its crops."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    absent_share: float = Field(
+        0.005,
+        ge=0,
+        lt=0.5,
+        description="A class the network gives to fewer than this share of a scan's "
+        "sub-sampled cells (and fewer than absent_max_cells) is taken as absent from the scan: "
+        "its points get their next most likely class. Scattered labels of classes a room does "
+        "not hold are the network's commonest error on other sensors; 0 turns this off.",
+    )
+    absent_max_cells: int = Field(
+        2000,
+        ge=0,
+        description="A class on more cells than this is never taken as absent (about 3 m² of "
+        "surface at the 4 cm grid), so a real small object on a whole floor keeps its class.",
+    )
