@@ -174,6 +174,10 @@ def batch_stream(
     """The maker's batches in order: built by ``workers`` processes, or in this process (a step
     ahead in a thread when ``prefetch``)."""
     if workers > 0:
+        # Batches hold 21 tensors; passing each as a named shared-memory file instead of a
+        # file descriptor halves the training process's cost of receiving them (measured on
+        # 2 cores: 7.8 -> 3.5 ms a batch, and 2 workers 1.63x -> 1.79x one worker).
+        torch.multiprocessing.set_sharing_strategy("file_system")
         loader: torch.utils.data.DataLoader = torch.utils.data.DataLoader(
             maker,  # type: ignore[arg-type]
             batch_size=None,

@@ -87,3 +87,12 @@ def test_models_pack_refuses_a_foreign_file(tmp_path: Path) -> None:
     result = run_cli("models", "pack", str(bad), "-o", str(tmp_path / "out.pt"))
     assert result.returncode == 2 and "not a readable PyTorch checkpoint" in result.stderr
     assert not (tmp_path / "out.pt").exists()
+
+
+def test_train_with_bad_sources_is_a_one_line_error(tmp_path: Path) -> None:
+    result = run_cli(
+        "train", "--data", f"{tmp_path}:0.7", "--data", "synth:0.7", "--out", str(tmp_path / "m.pt")
+    )
+    assert result.returncode == 2
+    assert "add up to 1.4" in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "m.pt").exists()

@@ -3,6 +3,7 @@ params model, and a backend declared in one module of its own."""
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 import textwrap
@@ -15,6 +16,7 @@ from jointseg.exceptions import ConfigError
 from jointseg.network import DGCNNParams, load
 from jointseg.network.backends import Backend, _resolve
 from jointseg.network.dgcnn_predict import DGCNNParams as ReExported
+from jointseg.network.randlanet_params import RandLANetParams
 from jointseg.network.registry import (
     BACKENDS,
     DEFAULT_PULLED,
@@ -86,9 +88,14 @@ def test_options_are_validated_by_the_backends_own_model() -> None:
         dgcnn.options({"strid": 1.0})
     with pytest.raises(ConfigError, match="takes DGCNNParams"):
         dgcnn.options(_PointNetParams())
-    assert randlanet.options() is None and randlanet.options({}) is None
+    assert randlanet.options() == RandLANetParams()
+    assert randlanet.options({"absent_share": 0}) == RandLANetParams(absent_share=0)
+    with pytest.raises(ConfigError, match="absent_shar"):
+        randlanet.options({"absent_shar": 0})
+    bare = dataclasses.replace(randlanet, params=None)  # a backend that takes no options
+    assert bare.options() is None and bare.options({}) is None
     with pytest.raises(ConfigError, match="takes no options"):
-        randlanet.options({"stride": 1.0})
+        bare.options({"stride": 1.0})
 
 
 def test_load_takes_options_directly_or_under_the_backends_name(dgcnn_random_weights) -> None:
