@@ -101,6 +101,12 @@ def main() -> None:
         default=[],
         help="'bundled', a RandLA-Net checkpoint or dgcnn:PATH; repeat",
     )
+    parser.add_argument(
+        "--absent-share",
+        type=float,
+        default=None,
+        help="RandLA-Net's absent-class share (default: the library's; 0 turns it off)",
+    )
     parser.add_argument("--area6-judge", nargs="*", default=list(AREA6_JUDGE))
     parser.add_argument("--area6-all", action="store_true", help="also score the seen rooms")
     parser.add_argument("--scannet-judge", nargs="*", default=list(SCANNET_JUDGE))
@@ -116,13 +122,19 @@ def main() -> None:
         for w in weights
     ]
     names = [w if w == "bundled" else Path(w).stem for w in weights]
-    predictors = [load(b, p) for b, p in zip(backends, paths, strict=True)]
+    options = {} if args.absent_share is None else {"absent_share": args.absent_share}
+    predictors = [
+        load(b, p, params=options if b == "randlanet" else None)
+        for b, p in zip(backends, paths, strict=True)
+    ]
     print(
         f"# network labels alone per dataset, {time.strftime('%F')}, "
         f"torch {torch.__version__}, {torch.get_num_threads()} threads"
     )
     for name, path in zip(names, paths, strict=True):
         print(f"# {name}: {path}")
+    if args.absent_share is not None:
+        print(f"# RandLA-Net absent_share {args.absent_share}")
     summary: list[tuple[str, list[tuple[float, float]]]] = []
     for dataset, scans in datasets(args).items():
         print(f"\n## {dataset}\n")

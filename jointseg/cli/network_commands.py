@@ -279,6 +279,20 @@ def pack_weights(
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
 
 
+@models_app.command("blend")
+def blend_weights(
+    base: Path = typer.Argument(..., help="The network before fine-tuning."),
+    tuned: Path = typer.Argument(..., help="Its fine-tuned copy (same architecture)."),
+    weight: float = typer.Option(..., min=0.0, max=1.0, help="Share of the tuned weights."),
+    output: Path = typer.Option(..., "-o", "--output", help="Checkpoint to ship."),
+) -> None:
+    """Blend a network with its fine-tuned copy in weight space (packed like `models pack`)."""
+    from jointseg.network.checkpoint import blend_checkpoints
+
+    path = blend_checkpoints(base, tuned, weight, output)
+    typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
+
+
 def register(app: typer.Typer) -> None:
     """Add this module's commands to ``app``."""
     app.command()(predict)

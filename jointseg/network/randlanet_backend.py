@@ -1,5 +1,5 @@
-"""The RandLA-Net backend: jointseg's own checkpoints, bundled weights trained on S3DIS Area 6
-and synthetic rooms (see :mod:`jointseg.network.predict` for the inference).
+"""The RandLA-Net backend: jointseg's own checkpoints, bundled weights trained on S3DIS Area 6,
+ScanNet and synthetic rooms (see :mod:`jointseg.network.predict` for the inference).
 
 Imports no torch: the registry reads this record to know the backend.
 """
@@ -18,7 +18,7 @@ BACKEND = Backend(
         "train them with `jointseg train --data synth --out model.pt`, or convert Open3D-ML's "
         "randlanet_s3dis_202201071330utc.pth with `jointseg models import open3d-ml FILE`"
     ),
-    bundled=WEIGHTS_DIR / "randlanet_s3dis_area6.pt",
+    bundled=WEIGHTS_DIR / "randlanet_indoor.pt",
     suffixes=(".pt", ".pth"),
     params=RandLANetParams,
     params_help="RandLA-Net's whole-scan inference (classes taken as absent)",

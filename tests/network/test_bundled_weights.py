@@ -25,8 +25,12 @@ def test_bundled_weights_are_small_and_say_what_they_were_trained_on() -> None:
     assert "jointseg.synth" in card["data"] and card["synthetic_share"] == 0.2
     assert card["history"] and card["history"][-1]["epoch"] == card["epochs"]
     assert card["validation"]["last_miou"] == card["history"][-1]["val_miou"]
-    assert "S3DIS" in card["terms"] and "CPU" in card["hardware"]
-    assert card["command"].startswith("jointseg train --data ")
+    assert "S3DIS" in card["terms"] and "ScanNet" in card["terms"] and "CPU" in card["hardware"]
+    assert "scannet" in card["data"] and set(card["sources"]) == {"a6", "scannet", "synth"}
+    assert " train --data " in card["command"]
+    # a blend of the handed-over GPU checkpoint and its fine-tuned copy, said so
+    assert card["blend"]["base"] == "randlanet_area6_gpu.pt"
+    assert 0 < card["blend"]["weight_of_tuned"] < 1
     assert card["input_conventions"]
 
 

@@ -61,7 +61,7 @@ def test_the_registry_and_the_backend_records_import_no_torch() -> None:
 
 def test_the_views_by_name_keep_their_old_meaning() -> None:
     assert BACKENDS == ("randlanet", "dgcnn") == tuple(REGISTRY)
-    assert DEFAULT_WEIGHTS["randlanet"].name == "randlanet_s3dis_area6.pt"
+    assert DEFAULT_WEIGHTS["randlanet"].name == "randlanet_indoor.pt"
     assert "dgcnn" not in DEFAULT_WEIGHTS and DEFAULT_PULLED == {"dgcnn": "dgcnn-s3dis-5"}
     assert WEIGHTS_ENV == {
         "randlanet": "JOINTSEG_RANDLANET_WEIGHTS",

@@ -165,3 +165,22 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
     assert shipped["hardware"].endswith("(recorded when packed)")
     line = card_summary(shipped)
     assert "2 epochs" in line and "validation mIoU" in line and "S3DIS" in line
+
+
+def test_blending_two_checkpoints_interpolates_the_weights(tmp_path, tiny_training) -> None:
+    from jointseg.exceptions import ConfigError
+    from jointseg.network.checkpoint import blend_checkpoints
+
+    a = train(tiny_training(out=tmp_path / "a.pt", seed=1))
+    b = train(tiny_training(out=tmp_path / "b.pt", seed=2))
+    mid = blend_checkpoints(a, b, 0.25, tmp_path / "mid.pt")
+    ma, _, _ = load_checkpoint(a)
+    mb, _, _ = load_checkpoint(b)
+    mm, card, _ = load_checkpoint(mid)
+    key = "stem.weight"
+    expected = 0.75 * ma.state_dict()[key] + 0.25 * mb.state_dict()[key]
+    assert torch.allclose(mm.state_dict()[key].float(), expected, atol=2e-3)
+    assert card["blend"]["weight_of_tuned"] == 0.25 and card["blend"]["base"] == "a.pt"
+    with pytest.raises(ConfigError, match="blend weight"):
+        blend_checkpoints(a, b, 1.5, tmp_path / "bad.pt")
+    assert not (tmp_path / "bad.pt").exists()
