@@ -173,6 +173,7 @@ def blend_checkpoints(
     model.load_state_dict(blended)
     card = {
         **card,
+        "weights_dtype": "float16",
         "blend": {
             "base": Path(base).name,
             "base_data": base_card.get("data"),

@@ -64,7 +64,7 @@ def test_training_on_a_folder_keeps_the_validation_scans_out(scan_folder, tiny_t
     assert "2 labelled scans" in data and "validation (never trained on): room_1" in data
     trained = data.split("labelled scans from")[1].split("(")[1].split(")")[0]
     assert "room_1" not in trained and "room_0" in trained
-    assert card["sources"] == {"rooms0": 0.5, "synth": 0.5}
+    assert card["sources"] == {scan_folder.name: 0.5, "synth": 0.5}
     assert "jointseg.synth" in data and "50% of crops" in data
     assert 0.0 <= card["history"][0]["val_miou"] <= 1.0
 
