@@ -34,7 +34,7 @@ import torch
 
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
 from jointseg.network.train_batches import BatchMaker, batch_stream
-from jointseg.network.training import TrainConfig, _device_batch, _Run, training_data
+from jointseg.network.training import TrainConfig, TrainingRun, device_batch, training_data
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -89,7 +89,7 @@ def batch_rate(maker: BatchMaker, workers: int, warmup: int) -> float:
 
 
 def step_rate(
-    maker: BatchMaker, run: _Run, workers: int, on_device: bool, warmup: int
+    maker: BatchMaker, run: TrainingRun, workers: int, on_device: bool, warmup: int
 ) -> tuple[float, str]:
     """Training steps per second (and mean GPU utilisation) with the given batch source."""
     maker.neighbours_on_device = on_device
@@ -103,7 +103,7 @@ def step_rate(
                     torch.cuda.synchronize()
                 started = time.perf_counter()
                 gpu.samples.clear()
-            batch = _device_batch(item, run)
+            batch = device_batch(item, run)
             logits = run.model(
                 batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
             )
@@ -170,7 +170,7 @@ def main() -> None:
         return
     device = torch.device(args.device)
     model = RandLANet(model_cfg).to(device)
-    run = _Run(model, device, torch.optim.Adam(model.parameters(), lr=1e-4), None, 0, [])  # type: ignore[arg-type]
+    run = TrainingRun(model, device, torch.optim.Adam(model.parameters(), lr=1e-4), None, 0, [])  # type: ignore[arg-type]
     maker.count = args.steps + args.warmup
     print(f"\n## training steps on {args.device} (torch threads {args.threads})\n")
     print("| batches | steps/s | vs before | GPU utilisation |")

@@ -142,7 +142,7 @@ def train(
 ) -> None:
     """Train RandLA-Net on synthetic rooms, S3DIS, folders of labelled scans, or a mix."""
     from jointseg.network.augment import AugmentParams
-    from jointseg.network.training import TrainConfig, default_workers
+    from jointseg.network.training import TrainConfig, best_path, default_workers
     from jointseg.network.training import train as run_training
 
     cfg = TrainConfig(
@@ -177,14 +177,7 @@ def train(
     )
     with progress_bar() as progress:
         path = run_training(cfg, progress=progress)
-    typer.echo(f"wrote {path} (best by validation: {best_path_of(path)})", err=True)
-
-
-def best_path_of(path: Path) -> Path:
-    """The best-by-validation checkpoint kept beside ``path``."""
-    from jointseg.network.training import best_path
-
-    return best_path(path)
+    typer.echo(f"wrote {path} (best by validation: {best_path(path)})", err=True)
 
 
 @models_app.command("list")

@@ -337,7 +337,7 @@ def train(
 
 
 @dataclass
-class _Run:
+class TrainingRun:
     """The model and optimiser of a run, where it starts and what it has recorded so far."""
 
     model: RandLANet
@@ -348,7 +348,7 @@ class _Run:
     history: list[dict]
 
 
-def _start(cfg: TrainConfig) -> _Run:
+def _start(cfg: TrainConfig) -> TrainingRun:
     """A fresh, initialised or resumed model with its optimiser, on the training device."""
     history: list[dict] = []
     start_epoch = 0
@@ -372,7 +372,7 @@ def _start(cfg: TrainConfig) -> _Run:
     if body is not None and "optimizer" in body:
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
-    return _Run(model, device, optimiser, scheduler, start_epoch, history)
+    return TrainingRun(model, device, optimiser, scheduler, start_epoch, history)
 
 
 def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
@@ -407,7 +407,7 @@ def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
     }
 
 
-def _device_batch(item: Batch | CropBatch, run: _Run) -> Batch:
+def device_batch(item: Batch | CropBatch, run: TrainingRun) -> Batch:
     """A batch on the training device; crops sent without neighbours get them there."""
     if isinstance(item, Batch):
         return item.to(run.device, non_blocking=True)
@@ -429,7 +429,7 @@ def _device_batch(item: Batch | CropBatch, run: _Run) -> Batch:
 
 def _train_epochs(
     cfg: TrainConfig,
-    run: _Run,
+    run: TrainingRun,
     loss_fn: torch.nn.Module,
     batches: Iterator[Batch | CropBatch],
     data: TrainingData,
@@ -443,7 +443,7 @@ def _train_epochs(
         started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
-            batch = _device_batch(next(batches), run)
+            batch = device_batch(next(batches), run)
             logits = model(
                 batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
             )
@@ -482,7 +482,7 @@ def _train_epochs(
         _save(cfg, run, data, epoch + 1)
 
 
-def _save(cfg: TrainConfig, run: _Run, data: TrainingData, epochs: int) -> None:
+def _save(cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int) -> None:
     """The last checkpoint, and the best one when this epoch's validation is the best yet."""
     card = {
         "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
