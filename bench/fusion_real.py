@@ -1,11 +1,14 @@
 """Fusion on real labelled scans: networks x geometry settings x fusion variants, tune/judge split.
 
-For every labelled scan (a folder of them, default the 25 real S3DIS Area_6 rooms in
-../shared/data/s3dis_area6; optionally the real fragment and held-out synthetic seeds), every
-network labels it once and every geometry setting segments it once (both cached on disk under
-bench/_cache, keyed by the file's content and the settings); then every fusion variant fuses
-each pair. Rooms are split by a hash of their name into judging rooms (the first --judge of
-them) and tuning rooms (the rest): choose on the tuning rooms, report the judging ones.
+For every labelled scan (folders of them, default the 25 real S3DIS Area_6 rooms in
+../shared/data/s3dis_area6 and the 14 ScanNet scans in ../shared/data/scannet; optionally the
+real fragment and held-out synthetic seeds), every network labels it once and every geometry
+setting segments it once (both cached on disk under bench/_cache, keyed by the file's content
+and the settings); then every fusion variant fuses each pair. Each scan belongs to a dataset
+(its folder) and a room (ScanNet's re-scans share one). Per dataset, rooms are split into
+judging rooms (the first --judge in name-hash order; ScanNet: scene0002, 0005 and 0007, which
+the bundled network never trained on) and tuning rooms: choose on the tuning rooms, report the
+judging ones. The last table gives the default variant's gain per dataset x network x split.
 
 Prints, per network and geometry setting:
 - Table 2 (as the paper): per room network / fused mIoU of each variant / oracle, purity and
@@ -29,6 +32,7 @@ import csv
 import functools
 import hashlib
 import logging
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -57,6 +61,12 @@ from network_accuracy import held_out  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 AREA6 = SHARED / "data" / "s3dis_area6"
+SCANNET = SHARED / "data" / "scannet"
+#: ScanNet rooms judged (every re-scan of a room on one side): the three the bundled RandLA-Net
+#: never trained on (scene0002 and scene0007 excluded, scene0005 its validation room).
+SCANNET_JUDGES = ("scene0002", "scene0005", "scene0007")
+#: Folder (or file stem) -> dataset name in the tables.
+DATASET_NAMES = {"s3dis_area6": "S3DIS", "scannet": "ScanNet", "s3dis_fragment": "S3DIS fragment"}
 CACHE = Path(__file__).parent / "_cache"
 LOST = -0.005  # a room "lost" below network - 0.5 mIoU points
 
@@ -80,6 +90,8 @@ class Item:
     scan: Scan
     key: str  # content hash for the cache
     split: str  # "judge", "tune" or "synthetic"
+    dataset: str = "synthetic"
+    room: str = ""  # scans of one room share it (ScanNet re-scans)
 
 
 @dataclass
@@ -88,6 +100,7 @@ class Row:
 
     scan: str
     split: str
+    dataset: str
     network: str
     geometry: str
     points: int
@@ -121,26 +134,49 @@ def cached(path: Path, compute) -> dict[str, np.ndarray]:
     return out
 
 
+def dataset_of(path: Path) -> str:
+    """The dataset a scan belongs to, by its folder (or, for a lone file, its stem)."""
+    key = path.parent.name if path.parent.name in DATASET_NAMES else path.stem
+    return DATASET_NAMES.get(key, path.parent.name)
+
+
+def room_of(stem: str) -> str:
+    """The room a scan shows: ScanNet's ``sceneNNNN_MM`` re-scans share ``sceneNNNN``."""
+    return re.sub(r"^(scene\d{4})_\d{2}$", r"\1", stem)
+
+
+def judging_rooms(dataset: str, rooms: list[str], judge: int) -> set[str]:
+    """Rooms judged: ScanNet's fixed three (see SCANNET_JUDGES), else the first ``judge`` rooms
+    of the dataset in name-hash order."""
+    if dataset == "ScanNet":
+        return set(SCANNET_JUDGES)
+    return set(stable_order(rooms)[:judge])
+
+
 def load_items(paths: list[str], judge: int, synth: tuple[int, int, int]) -> list[Item]:
-    """Real labelled scans (split by name hash) and held-out synthetic ones."""
+    """Real labelled scans (split by room, per dataset) and held-out synthetic ones."""
     files: list[Path] = []
     for p in paths:
         if p == "none":
             continue
         path = Path(p)
         files += sorted(path.glob("*.ply")) if path.is_dir() else [path]
-    order = stable_order([f.stem for f in files])
-    judges = set(order[:judge])
+    rooms_by_dataset: dict[str, list[str]] = {}
+    for f in files:
+        rooms_by_dataset.setdefault(dataset_of(f), []).append(room_of(f.stem))
+    judges = {d: judging_rooms(d, sorted(set(r)), judge) for d, r in rooms_by_dataset.items()}
     items = []
     for f in files:
         scan = read_scan(f)
         if scan.labels is None:
             raise SystemExit(f"{f}: no label field")
         key = content_key(scan.xyz, scan.labels)
-        items.append(Item(f.stem, scan, key, "judge" if f.stem in judges else "tune"))
+        dataset, room = dataset_of(f), room_of(f.stem)
+        split = "judge" if room in judges[dataset] else "tune"
+        items.append(Item(f.stem, scan, key, split, dataset, room))
     rooms, floors, points = synth
     for name, scan in held_out(rooms, floors, points):
-        items.append(Item(name, scan, content_key(name, points), "synthetic"))
+        items.append(Item(name, scan, content_key(name, points), "synthetic", "synthetic", name))
     return items
 
 
@@ -194,6 +230,11 @@ def geometry_output(name: str, item: Item) -> dict[str, np.ndarray]:
     )
 
 
+def network_name(spec: str) -> str:
+    """A network spec as the tables name it: its weights file, or the bare backend."""
+    return spec.rpartition("/")[2] or spec
+
+
 def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: dict) -> Row:
     labels, probs = network_output(spec, item, predictors)
     g = geometry_output(geo, item)
@@ -203,7 +244,8 @@ def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: di
     row = Row(
         item.name,
         item.split,
-        spec.rpartition("/")[2] or spec,
+        item.dataset,
+        network_name(spec),
         geo,
         len(item.scan),
         int(len(np.unique(segs))),
@@ -222,12 +264,13 @@ def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: di
 
 
 def table2(rows: list[Row], variants: list[str]) -> str:
-    head = "| scan | split | points | segments | purity | network | " + " | ".join(variants)
-    lines = [head + " | oracle |", "|---" * (7 + len(variants)) + "|"]
+    head = "| scan | dataset | split | points | segments | purity | network | "
+    lines = [head + " | ".join(variants) + " | oracle |", "|---" * (8 + len(variants)) + "|"]
     for r in rows:
         cells = " | ".join(fmt(r.fused[v]) for v in variants)
         lines.append(
-            f"| {r.scan} | {r.split} | {r.points:,} | {r.segments} | {r.purity:.3f} | "
+            f"| {r.scan} | {r.dataset} | {r.split} | {r.points:,} | {r.segments} | "
+            f"{r.purity:.3f} | "
             f"{fmt(r.net_miou)} | {cells} | {fmt(r.oracle)} |"
         )
     return "\n".join(lines)
@@ -256,6 +299,24 @@ def summary(rows: list[Row], variants: list[str]) -> str:
     return "\n".join(lines)
 
 
+def groups(rows: list[Row], variant: str) -> str:
+    """Gain of ``variant`` per dataset x network x split: the issue's acceptance table."""
+    head = (
+        "| dataset | network | split | scans | network mIoU | purity | mean gain | worst | lost |"
+    )
+    lines = [head, "|---" * 9 + "|"]
+    keys = sorted({(r.dataset, r.network, r.split) for r in rows})
+    for dataset, network, split in keys:
+        sel = [r for r in rows if (r.dataset, r.network, r.split) == (dataset, network, split)]
+        g = 100 * np.array([r.fused[variant] - r.net_miou for r in sel])
+        lines.append(
+            f"| {dataset} | {network} | {split} | {len(sel)} | "
+            f"{np.mean([r.net_miou for r in sel]):.3f} | {np.mean([r.purity for r in sel]):.3f} | "
+            f"{g.mean():+.1f} | {g.min():+.1f} | {int((g < 100 * LOST).sum())} |"
+        )
+    return "\n".join(lines)
+
+
 def table1(rows: list[Row], variant: str) -> str:
     """Per-class IoU over the pooled confusion of the rows: network, fused, gain."""
     cm_n = sum(r.cm_net for r in rows)
@@ -278,6 +339,7 @@ def write_csv(path: Path, rows: list[Row], variants: list[str]) -> None:
         w.writerow(
             [
                 "scan",
+                "dataset",
                 "split",
                 "network",
                 "geometry",
@@ -296,6 +358,7 @@ def write_csv(path: Path, rows: list[Row], variants: list[str]) -> None:
                 w.writerow(
                     [
                         r.scan,
+                        r.dataset,
                         r.split,
                         r.network,
                         r.geometry,
@@ -313,13 +376,21 @@ def write_csv(path: Path, rows: list[Row], variants: list[str]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scans", nargs="+", default=[str(AREA6)], help="files/folders, or none")
+    parser.add_argument(
+        "--scans", nargs="+", default=[str(AREA6), str(SCANNET)], help="files/folders, or none"
+    )
     parser.add_argument(
         "--network", action="append", help="backend[:weights]; repeat (default randlanet)"
     )
     parser.add_argument("--geometry", nargs="+", default=["default"], choices=list(GEOMETRY))
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
-    parser.add_argument("--judge", type=int, default=10, help="judging rooms (name-hash order)")
+    parser.add_argument(
+        "--judge",
+        type=int,
+        default=10,
+        help="judging rooms per dataset (name-hash order; "
+        "ScanNet: always " + ", ".join(SCANNET_JUDGES) + ")",
+    )
     parser.add_argument("--synth-rooms", type=int, default=0)
     parser.add_argument("--synth-floors", type=int, default=0)
     parser.add_argument("--synth-points", type=int, default=300_000)
@@ -347,6 +418,9 @@ def main() -> None:
             variant = DEFAULT_VARIANT if DEFAULT_VARIANT in args.variants else args.variants[0]
             print(f"\nper-class IoU over {len(judged)} {judged[0].split} scans, {variant}:\n")
             print(table1(judged, variant))
+    variant = DEFAULT_VARIANT if DEFAULT_VARIANT in args.variants else args.variants[0]
+    print(f"\n## gain of {variant} per dataset x network ({time.strftime('%F')})\n")
+    print(groups(rows, variant))
     if args.csv:
         write_csv(args.csv, rows, args.variants)
 

@@ -5,6 +5,11 @@ jointseg.synth.label_noise); the segments are the real geometry's. Prints second
 (best of --repeat), seconds per million points and the ratio to `paper`.
 
     .venv/bin/python bench/fusion_speed.py [--points 1000000] [--repeat 3]
+    git show HEAD~1:jointseg/fusion/vote_model.json > /tmp/old_vote.json
+    .venv/bin/python bench/fusion_speed.py --baseline-model /tmp/old_vote.json
+
+--baseline-model also times 'learned' with another vote model in the same process, to compare
+a refitted model's speed with the one it replaces.
 """
 
 from __future__ import annotations
@@ -12,20 +17,29 @@ from __future__ import annotations
 import argparse
 import logging
 import time
+from pathlib import Path
 
 import numpy as np
 
-from jointseg.fusion import fuse
+from jointseg.fusion import fuse, learned
 from jointseg.fusion.variants import VARIANTS
 from jointseg.geometry import segment
 from jointseg.synth import make_room
 from jointseg.synth.label_noise import corrupt_labels
 
 
+def use_model(path: Path) -> None:
+    """Make the learned vote use the model at ``path`` (the vote reads the shipped model through
+    this module function at call time)."""
+    model = learned.TreeEnsemble.from_json(path)
+    learned.shipped_model = lambda: model  # type: ignore[assignment]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--baseline-model", type=Path, help="another vote model JSON to time")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     scan = make_room(0, points=args.points)
@@ -34,8 +48,13 @@ def main() -> None:
     print(f"# fusion speed, {len(scan):,} points, {segments.max() + 1} segments\n")
     print("| variant | seconds | s per 1 M points | x paper |")
     print("|---|---|---|---|")
+    runs = list(VARIANTS.items())
+    if args.baseline_model:
+        runs.append((f"learned, {args.baseline_model.name}", VARIANTS["learned"]))
     base = None
-    for name, params in VARIANTS.items():
+    for name, params in runs:
+        if name.startswith("learned, "):
+            use_model(args.baseline_model)
         best = np.inf
         for _ in range(args.repeat):
             t = time.perf_counter()

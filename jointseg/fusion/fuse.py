@@ -36,10 +36,14 @@ class ScanTotals:
     mean_entropy : float
         Mean normalised entropy of the network's probabilities over the whole scan
         (:func:`jointseg.fusion.learned.normalised_entropy`).
+    disagreement : float
+        Share of the whole scan's points whose network label is not their segment's most
+        common label (:func:`jointseg.fusion.learned.disagreement_share`).
     """
 
     points: int
     mean_entropy: float
+    disagreement: float
 
 
 @dataclass(frozen=True)
@@ -278,7 +282,9 @@ def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
         threshold=params.flip_threshold,
         min_support=params.min_support if probs is not None else 0.0,
         main_plane=main_plane,
-        totals=None if totals is None else (totals.points, totals.mean_entropy),
+        totals=None
+        if totals is None
+        else (totals.points, totals.mean_entropy, totals.disagreement),
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

@@ -10,9 +10,14 @@ cubic cell of ``cell_size`` metres), so a board inside a wall plane can keep its
 while specks of wrong labels around it still follow their neighbours. For each offer the model
 sees the network's probability of both labels at the point, the shares of both labels in the
 segment and in the cell, the segment's size, entropy and main-plane share, whether either label
-is a structural class (ceiling, floor, wall), and which level made the offer. A gradient-boosted
-tree ensemble over these (``vote_model.json``, fitted by ``bench/fit_vote.py`` on real tuning
-rooms and synthetic rooms together, never on the judging rooms) gives P(the offer is right);
+is a structural class (ceiling, floor, wall), and which level made the offer; and two numbers
+of the whole scan that tell a network that is at home on this sensor from one that is not: its
+mean entropy, and the share of points whose label differs from their segment's majority (a
+confident network that often contradicts the geometry is confidently wrong, and its segments'
+majorities are no better than its points). A gradient-boosted
+tree ensemble over these (``vote_model.json``, fitted by ``bench/fit_vote.py`` on tuning scans
+of S3DIS, ScanNet and synthetic rooms, labelled by strong, weak and distorted networks, never on
+the judging scans) gives P(the offer is right);
 a point takes its most probable offer above the threshold. The model is plain JSON evaluated
 with numpy: no learning library is needed at run time.
 """
@@ -51,6 +56,7 @@ FEATURES = (
     "offer is structural",
     "offer is the segment's label",
     "scan mean entropy",
+    "scan share off its segment's majority",
 )
 #: Probabilities are clipped to [EPS, 1 - EPS] before the logit.
 EPS = 1e-4
@@ -114,6 +120,14 @@ def _shares(
     return size, sums, sums / np.maximum(size, 1)[:, None]
 
 
+def disagreement_share(seg: np.ndarray, n_seg: int, labels: np.ndarray) -> float:
+    """Share of points whose network label is not their segment's most common label."""
+    if len(labels) == 0:
+        return 0.0
+    hist = label_histogram(seg, n_seg, labels, NUM_CLASSES)
+    return float(np.mean(hist.argmax(axis=1)[seg] != labels))
+
+
 def vote_offers(
     xyz: np.ndarray,
     seg: np.ndarray,
@@ -124,7 +138,7 @@ def vote_offers(
     cell_size: float = DEFAULT_CELL_SIZE,
     main_plane: np.ndarray | None = None,
     min_support: float = 0.0,
-    totals: tuple[int, float] | None = None,
+    totals: tuple[int, float, float] | None = None,
 ) -> Offers:
     """Every offer of a segment or cell label to a point whose network label differs, except
     offers of a class the network gave the point less than ``min_support`` probability.
@@ -145,9 +159,10 @@ def vote_offers(
         Points on the geometry's main planes (walls, floor, ceiling); none when not given.
     min_support : float
         Least probability of the offered class at the point (0 keeps every offer).
-    totals : (int, float), optional
-        The whole scan's point count and mean normalised entropy when these points are a part
-        of it made of whole segments (a tiled run); default: taken from these points.
+    totals : (int, float, float), optional
+        The whole scan's point count, mean normalised entropy and :func:`disagreement_share`
+        when these points are a part of it made of whole segments (a tiled run); default: taken
+        from these points.
 
     Returns
     -------
@@ -164,7 +179,9 @@ def vote_offers(
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
     cell_size_pts, _, cell_soft = _shares(cell, n_cells, probs)
     entropy = normalised_entropy(probs)
-    scan_points, scan_entropy = totals if totals is not None else (n, float(entropy.mean()))
+    if totals is None:
+        totals = (n, float(entropy.mean()), disagreement_share(seg, n_seg, labels))
+    scan_points, scan_entropy, scan_disagreement = totals
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = (
         np.zeros(n_seg)
@@ -201,6 +218,7 @@ def vote_offers(
             STRUCTURAL[offer],
             from_segment,
             np.full(len(point), scan_entropy),
+            np.full(len(point), scan_disagreement),
         ]
     ).astype(np.float64)
     return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
@@ -340,7 +358,7 @@ def learned_labels(
     min_support: float = 0.0,
     main_plane: np.ndarray | None = None,
     model: TreeEnsemble | None = None,
-    totals: tuple[int, float] | None = None,
+    totals: tuple[int, float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     ``threshold``, else the network's label. An offer of a class the network gave the point

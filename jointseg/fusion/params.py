@@ -96,7 +96,7 @@ class FusionParams(BaseModel):
         "(m), so a vote stays local inside a large plane; 0 votes over whole segments.",
     )
     flip_threshold: float = Field(
-        0.5,
+        0.55,
         ge=0,
         le=1,
         description="'learned': a point takes the label its segment or cell offers where the "

@@ -26,7 +26,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from jointseg.fusion import ScanTotals, fuse
-from jointseg.fusion.learned import normalised_entropy
+from jointseg.fusion.learned import disagreement_share, normalised_entropy
 from jointseg.grouping import compact_ids
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.presence import drop_absent
@@ -313,7 +313,11 @@ def _vote(
     n = plan.points
     fused = np.empty(n, dtype=np.uint8)
     confidence = np.empty(n, dtype=np.float32)
-    totals = ScanTotals(points=n, mean_entropy=gathered.entropy_sum / max(n, 1))
+    totals = ScanTotals(
+        points=n,
+        mean_entropy=gathered.entropy_sum / max(n, 1),
+        disagreement=disagreement_share(segment, int(segment.max()) + 1, gathered.labels),
+    )
     seg_batch, n_batches = _batches(segment, plan.params.max_points)
     point_batch = seg_batch.astype(np.int32)[segment]
     del seg_batch

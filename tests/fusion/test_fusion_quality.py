@@ -63,3 +63,19 @@ def test_fusion_from_a_subsampled_network_cloud(room) -> None:
         network_xyz=scan.xyz[sub],
     )
     assert evaluate(scan.labels, result.labels).miou > evaluate(scan.labels, labels).miou + 0.05
+
+
+@pytest.mark.parametrize("merge", [1, 3], ids=["segments", "merged-segments"])
+def test_the_vote_keeps_its_hands_off_a_strong_network(room, merge) -> None:
+    """A network that is right almost everywhere (2 % of points wrong at random) must not lose
+    to the vote, even over impure segments (every three segments merged into one)."""
+    scan, segments, _, _ = room
+    labels, probs = corrupt_labels(
+        scan.xyz, scan.labels, rng=np.random.default_rng(5), patches=0, salt=0.02
+    )
+    segs = segments // merge
+    network = evaluate(scan.labels, labels).miou
+    fused = evaluate(scan.labels, fuse(scan.xyz, segs, labels, probs).labels).miou
+    assert network is not None and fused is not None
+    assert network > 0.8  # strong: right at 98 % of points (rare classes pull the mIoU down)
+    assert fused >= network - 0.005, (merge, network, fused)

@@ -16,6 +16,7 @@ from jointseg.fusion.learned import (
     FEATURES,
     MODEL_PATH,
     TreeEnsemble,
+    disagreement_share,
     shipped_model,
     vote_offers,
 )
@@ -113,6 +114,20 @@ def test_main_plane_share_reaches_the_features() -> None:
     assert (offers.features[:, FEATURES.index("offer is structural")] == 1).all()
 
 
+def test_the_scans_disagreement_with_its_segments_reaches_the_features() -> None:
+    # two segments of 10 points: 2 and 3 points off their segment's majority
+    labels = np.r_[np.full(8, 2), np.full(2, 5), np.full(7, 8), np.full(3, 7)]
+    seg = np.r_[np.zeros(10, np.int64), np.ones(10, np.int64)]
+    assert disagreement_share(seg, 2, labels) == pytest.approx(0.25)
+    probs = probs_for([{int(c): 0.8} for c in labels])
+    offers = vote_offers(line(20), seg, 2, labels, probs)
+    column = offers.features[:, FEATURES.index("scan share off its segment's majority")]
+    np.testing.assert_allclose(column, 0.25)
+    # a part of a bigger scan (a tiled run) takes the scan's figure
+    part = vote_offers(line(20), seg, 2, labels, probs, totals=(1000, 0.3, 0.1))
+    np.testing.assert_allclose(part.features[:, -1], 0.1)
+
+
 def test_main_plane_of_the_wrong_shape_is_a_config_error() -> None:
     probs = probs_for([{2: 0.9}] * 10)
     with pytest.raises(ConfigError, match="main_plane"):
@@ -153,9 +168,11 @@ def test_a_confident_object_inside_a_plane_keeps_its_label() -> None:
 
 
 def test_the_shipped_model_never_saw_a_judging_room(shared_file) -> None:
-    card = shipped_model().card
-    assert card["trained_on"]["real"], card
+    scans = shipped_model().card["trained_on"]["scans"]
+    assert scans["S3DIS"] and scans["ScanNet"] and scans["synthetic"], scans
     rooms = sorted(p.stem for p in shared_file("data/s3dis_area6").glob("*.ply"))
     judging = set(stable_order(rooms)[:10])  # bench/fusion_real.py --judge 10
-    assert not judging & set(card["trained_on"]["real"])
+    assert not judging & set(scans["S3DIS"])
+    # bench/fusion_real.py's ScanNet judging rooms, every re-scan of them
+    assert not [s for s in scans["ScanNet"] if s[:9] in ("scene0002", "scene0005", "scene0007")]
     assert MODEL_PATH.stat().st_size < 100_000
