@@ -268,7 +268,8 @@ def cross_validate(rooms: list[Room], args: argparse.Namespace) -> None:
         test = [r for r in rooms if fold_of[r.room] == k]
         clf = fit([r for r in rooms if fold_of[r.room] != k], args)
         for r, g in zip(test, gains(clf, test, args), strict=True):
-            found.setdefault((r.dataset, r.labeller), []).append(g)
+            kind = f"{r.dataset} slices" if r.name.endswith(" slice") else r.dataset
+            found.setdefault((kind, r.labeller), []).append(g)
     how = "leave one dataset out" if args.cv_datasets else f"{args.cv} folds by room"
     print(
         f"\n### {how}: depth {args.depth} trees {args.trees} leaf {args.min_leaf} l2 {args.l2} "
