@@ -436,7 +436,8 @@ def main() -> None:
                 f"class for {BIAS}; over/underconfident: temperature 0.5 / 2",
                 "synthetic_points": args.synth_points,
                 "geometry": "GeometryParams() defaults",
-                "weighting": "every dataset alike; inside one every labelled scan alike; "
+                "weighting": "every dataset alike, times its dataset weight "
+                f"{dict(args.dataset_weight or [])}; inside one every labelled scan alike; "
                 "inside a scan offers by inverse true-class frequency",
             },
             "samples": int(sum(int((r.weight > 0).sum()) for r in rooms)),
