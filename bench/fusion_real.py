@@ -402,6 +402,7 @@ def main() -> None:
     )
     predictors: dict = {}
     rows: list[Row] = []
+    variant = DEFAULT_VARIANT if DEFAULT_VARIANT in args.variants else args.variants[0]
     for spec in args.network or ["randlanet"]:
         for geo in args.geometry:
             block = []
@@ -415,10 +416,8 @@ def main() -> None:
             print()
             print(summary(block, args.variants))
             judged = [r for r in block if r.split == "judge"] or block
-            variant = DEFAULT_VARIANT if DEFAULT_VARIANT in args.variants else args.variants[0]
             print(f"\nper-class IoU over {len(judged)} {judged[0].split} scans, {variant}:\n")
             print(table1(judged, variant))
-    variant = DEFAULT_VARIANT if DEFAULT_VARIANT in args.variants else args.variants[0]
     print(f"\n## gain of {variant} per dataset x network ({time.strftime('%F')})\n")
     print(groups(rows, variant))
     if args.csv:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointseg.fusion import fuse, learned
+from jointseg.fusion import FusionParams, fuse, learned
 from jointseg.fusion.variants import VARIANTS
 from jointseg.geometry import segment
 from jointseg.synth import make_room
@@ -48,13 +48,16 @@ def main() -> None:
     print(f"# fusion speed, {len(scan):,} points, {segments.max() + 1} segments\n")
     print("| variant | seconds | s per 1 M points | x paper |")
     print("|---|---|---|---|")
-    runs = list(VARIANTS.items())
+    runs: list[tuple[str, FusionParams, Path | None]] = [
+        (name, params, None) for name, params in VARIANTS.items()
+    ]
     if args.baseline_model:
-        runs.append((f"learned, {args.baseline_model.name}", VARIANTS["learned"]))
+        name = f"learned, {args.baseline_model.name}"
+        runs.append((name, VARIANTS["learned"], args.baseline_model))
     base = None
-    for name, params in runs:
-        if name.startswith("learned, "):
-            use_model(args.baseline_model)
+    for name, params, model in runs:
+        if model is not None:
+            use_model(model)
         best = np.inf
         for _ in range(args.repeat):
             t = time.perf_counter()

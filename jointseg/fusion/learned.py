@@ -34,7 +34,7 @@ import numpy as np
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.guard import segment_cells
-from jointseg.grouping import group_sums, label_histogram
+from jointseg.grouping import group_sums, label_histogram, majority_label
 
 #: The model shipped with the library.
 MODEL_PATH = Path(__file__).with_name("vote_model.json")
@@ -124,8 +124,7 @@ def disagreement_share(seg: np.ndarray, n_seg: int, labels: np.ndarray) -> float
     """Share of points whose network label is not their segment's most common label."""
     if len(labels) == 0:
         return 0.0
-    hist = label_histogram(seg, n_seg, labels, NUM_CLASSES)
-    return float(np.mean(hist.argmax(axis=1)[seg] != labels))
+    return float(np.mean(majority_label(seg, n_seg, labels, NUM_CLASSES)[seg] != labels))
 
 
 def vote_offers(

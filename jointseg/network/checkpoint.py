@@ -122,8 +122,6 @@ def pack_checkpoint(
         When ``source`` is not a jointseg checkpoint.
     """
     model, card, body = load_checkpoint(source)
-    card = {**card, "weights_dtype": "float16" if half else "float32"}
-    card.pop("input_conventions", None)
     if "train_config" in card:  # cards written before these facts existed get them now
         from jointseg.network.training import TrainConfig, card_facts  # imports this module
 
@@ -135,6 +133,16 @@ def pack_checkpoint(
         card = {**facts, **{k: v for k, v in card.items() if v is not None}}
     if command and not card.get("command"):
         card["command"] = command
+    return _save_packed(target, model, card, half=half)
+
+
+def _save_packed(
+    target: str | os.PathLike[str], model: RandLANet, card: dict, *, half: bool
+) -> Path:
+    """Weights and card only, gzip-compressed; the card states the weights' dtype, and its input
+    conventions are the ones :func:`save_checkpoint` writes now."""
+    card = {**card, "weights_dtype": "float16" if half else "float32"}
+    card.pop("input_conventions", None)
     Path(target).parent.mkdir(parents=True, exist_ok=True)
     save_checkpoint(Path(target), model, card, half=half, compress=True)
     return Path(target)
@@ -173,7 +181,6 @@ def blend_checkpoints(
     model.load_state_dict(blended)
     card = {
         **card,
-        "weights_dtype": "float16",
         "blend": {
             "base": Path(base).name,
             "base_data": base_card.get("data"),
@@ -182,7 +189,4 @@ def blend_checkpoints(
             "what": "weights (1 - w) * base + w * tuned, w = weight_of_tuned",
         },
     }
-    card.pop("input_conventions", None)
-    Path(target).parent.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(Path(target), model, card, half=True, compress=True)
-    return Path(target)
+    return _save_packed(target, model, card, half=True)
