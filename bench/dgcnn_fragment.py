@@ -15,19 +15,16 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import time
 from pathlib import Path
 
 import torch
+from network_accuracy import FRAGMENT, fmt
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
 from jointseg.network import DGCNNParams, load
-
-sys.path.insert(0, str(Path(__file__).parent))
-from network_accuracy import FRAGMENT, fmt  # noqa: E402
 
 WEIGHTS_DIR = FRAGMENT.parents[1] / "models" / "dgcnn_s3dis"
 SETTINGS = {

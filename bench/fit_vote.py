@@ -32,6 +32,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import fusion_real as fr
 import numpy as np
 from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -47,9 +48,6 @@ from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
 from jointseg.scan import Scan
 from jointseg.synth import make_floor, make_room
-
-sys.path.insert(0, str(Path(__file__).parent))
-import fusion_real as fr  # noqa: E402
 
 log = logging.getLogger("fit_vote")
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from network_accuracy import FRAGMENT, fmt, held_out
 
 from jointseg.fusion import DEFAULT_MODE, FusionParams, fuse
 from jointseg.geometry import segment
@@ -36,9 +37,6 @@ from jointseg.network import load
 from jointseg.network.registry import BACKENDS
 from jointseg.scan import Scan
 from jointseg.synth.label_noise import corrupt_labels
-
-sys.path.insert(0, str(Path(__file__).parent))
-from network_accuracy import FRAGMENT, fmt, held_out  # noqa: E402
 
 VARIANTS: dict[str, FusionParams] = {
     "paper r=0.1": FusionParams(mode="paper", ratio_threshold=0.1),

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from network_accuracy import held_out
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.fusion import fuse
@@ -55,9 +56,6 @@ from jointseg.metrics import (
 from jointseg.network.train_data import stable_order
 from jointseg.pipeline.tables import format_score as fmt
 from jointseg.scan import Scan
-
-sys.path.insert(0, str(Path(__file__).parent))
-from network_accuracy import held_out  # noqa: E402
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 AREA6 = SHARED / "data" / "s3dis_area6"

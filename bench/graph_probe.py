@@ -21,22 +21,18 @@ from __future__ import annotations
 import argparse
 import itertools
 import logging
-import sys
-from pathlib import Path
 
+import fusion_real as fr
 import numpy as np
+from fit_vote import M6, WEAK, calibration_rooms
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).parent))
-import fusion_real as fr  # noqa: E402
-from fit_vote import M6, WEAK, calibration_rooms  # noqa: E402
-
-from jointseg.fusion import FusionParams, fuse  # noqa: E402
-from jointseg.fusion.evidence import EPS  # noqa: E402
-from jointseg.fusion.guard import segment_cells  # noqa: E402
-from jointseg.fusion.learned import segment_label_sums  # noqa: E402
-from jointseg.metrics import evaluate  # noqa: E402
+from jointseg.fusion import FusionParams, fuse
+from jointseg.fusion.evidence import EPS
+from jointseg.fusion.guard import segment_cells
+from jointseg.fusion.learned import segment_label_sums
+from jointseg.metrics import evaluate
 
 #: Neighbours looked up per cell centroid (the graph's degree bound).
 NEIGHBOURS = 12

@@ -31,7 +31,7 @@ import torch
 from jointseg.metrics import evaluate
 from jointseg.network import DGCNNParams, load
 from jointseg.network.convert import to_open3d_ml_state
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import REGISTRY
 from jointseg.synth import make_room
 
 S3DIS_CFG = dict(
@@ -121,7 +121,7 @@ def dgcnn_speed(points: int, weights: str | None, only_default: bool = False) ->
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=1_000_000)
-    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument("--weights", default=str(REGISTRY["randlanet"].bundled))
     parser.add_argument("--big", type=int, default=0, help="also measure memory at N points")
     parser.add_argument("--child-big", type=int, default=0, help=argparse.SUPPRESS)
     parser.add_argument(

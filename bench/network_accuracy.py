@@ -21,7 +21,7 @@ from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
 from jointseg.metrics import confusion_matrix, evaluate, per_class_iou
 from jointseg.network import load
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import REGISTRY
 from jointseg.pipeline.tables import format_score as fmt
 from jointseg.scan import Scan
 from jointseg.synth import make_floor, make_room
@@ -50,7 +50,7 @@ def held_out(rooms: int, floors: int, points: int) -> list[tuple[str, Scan]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--weights", default=str(DEFAULT_WEIGHTS["randlanet"]))
+    parser.add_argument("--weights", default=str(REGISTRY["randlanet"].bundled))
     parser.add_argument("--rooms", type=int, default=10)
     parser.add_argument("--floors", type=int, default=2)
     parser.add_argument("--points", type=int, default=500_000, help="points per room")

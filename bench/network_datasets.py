@@ -30,7 +30,7 @@ import torch
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
 from jointseg.network import load
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import REGISTRY
 from jointseg.scan import Scan
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
@@ -118,7 +118,7 @@ def main() -> None:
     weights = args.weights or ["bundled"]
     backends = ["dgcnn" if w.startswith("dgcnn:") else "randlanet" for w in weights]
     paths = [
-        str(DEFAULT_WEIGHTS["randlanet"]) if w == "bundled" else w.removeprefix("dgcnn:")
+        str(REGISTRY["randlanet"].bundled) if w == "bundled" else w.removeprefix("dgcnn:")
         for w in weights
     ]
     names = [w if w == "bundled" else Path(w).stem for w in weights]

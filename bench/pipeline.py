@@ -130,14 +130,14 @@ def main() -> None:
         print(json.dumps(measure_one(args.single, args.weights, args.sequential)))
         return
 
-    from jointseg.network.registry import DEFAULT_WEIGHTS
+    from jointseg.network.registry import REGISTRY
 
     with tempfile.TemporaryDirectory(prefix="jointseg-bench-") as tmp:
         folder = Path(tmp)
         if args.random_weights:
             weights = random_weights(folder)
         else:
-            weights = args.weights or str(DEFAULT_WEIGHTS["randlanet"])
+            weights = args.weights or str(REGISTRY["randlanet"].bundled)
         print(
             f"# pipeline benchmark, {time.strftime('%F')}, {os.cpu_count()} CPUs, weights {weights}"
         )

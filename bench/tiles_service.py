@@ -36,9 +36,7 @@ from typing import Any
 
 import httpx
 import psutil
-
-sys.path.insert(0, str(Path(__file__).parent))
-from big import make_floor  # noqa: E402 - the same cached floors as bench/big.py
+from big import make_floor  # the same cached floors as bench/big.py
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 

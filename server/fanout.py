@@ -43,20 +43,20 @@ from server.tokens import (
     RowProgress,
 )
 
-if TYPE_CHECKING:  # the runner imports this module
-    from server.runner import JobRunner
+if TYPE_CHECKING:
+    from server.context import WorkerContext
 
 log = logging.getLogger(__name__)
 
 
 class FanOut:
-    """The tiled jobs' tasks of one worker process, sharing its runner's loaded networks."""
+    """The tiled jobs' tasks of one worker process, sharing its context's loaded networks."""
 
-    def __init__(self, runner: JobRunner) -> None:
-        self.runner = runner
-        self.sessions = runner.sessions
-        self.storage = runner.storage
-        self.settings = runner.settings
+    def __init__(self, context: WorkerContext) -> None:
+        self.context = context
+        self.sessions = context.sessions
+        self.storage = context.storage
+        self.settings = context.settings
 
     def wants(self, claim: lifecycle.Claim, config: PipelineConfig, upload: Path) -> bool:
         """Whether the job's scan has more points than ``config.tiles.max_points``."""
@@ -95,7 +95,7 @@ class FanOut:
         started_at, started = utcnow(), time.perf_counter()
         # the network takes part in the plan (a crop plan shared by the tiles, so the tiles
         # together label the scan as one run would)
-        predictor, _ = self.runner.predictor(config)
+        predictor, _ = self.context.predictor(config)
         with open_chunks(upload, max_points=self.settings.max_points) as chunks:
             plan = prepare_from(
                 chunks,
@@ -112,7 +112,7 @@ class FanOut:
                 session,
                 claim,
                 len(plan.tiles),
-                worker=self.runner.worker,
+                worker=self.context.worker,
                 started_at=started_at,
                 seconds=seconds,
             )
@@ -143,7 +143,7 @@ class FanOut:
 
     def _enqueue(self, job_id: str, kind: str, tile: int = 0) -> None:
         try:
-            self.runner.queue.enqueue_part(job_id, kind, tile)
+            self.context.queue.enqueue_part(job_id, kind, tile)
         except QueueUnavailable:  # the reaper enqueues parts queued without a queue entry
             log.warning("job %s: %s %d not enqueued; the reaper will", job_id, kind, tile)
 
@@ -159,20 +159,20 @@ class FanOut:
 
     def _part(self, job_id: str, kind: str, tile: int) -> None:
         with self.sessions() as session:
-            part = tiles.claim_part(session, job_id, kind, tile, self.runner.worker)
+            part = tiles.claim_part(session, job_id, kind, tile, self.context.worker)
         if part is None:
             log.info("job %s: %s %d not queued any more, skipped", job_id, kind, tile)
             self._settle(job_id)
             return
-        self.runner.current = part
+        self.context.current = part
         log.info(
             "job %s: %s attempt %d started by %s",
             job_id,
             part.name,
             part.attempt,
-            self.runner.worker,
+            self.context.worker,
         )
-        token = RowCancelToken(self.sessions, part, self.runner.stopping)
+        token = RowCancelToken(self.sessions, part, self.context.stopping)
         upload = self.storage.upload_path(job_id, f".{part.format}")
         work = self.storage.tiles_dir(job_id, part.job_attempt)
         try:
@@ -194,7 +194,7 @@ class FanOut:
                 log.exception("job %s: %s: internal error", job_id, part.name)
                 self._failed(part, f"internal error: {type(exc).__name__}: {exc}")
         finally:
-            self.runner.current = None
+            self.context.current = None
 
     def _tile(
         self, part: tiles.PartClaim, config: PipelineConfig, work: Path, token: RowCancelToken
@@ -210,7 +210,7 @@ class FanOut:
                 "job %s: %s already has its result (an earlier attempt)", part.job_id, part.name
             )
         else:
-            predictor, _ = self.runner.predictor(config)
+            predictor, _ = self.context.predictor(config)
             progress = PartProgress(self.sessions, part, TILE_WEIGHTS)
             run_tile(
                 work,
@@ -300,7 +300,7 @@ class FanOut:
 
     def _stopped(self, part: tiles.PartClaim, token: RowCancelToken) -> None:
         """A cancel, the job's end, or this worker's shutdown: skipped, or back to the queue."""
-        if self.runner.stopping.is_set() and not token.requested:
+        if self.context.stopping.is_set() and not token.requested:
             with self.sessions() as session:
                 released = tiles.release_part(session, part)
             if released:

@@ -87,7 +87,12 @@ def get_job(session: Session, job_id: str) -> JobView:
     JobNotFound
         For an unknown (or malformed) id.
     """
-    return _views(session, [_row(session, job_id)])[0]
+    # the tile counts first, then the row: a plan records its tiles and the row's stage in one
+    # commit, so a row read after the counts is never older than them (no "read" stage beside
+    # tile counts under READ COMMITTED)
+    counts = tiles.tile_counts(session, [check_job_id(job_id)])
+    job = _row(session, job_id)
+    return _view(job, counts.get(job.id))
 
 
 def list_jobs(

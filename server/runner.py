@@ -3,74 +3,45 @@
 A job whose scan has more points than its config's ``tiles.max_points`` is only planned here;
 its tiles and merge are queue tasks of their own that any worker runs (:mod:`server.fanout`).
 
-Loaded networks are kept between jobs (a few configurations, least recently used dropped), so
-a stream of jobs with the same network pays the loading once per process.
+Loaded networks are kept between jobs in the process's :class:`server.context.WorkerContext`
+(a few configurations, least recently used dropped), so a stream of jobs with the same network
+pays the loading once per process.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import ValidationError
 
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError
 from jointseg.io import read_scan, write_scan
-from jointseg.pipeline import PipelineConfig, annotate, load_predictor, report_body, run
-from server import lifecycle, tiles
-from server.db import SessionFactory
+from jointseg.pipeline import PipelineConfig, annotate, report_body, run
+from server import lifecycle
+from server.context import WorkerContext
 from server.fanout import FanOut
-from server.lru import LRUCache
 from server.messages import public_message
-from server.queue import JobQueue
-from server.settings import Settings
-from server.storage import Storage
 from server.tokens import RowCancelToken, RowProgress
-
-if TYPE_CHECKING:  # only for annotations: jointseg.network imports torch
-    from jointseg.network import Predictor
 
 log = logging.getLogger(__name__)
 
-#: Networks kept loaded per process (one per configuration).
-MAX_PREDICTORS = 2
-
 
 class JobRunner:
-    """Runs one job id at a time in this process, keeping loaded networks between jobs."""
+    """Runs one job id at a time in this process; a big scan's plan goes to the fan-out."""
 
-    def __init__(
-        self,
-        settings: Settings,
-        sessions: SessionFactory,
-        storage: Storage,
-        queue: JobQueue,
-        stopping: threading.Event,
-    ) -> None:
-        self.settings = settings
-        self.sessions = sessions
-        self.storage = storage
-        self.queue = queue
-        self.stopping = stopping
-        self.worker = lifecycle.worker_id()
-        self.current: lifecycle.Claim | tiles.PartClaim | None = None
-        self.predictors: LRUCache[str, Predictor] = LRUCache(MAX_PREDICTORS)
-        self.fanout = FanOut(self)
-
-    def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
-        """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""
-        key = json.dumps(config.network.model_dump(mode="json"), sort_keys=True)
-        kept = self.predictors.get(key)
-        if kept is not None:
-            return kept, 0.0
-        started = time.perf_counter()
-        predictor = load_predictor(config.network)
-        self.predictors.put(key, predictor)
-        return predictor, time.perf_counter() - started
+    def __init__(self, context: WorkerContext) -> None:
+        self.context = context
+        self.settings = context.settings
+        self.sessions = context.sessions
+        self.storage = context.storage
+        self.queue = context.queue
+        self.stopping = context.stopping
+        self.worker = context.worker
+        self.fanout = FanOut(context)
 
     def __call__(self, job_id: str) -> None:
         """Run job ``job_id`` unless it was cancelled or claimed meanwhile."""
@@ -79,12 +50,12 @@ class JobRunner:
         if claim is None:
             log.info("job %s: not queued any more, skipped", job_id)
             return
-        self.current = claim
+        self.context.current = claim
         log.info("job %s: attempt %d started by %s", job_id, claim.attempt, self.worker)
         try:
             self._run(claim)
         finally:
-            self.current = None
+            self.context.current = None
 
     def _run(self, claim: lifecycle.Claim) -> None:
         token = RowCancelToken(self.sessions, claim, self.stopping)
@@ -121,7 +92,7 @@ class JobRunner:
     ) -> tuple[int, dict[str, float]]:
         progress("read", 0.0)
         progress.flush()
-        predictor, load_s = self.predictor(config)
+        predictor, load_s = self.context.predictor(config)
         started = time.perf_counter()
         scan = read_scan(upload, max_points=self.settings.max_points, progress=progress)
         read_s = time.perf_counter() - started

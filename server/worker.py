@@ -17,6 +17,7 @@ from collections.abc import Callable
 from types import FrameType
 
 from server import lifecycle, tiles
+from server.context import WorkerContext
 from server.db import SessionFactory, init_db, make_engine, make_sessions
 from server.logs import configure_logging
 from server.queue import MERGE_TILES, RUN_TILE, JobQueue, set_handler
@@ -58,7 +59,8 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     storage = Storage(settings.data_dir)
     queue = JobQueue(settings)
     stopping = threading.Event()
-    runner = JobRunner(settings, sessions, storage, queue, stopping)
+    context = WorkerContext(settings, sessions, storage, queue, stopping)
+    runner = JobRunner(context)
     set_handler(runner)
     set_handler(runner.fanout.tile, RUN_TILE)
     set_handler(runner.fanout.merge, MERGE_TILES)
@@ -72,60 +74,59 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     )
 
     def stop(signum: int, _frame: FrameType | None) -> None:
-        log.info("worker %s: %s received, stopping", runner.worker, signal.Signals(signum).name)
+        log.info("worker %s: %s received, stopping", context.worker, signal.Signals(signum).name)
         stopping.set()
 
-    _beat(sessions, runner)
+    _beat(sessions, context)
     consumer.start()
     signal.signal(signal.SIGTERM, stop)  # replaces the consumer's handlers
     signal.signal(signal.SIGINT, stop)
     log.info(
         "worker %s ready (%s queue, %d torch threads)",
-        runner.worker,
+        context.worker,
         queue.kind,
         torch.get_num_threads(),
     )
-    _main_loop(settings, sessions, queue, runner, stopping, parent_pid)
+    _main_loop(settings, sessions, queue, context, parent_pid)
     consumer.stop(graceful=True)
     with sessions() as session:
-        lifecycle.forget_worker(session, runner.worker)
+        lifecycle.forget_worker(session, context.worker)
     queue.close()
     engine.dispose()
-    log.info("worker %s stopped", runner.worker)
+    log.info("worker %s stopped", context.worker)
 
 
-def _beat(sessions: SessionFactory, runner: JobRunner) -> None:
+def _beat(sessions: SessionFactory, context: WorkerContext) -> None:
     try:
-        current = runner.current
+        current = context.current
         with sessions() as session:
             if isinstance(current, tiles.PartClaim):
-                tiles.heartbeat(session, current, runner.worker)
+                tiles.heartbeat(session, current, context.worker)
             else:
-                lifecycle.heartbeat(session, current, runner.worker)
+                lifecycle.heartbeat(session, current, context.worker)
     except Exception:  # noqa: BLE001 - the next beat may succeed
-        log.warning("worker %s: heartbeat failed", runner.worker, exc_info=True)
+        log.warning("worker %s: heartbeat failed", context.worker, exc_info=True)
 
 
 def _main_loop(
     settings: Settings,
     sessions: SessionFactory,
     queue: JobQueue,
-    runner: JobRunner,
-    stopping: threading.Event,
+    context: WorkerContext,
     parent_pid: int | None,
 ) -> None:
     """Heartbeats and the reaper, every ``heartbeat_interval_s``, until asked to stop."""
     tasks: list[Callable[[], object]] = [
-        lambda: _beat(sessions, runner),
+        lambda: _beat(sessions, context),
         lambda: reap_and_requeue(sessions, queue, settings),
     ]
-    while not stopping.wait(settings.heartbeat_interval_s):
+    while not context.stopping.wait(settings.heartbeat_interval_s):
         if parent_pid is not None and os.getppid() != parent_pid:
-            log.warning("worker %s: parent %d is gone, stopping", runner.worker, parent_pid)
-            stopping.set()
+            log.warning("worker %s: parent %d is gone, stopping", context.worker, parent_pid)
+            context.stopping.set()
             break
         for task in tasks:
             try:
                 task()
             except Exception:  # noqa: BLE001 - keep beating through a database hiccup
-                log.warning("worker %s: periodic task failed", runner.worker, exc_info=True)
+                log.warning("worker %s: periodic task failed", context.worker, exc_info=True)

@@ -27,7 +27,7 @@ from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import read_scan
 from jointseg.io.common import LABEL_NAMES, pick_colour_names, pick_name
-from jointseg.io.ply import PlyHeader, parse_header, vertex_element
+from jointseg.io.ply import PlyElement, PlyHeader, parse_header, vertex_element
 
 #: Result fields the viewer needs (written by jointseg.pipeline.outputs.annotate).
 REQUIRED_FIELDS = ("network_label", "segment", "fused_label")
@@ -133,12 +133,8 @@ def _binary_header(path: Path) -> PlyHeader | None:
     return header if header.encoding in _ORDER else None
 
 
-def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample | None:
-    """Counts and sample of a binary PLY, block by block; None when it needs the full reader
-    (list elements before the vertices, colour that is not 8-bit, labels that are not integers).
-    """
-    order = _ORDER[header.encoding]
-    vertex = vertex_element(header, path)
+def _vertex_offset(header: PlyHeader, vertex: PlyElement, order: str) -> int | None:
+    """Byte offset of the vertex records; None when a list element before them hides it."""
     offset = header.body_offset
     for element in header.elements:
         if element is vertex:
@@ -146,6 +142,27 @@ def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample
         if not element.fixed_size:
             return None
         offset += element.count * element.dtype(order).itemsize
+    return offset
+
+
+def _check_size(path: Path, n_vertices: int, need: int) -> None:
+    """Fail early, with the sizes, on a file shorter than its header says."""
+    if os.path.getsize(path) < need:
+        raise ScanFormatError(
+            f"{path}: truncated PLY: the header declares {n_vertices:,} vertices "
+            f"({need:,} bytes with the header) but the file has {os.path.getsize(path):,}"
+        )
+
+
+def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample | None:
+    """Counts and sample of a binary PLY, block by block; None when it needs the full reader
+    (list elements before the vertices, colour that is not 8-bit, labels that are not integers).
+    """
+    order = _ORDER[header.encoding]
+    vertex = vertex_element(header, path)
+    offset = _vertex_offset(header, vertex, order)
+    if offset is None:
+        return None
     record = vertex.dtype(order)
     names = list(record.names or ())
     error = _missing(path, names)
@@ -158,12 +175,7 @@ def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample
         return None
     if label is not None and record[label].kind not in "iu":
         return None
-    need = offset + vertex.count * record.itemsize
-    if os.path.getsize(path) < need:
-        raise ScanFormatError(
-            f"{path}: truncated PLY: the header declares {vertex.count:,} vertices "
-            f"({need:,} bytes with the header) but the file has {os.path.getsize(path):,}"
-        )
+    _check_size(path, vertex.count, offset + vertex.count * record.itemsize)
 
     counted = {"network": "network_label", "fused": "fused_label"}
     if label is not None:

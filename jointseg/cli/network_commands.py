@@ -141,6 +141,44 @@ def train(
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
 ) -> None:
     """Train RandLA-Net on synthetic rooms, S3DIS, folders of labelled scans, or a mix."""
+    # every option by name, as typer passed it (nothing else is bound yet)
+    _run_train(**locals())
+
+
+def _run_train(
+    *,
+    data: list[str],
+    out: Path,
+    epochs: int,
+    steps: int,
+    batch_size: int,
+    num_points: int,
+    lr: float,
+    gamma: float,
+    test_area: int,
+    synth_rooms: int,
+    synth_floors: int,
+    synth_val_rooms: int,
+    val_scan: list[str],
+    val_count: int,
+    exclude_scan: list[str],
+    synth_share: float,
+    balanced: bool,
+    channels: float,
+    elastic: float,
+    density: float,
+    partial: float,
+    slices: float,
+    tilt: float,
+    workers: int | None,
+    prefetch: bool,
+    threads: int | None,
+    device: str | None,
+    seed: int,
+    init: Path | None,
+    resume: Path | None,
+) -> None:
+    """Body of ``jointseg train``, apart from its long option list so both stay readable."""
     from jointseg.network.augment import AugmentParams
     from jointseg.network.training import TrainConfig, best_path, default_workers
     from jointseg.network.training import train as run_training
@@ -266,7 +304,7 @@ def pack_weights(
     ),
 ) -> None:
     """Strip optimiser state from a training checkpoint and store its weights compactly."""
-    from jointseg.network.checkpoint import pack_checkpoint
+    from jointseg.network.shipping import pack_checkpoint
 
     path = pack_checkpoint(source, output, half=half, command=command)
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
@@ -280,7 +318,7 @@ def blend_weights(
     output: Path = typer.Option(..., "-o", "--output", help="Checkpoint to ship."),
 ) -> None:
     """Blend a network with its fine-tuned copy in weight space (packed like `models pack`)."""
-    from jointseg.network.checkpoint import blend_checkpoints
+    from jointseg.network.shipping import blend_checkpoints
 
     path = blend_checkpoints(base, tuned, weight, output)
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)

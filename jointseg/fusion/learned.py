@@ -127,6 +127,48 @@ def disagreement_share(seg: np.ndarray, n_seg: int, labels: np.ndarray) -> float
     return float(np.mean(majority_label(seg, n_seg, labels, NUM_CLASSES)[seg] != labels))
 
 
+def _no_offers(n_seg: int, n_classes: int) -> Offers:
+    """Offers of an empty point set: nothing offered, every segment with zero votes."""
+    none = np.zeros(0, dtype=np.int64)
+    votes = np.zeros((n_seg, n_classes))
+    return Offers(none, none, np.zeros((0, len(FEATURES))), none, votes)
+
+
+def _plane_share(
+    seg: np.ndarray, n_seg: int, seg_size: np.ndarray, main_plane: np.ndarray | None
+) -> np.ndarray:
+    """Share of each segment's points on a main plane (zeros when no planes were given)."""
+    return (
+        np.zeros(n_seg)
+        if main_plane is None
+        else np.bincount(seg, weights=main_plane.astype(np.float64), minlength=n_seg)
+        / np.maximum(seg_size, 1)
+    )
+
+
+def _pick_offers(
+    labels: np.ndarray,
+    seg_label: np.ndarray,
+    cell_label: np.ndarray,
+    probs: np.ndarray,
+    min_support: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points, offered classes and whether each offer comes from the segment (else the cell).
+
+    Segment offers come first; a cell offers only where it disagrees with the segment too, so
+    no point gets the same offer twice.
+    """
+    by_segment = np.flatnonzero(seg_label != labels)
+    by_cell = np.flatnonzero((cell_label != labels) & (cell_label != seg_label))
+    point = np.concatenate([by_segment, by_cell])
+    offer = np.concatenate([seg_label[by_segment], cell_label[by_cell]])
+    from_segment = np.arange(len(point)) < len(by_segment)
+    if min_support > 0:
+        supported = probs[point, offer] >= min_support
+        point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
+    return point, offer, from_segment
+
+
 def vote_offers(
     xyz: np.ndarray,
     seg: np.ndarray,
@@ -170,9 +212,7 @@ def vote_offers(
     n, n_classes = probs.shape
     labels = np.asarray(labels, dtype=np.int64)
     if n == 0:
-        none = np.zeros(0, dtype=np.int64)
-        votes = np.zeros((n_seg, n_classes))
-        return Offers(none, none, np.zeros((0, len(FEATURES))), none, votes)
+        return _no_offers(n_seg, n_classes)
     seg_size, seg_votes, seg_soft = _shares(seg, n_seg, probs)
     seg_hard = label_histogram(seg, n_seg, labels, n_classes) / np.maximum(seg_size, 1)[:, None]
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
@@ -182,22 +222,10 @@ def vote_offers(
         totals = (n, float(entropy.mean()), disagreement_share(seg, n_seg, labels))
     scan_points, scan_entropy, scan_disagreement = totals
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
-    plane_share = (
-        np.zeros(n_seg)
-        if main_plane is None
-        else np.bincount(seg, weights=main_plane.astype(np.float64), minlength=n_seg)
-        / np.maximum(seg_size, 1)
-    )
+    plane_share = _plane_share(seg, n_seg, seg_size, main_plane)
     seg_label = seg_soft.argmax(axis=1)[seg]
     cell_label = cell_soft.argmax(axis=1)[cell]
-    by_segment = np.flatnonzero(seg_label != labels)
-    by_cell = np.flatnonzero((cell_label != labels) & (cell_label != seg_label))
-    point = np.concatenate([by_segment, by_cell])
-    offer = np.concatenate([seg_label[by_segment], cell_label[by_cell]])
-    from_segment = np.arange(len(point)) < len(by_segment)
-    if min_support > 0:
-        supported = probs[point, offer] >= min_support
-        point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
+    point, offer, from_segment = _pick_offers(labels, seg_label, cell_label, probs, min_support)
     s, c, own = seg[point], cell[point], labels[point]
     features = np.column_stack(
         [

@@ -1,4 +1,5 @@
-"""Named fusion variants that benchmarks and ``jointseg eval --variants`` compare."""
+"""Named fusion variants that the benchmarks (``bench/fusion.py``, ``bench/fusion_real.py``) and
+``bench/same_outputs.py`` compare."""
 
 from __future__ import annotations
 

@@ -118,6 +118,32 @@ class PlyHeader:
     n_lines: int
 
 
+def _parse_property(words: list[str], where: str) -> PlyProperty:
+    """Build the property declared by one ``property`` header line (scalar or list)."""
+    if len(words) == 3 and words[1] in PLY_TYPES:
+        return PlyProperty(words[2], PLY_TYPES[words[1]])
+    if len(words) == 5 and words[1] == "list" and words[2] in PLY_TYPES and words[3] in PLY_TYPES:
+        return PlyProperty(words[4], PLY_TYPES[words[3]], PLY_TYPES[words[2]])
+    raise ScanFormatError(
+        f"{where}: expected 'property <type> <name>' or 'property list <type> <type> "
+        f"<name>' with types among {sorted(set(PLY_TYPES))}"
+    )
+
+
+def _check_vertex(header: PlyHeader, path: Path) -> None:
+    """Require a fixed-size vertex element with x/y/z properties, the minimum a scan needs."""
+    vertex = vertex_element(header, path)
+    names = [p.name for p in vertex.properties]
+    missing = [a for a in "xyz" if pick_name(names, (a,)) is None]
+    if missing:
+        raise ScanFormatError(
+            f"{path}: PLY vertex element has no {'/'.join(missing)} property "
+            f"(properties: {' '.join(names) or 'none'})"
+        )
+    if not vertex.fixed_size:
+        raise ScanFormatError(f"{path}: PLY vertex element has list properties; not supported")
+
+
 def parse_header(buf: bytes, path: Path) -> PlyHeader:
     """Parse and check a PLY header.
 
@@ -175,20 +201,7 @@ def parse_header(buf: bytes, path: Path) -> PlyHeader:
             if not elements:
                 raise ScanFormatError(f"{where}: property before any element")
             props = elements[-1].properties
-            if len(words) == 3 and words[1] in PLY_TYPES:
-                prop = PlyProperty(words[2], PLY_TYPES[words[1]])
-            elif (
-                len(words) == 5
-                and words[1] == "list"
-                and words[2] in PLY_TYPES
-                and words[3] in PLY_TYPES
-            ):
-                prop = PlyProperty(words[4], PLY_TYPES[words[3]], PLY_TYPES[words[2]])
-            else:
-                raise ScanFormatError(
-                    f"{where}: expected 'property <type> <name>' or 'property list <type> <type> "
-                    f"<name>' with types among {sorted(set(PLY_TYPES))}"
-                )
+            prop = _parse_property(words, where)
             if any(p.name == prop.name for p in props):
                 raise ScanFormatError(f"{where}: property {prop.name!r} is declared twice")
             props.append(prop)
@@ -197,16 +210,7 @@ def parse_header(buf: bytes, path: Path) -> PlyHeader:
     if encoding is None:
         raise ScanFormatError(f"{path}: PLY header has no 'format' line")
     header = PlyHeader(encoding, elements, nl + 1, len(lines))
-    vertex = vertex_element(header, path)
-    names = [p.name for p in vertex.properties]
-    missing = [a for a in "xyz" if pick_name(names, (a,)) is None]
-    if missing:
-        raise ScanFormatError(
-            f"{path}: PLY vertex element has no {'/'.join(missing)} property "
-            f"(properties: {' '.join(names) or 'none'})"
-        )
-    if not vertex.fixed_size:
-        raise ScanFormatError(f"{path}: PLY vertex element has list properties; not supported")
+    _check_vertex(header, path)
     return header
 
 

@@ -104,6 +104,73 @@ def _locate_bad_token(text: str, first_line: int) -> tuple[int, str]:
     return first_line, "?"
 
 
+def _chunk_end(buf: Buffer, pos: int, stop: int) -> int:
+    """End of the chunk starting at ``pos``: about CHUNK_BYTES on, cut after the next newline."""
+    end = min(stop, pos + CHUNK_BYTES)
+    if end < stop:
+        nl = buf.find(b"\n", end, stop)
+        end = stop if nl < 0 else nl + 1
+    return end
+
+
+def _check_limit(
+    path: Path, rows: int, limit: int | None, on_limit: Callable[[int], ScanFormatError] | None
+) -> None:
+    """Raise the caller's error (or a generic one) once more than ``limit`` rows were read."""
+    if limit is not None and rows > limit:
+        if on_limit is None:
+            raise ScanFormatError(f"{path}: more than {limit} rows")
+        raise on_limit(rows)
+
+
+def _stacked(
+    values: list[np.ndarray], lines: list[np.ndarray], ncols: int | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Join the chunks' rows and line numbers; an empty table keeps its known width."""
+    if not values:
+        width = ncols or 0
+        return np.zeros((0, width)), np.zeros(0, dtype=np.int64)
+    return np.concatenate(values), np.concatenate(lines)
+
+
+def _parse_chunk(
+    chunk: bytes,
+    counts: np.ndarray,
+    data_idx: np.ndarray,
+    *,
+    ncols: int,
+    comma: bool,
+    path: Path,
+    line_no: int,
+) -> np.ndarray:
+    """Check the column count of every data line of one chunk and parse it into (rows, ncols).
+
+    Kept out of :func:`parse_table` so the chunk loop stays readable; ``line_no`` is the 1-based
+    number of the chunk's first line, for messages.
+    """
+    wrong = data_idx[counts[data_idx] != ncols]
+    if wrong.size:
+        bad = int(wrong[0])
+        raise ScanFormatError(
+            f"{path}: line {line_no + bad} has {int(counts[bad])} columns, expected "
+            f"{ncols} (as on the lines before)"
+        )
+    text = chunk.decode("latin-1")
+    if comma:
+        text = text.replace(",", " ")
+    try:
+        with warnings.catch_warnings():
+            # numpy < 2.3 warns and returns a short array; newer versions raise.
+            warnings.simplefilter("ignore", DeprecationWarning)
+            parsed = np.fromstring(text, dtype=np.float64, sep=" ")
+    except ValueError:
+        parsed = np.zeros(0)
+    if parsed.size != data_idx.size * ncols:
+        bad_line, token = _locate_bad_token(text, line_no)
+        raise ScanFormatError(f"{path}: line {bad_line}: cannot read {token[:40]!r} as a number")
+    return parsed.reshape(-1, ncols)
+
+
 def parse_table(
     buf: Buffer,
     *,
@@ -165,49 +232,21 @@ def parse_table(
     line_no = first_line
     total = max(1, stop - start)
     while pos < stop:
-        end = min(stop, pos + CHUNK_BYTES)
-        if end < stop:
-            nl = buf.find(b"\n", end, stop)
-            end = stop if nl < 0 else nl + 1
+        end = _chunk_end(buf, pos, stop)
         chunk = buf[pos:end]
         counts = line_token_counts(chunk, comma=comma)
         data_idx = np.flatnonzero(counts)
         if data_idx.size:
             if ncols is None:
                 ncols = int(counts[data_idx[0]])
-            wrong = data_idx[counts[data_idx] != ncols]
-            if wrong.size:
-                bad = int(wrong[0])
-                raise ScanFormatError(
-                    f"{path}: line {line_no + bad} has {int(counts[bad])} columns, expected "
-                    f"{ncols} (as on the lines before)"
-                )
-            text = chunk.decode("latin-1")
-            if comma:
-                text = text.replace(",", " ")
-            try:
-                with warnings.catch_warnings():
-                    # numpy < 2.3 warns and returns a short array; newer versions raise.
-                    warnings.simplefilter("ignore", DeprecationWarning)
-                    parsed = np.fromstring(text, dtype=np.float64, sep=" ")
-            except ValueError:
-                parsed = np.zeros(0)
-            if parsed.size != data_idx.size * ncols:
-                bad_line, token = _locate_bad_token(text, line_no)
-                raise ScanFormatError(
-                    f"{path}: line {bad_line}: cannot read {token[:40]!r} as a number"
-                )
-            values.append(parsed.reshape(-1, ncols))
+            parsed = _parse_chunk(
+                chunk, counts, data_idx, ncols=ncols, comma=comma, path=path, line_no=line_no
+            )
+            values.append(parsed)
             lines.append(data_idx + line_no)
             rows += data_idx.size
-            if limit is not None and rows > limit:
-                if on_limit is None:
-                    raise ScanFormatError(f"{path}: more than {limit} rows")
-                raise on_limit(rows)
+            _check_limit(path, rows, limit, on_limit)
         line_no += counts.size
         pos = end
         report(progress, stage, (pos - start) / total)
-    if not values:
-        width = ncols or 0
-        return np.zeros((0, width)), np.zeros(0, dtype=np.int64)
-    return np.concatenate(values), np.concatenate(lines)
+    return _stacked(values, lines, ncols)

@@ -17,16 +17,17 @@ if TYPE_CHECKING:
     from jointseg.network.dgcnn import DGCNN
     from jointseg.network.dgcnn_params import DGCNNParams
     from jointseg.network.dgcnn_predict import DGCNNPredictor
-    from jointseg.network.predict import NetworkResult, RandLANetPredictor
+    from jointseg.network.predict import RandLANetPredictor
     from jointseg.network.randlanet import RandLANet, RandLANetConfig
     from jointseg.network.registry import available_backends, load
+    from jointseg.network.results import NetworkResult
 
 _HOME = {
     "Backend": "jointseg.network.backends",
     "DGCNN": "jointseg.network.dgcnn",
     "DGCNNParams": "jointseg.network.dgcnn_params",
     "DGCNNPredictor": "jointseg.network.dgcnn_predict",
-    "NetworkResult": "jointseg.network.predict",
+    "NetworkResult": "jointseg.network.results",
     "Predictor": "jointseg.network.backends",
     "RandLANet": "jointseg.network.randlanet",
     "RandLANetConfig": "jointseg.network.randlanet",

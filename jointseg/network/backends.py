@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     import torch
 
     from jointseg.network.anchored import AnchoredCloud, CropPlan
-    from jointseg.network.predict import CellSums, NetworkResult
+    from jointseg.network.results import CellSums, NetworkResult
     from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)

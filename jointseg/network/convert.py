@@ -28,7 +28,7 @@ import torch
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import FORMAT, save_checkpoint
-from jointseg.network.published import file_sha256
+from jointseg.network.digest import file_sha256
 from jointseg.network.randlanet import RandLANet, RandLANetConfig
 
 log = logging.getLogger(__name__)
@@ -254,6 +254,24 @@ def import_open3d_ml(src: Path, dst: Path, *, allow_pickle: bool = False) -> Pat
     model.eval()
 
     is_zoo = src.name == ZOO_FILE
+    card = _open3d_ml_card(src, digest, is_zoo)
+    if not is_zoo:
+        log.warning(
+            "%s is not Open3D-ML's model zoo file %s: assuming S3DIS class order; the model "
+            "card records no published score",
+            src.name,
+            ZOO_FILE,
+        )
+    if isinstance(body, Mapping) and isinstance(body.get("epoch"), int):
+        card["source_epoch"] = body["epoch"]
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(dst, model, card)
+    log.info("imported %s (sha256 %s) -> %s", src.name, digest, dst)
+    return dst
+
+
+def _open3d_ml_card(src: Path, digest: str, is_zoo: bool) -> dict[str, Any]:
+    """Model card of an imported checkpoint; only the zoo file gets a source URL and score."""
     card: dict[str, Any] = {
         "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
         "classes": list(CLASS_NAMES),
@@ -269,20 +287,7 @@ def import_open3d_ml(src: Path, dst: Path, *, allow_pickle: bool = False) -> Pat
         ),
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
-    card = {k: v for k, v in card.items() if v is not None}
-    if not is_zoo:
-        log.warning(
-            "%s is not Open3D-ML's model zoo file %s: assuming S3DIS class order; the model "
-            "card records no published score",
-            src.name,
-            ZOO_FILE,
-        )
-    if isinstance(body, Mapping) and isinstance(body.get("epoch"), int):
-        card["source_epoch"] = body["epoch"]
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    save_checkpoint(dst, model, card)
-    log.info("imported %s (sha256 %s) -> %s", src.name, digest, dst)
-    return dst
+    return {k: v for k, v in card.items() if v is not None}
 
 
 def _load(src: Path, digest: str, *, allow_pickle: bool) -> Any:

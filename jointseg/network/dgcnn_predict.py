@@ -24,7 +24,8 @@ from jointseg.network.blocks import block_features, column_blocks, sample_column
 from jointseg.network.checkpoint import read_torch_file
 from jointseg.network.dgcnn import DGCNN
 from jointseg.network.dgcnn_params import DGCNNParams
-from jointseg.network.predict import NetworkPredictor, NetworkResult
+from jointseg.network.predict import NetworkPredictor
+from jointseg.network.results import NetworkResult
 from jointseg.network.room_frame import RoomFrame, room_frame, scan_frame
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan

@@ -15,7 +15,6 @@ import logging
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,33 +36,12 @@ from jointseg.network.crops import Batch, build_batch
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet import RandLANet
 from jointseg.network.randlanet_params import RandLANetParams
+from jointseg.network.results import CellSums, NetworkResult
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
 STAGE = "network"
-
-
-@dataclass(frozen=True)
-class NetworkResult:
-    """Labels and class probabilities for every input point.
-
-    Attributes
-    ----------
-    labels : ndarray of shape (N,), int32
-    probs : ndarray of shape (N, 13), float32
-        Averaged softmax outputs; rows sum to 1.
-    """
-
-    labels: np.ndarray
-    probs: np.ndarray
-    crops: int
-    timings: dict[str, float] = field(default_factory=dict)
-
-    @property
-    def confidence(self) -> np.ndarray:
-        """Probability of the predicted class per point."""
-        return self.probs.max(axis=1)
 
 
 def pick_device(device: str | None = None) -> torch.device:
@@ -277,27 +255,6 @@ class RandLANetPredictor(NetworkPredictor):
     def grid_size(self) -> float:
         """Side (m) of the grid the network sub-samples a scan on."""
         return float(self.model.config.grid_size)
-
-
-@dataclass(frozen=True)
-class CellSums:
-    """Summed softmax outputs per sub-sampled cell, from some of a scan's crops.
-
-    Attributes
-    ----------
-    ids : ndarray of shape (K,), int64
-        Packed cell ids (:func:`jointseg.network.anchored.cell_ids`), ascending.
-    sums : ndarray of shape (K, 13), float64
-    seen : ndarray of shape (K,), float64
-        Crops that saw each cell.
-    point_cell : ndarray of shape (N,), int64
-        The cell whose outputs each input point takes (its nearest sub-sampled point).
-    """
-
-    ids: np.ndarray
-    sums: np.ndarray
-    seen: np.ndarray
-    point_cell: np.ndarray
 
 
 def load_randlanet(

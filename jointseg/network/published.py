@@ -11,7 +11,6 @@ Imports no torch: the Open3D-ML conversion is imported only when such a file arr
 
 from __future__ import annotations
 
-import hashlib
 import http.client
 import json
 import logging
@@ -26,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from jointseg import __version__
 from jointseg.exceptions import ConfigError
+from jointseg.network.digest import file_sha256
 from jointseg.progress import ProgressFn, report
 
 log = logging.getLogger(__name__)
@@ -167,15 +167,6 @@ def pulled_path(name: str) -> Path | None:
         return None
     path = cache_dir() / entry.filename
     return path if path.is_file() else None
-
-
-def file_sha256(path: Path) -> str:
-    """SHA-256 of a file, read in chunks."""
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while chunk := f.read(CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def pull(

@@ -33,15 +33,11 @@ from jointseg.network.backends import (
 
 __all__ = [
     "BACKENDS",
+    "backend_for_suffix",
     "BACKEND_MODULES",
     "DEFAULT_BACKEND",
-    "DEFAULT_PULLED",
-    "DEFAULT_WEIGHTS",
     "REGISTRY",
-    "SUFFIX_BACKEND",
     "WEIGHTS_DIR",
-    "WEIGHTS_ENV",
-    "WHERE_TO_GET",
     "Backend",
     "BackendInfo",
     "Predictor",
@@ -75,19 +71,14 @@ REGISTRY: Mapping[str, Backend] = MappingProxyType(
 #: The backend used when none is named.
 DEFAULT_BACKEND = "randlanet"
 
-# Views of the records by name, for callers written before Backend existed.
+#: The backends' names, in the order help texts list them.
 BACKENDS: tuple[str, ...] = tuple(REGISTRY)
-DEFAULT_WEIGHTS: dict[str, Path] = {
-    n: b.bundled for n, b in REGISTRY.items() if b.bundled is not None
-}
-#: Published weights a backend without bundled ones uses once they are pulled.
-DEFAULT_PULLED: dict[str, str] = {
-    n: b.published for n, b in REGISTRY.items() if b.published is not None
-}
-WEIGHTS_ENV: dict[str, str] = {n: b.env for n, b in REGISTRY.items()}
-WHERE_TO_GET: dict[str, str] = {n: b.where_to_get for n, b in REGISTRY.items()}
-#: Weight file suffixes that name their backend when a path is given instead of a name.
-SUFFIX_BACKEND: dict[str, str] = {s: n for n, b in REGISTRY.items() for s in b.suffixes}
+
+
+def backend_for_suffix(path: str) -> str | None:
+    """The backend whose weight files end like ``path`` (``.t7``: DGCNN), else None."""
+    suffix = Path(path).suffix
+    return next((n for n, b in REGISTRY.items() if suffix in b.suffixes), None)
 
 
 @dataclass(frozen=True)
@@ -207,8 +198,9 @@ def load(
     unknown = sorted(set(options) - set(REGISTRY))
     if unknown:
         raise TypeError(f"load() got unexpected keyword arguments: {', '.join(unknown)}")
-    if weights is None and name not in REGISTRY and Path(name).suffix in SUFFIX_BACKEND:
-        name, weights = SUFFIX_BACKEND[Path(name).suffix], name
+    by_suffix = backend_for_suffix(name)
+    if weights is None and name not in REGISTRY and by_suffix is not None:
+        name, weights = by_suffix, name
     record = backend(name)
     path = resolve_weights(name, weights)
     if path is None:

@@ -165,22 +165,10 @@ def run(
 
     net, geo = network_and_geometry(scan, config, network, progress, cancel, timings)
 
-    t = time.perf_counter()
-    check_cancel(cancel)
-    fused = fuse(
-        scan.xyz, geo.segments, net.labels, net.probs, config.fusion, main_plane=geo.main_plane
-    )
-    report(progress, "fusion", 1.0)
-    timings["fusion"] = time.perf_counter() - t
+    fused = _fusion_stage(scan, config, net, geo, progress, cancel, timings)
 
     t = time.perf_counter()
-    metrics = None
-    if scan.labels is not None and (scan.labels >= 0).any():
-        metrics = {
-            "network": evaluate(scan.labels, net.labels),
-            "fused": evaluate(scan.labels, fused.labels),
-            "oracle": evaluate(scan.labels, segment_majority(scan.labels, geo.segments)),
-        }
+    metrics = _metrics(scan, net, geo, fused)
     timings["metrics"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - started
     log.info(
@@ -199,6 +187,40 @@ def run(
         timings=timings,
         metrics=metrics,
     )
+
+
+def _fusion_stage(
+    scan: Scan,
+    config: PipelineConfig,
+    net: NetworkResult,
+    geo: GeometryResult,
+    progress: ProgressFn | None,
+    cancel: CancelToken | None,
+    timings: dict[str, float],
+) -> FusionResult:
+    """Fuse the network's labels over the geometry's segments, timed as ``fusion``."""
+    t = time.perf_counter()
+    check_cancel(cancel)
+    fused = fuse(
+        scan.xyz, geo.segments, net.labels, net.probs, config.fusion, main_plane=geo.main_plane
+    )
+    report(progress, "fusion", 1.0)
+    timings["fusion"] = time.perf_counter() - t
+    return fused
+
+
+def _metrics(
+    scan: Scan, net: NetworkResult, geo: GeometryResult, fused: FusionResult
+) -> dict[str, SegmentationMetrics] | None:
+    """The network's, the fused and the oracle's scores; None without ground truth."""
+    metrics = None
+    if scan.labels is not None and (scan.labels >= 0).any():
+        metrics = {
+            "network": evaluate(scan.labels, net.labels),
+            "fused": evaluate(scan.labels, fused.labels),
+            "oracle": evaluate(scan.labels, segment_majority(scan.labels, geo.segments)),
+        }
+    return metrics
 
 
 def network_and_geometry(

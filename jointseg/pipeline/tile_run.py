@@ -27,13 +27,15 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.learned import normalised_entropy
+from jointseg.geometry import GeometryResult
 from jointseg.network.anchored import CropPlan, crops_inside
 from jointseg.network.backends import Predictor, TilePredictor
 from jointseg.network.predict import NetworkResult
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.stages import network_and_geometry
-from jointseg.pipeline.tile_store import TilePlan, load_tile, read_plan, tile_folder
+from jointseg.pipeline.tile_store import TileBox, TilePlan, load_tile, read_plan, tile_folder
 from jointseg.progress import CancelToken, ProgressFn, check_cancel
+from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
 RESULT_FILE = "result.npz"
@@ -161,6 +163,46 @@ def run_tile(
     plan = plan or read_plan(workdir)
     timings: dict[str, float] = {}
     t = time.perf_counter()
+    scan, box, core, segmented = _load_outer(workdir, plan, index)
+    geometry_scan = scan.subset(segmented) if not segmented.all() else scan
+    timings["load"] = time.perf_counter() - t
+    check_cancel(cancel)
+    network = _network_fn(workdir, plan, predictor, scan, box, config.seed)
+    net, geo = network_and_geometry(
+        scan,
+        config,
+        network,
+        progress,
+        cancel,
+        timings,
+        resolved=plan.geometry,
+        geometry_scan=geometry_scan,
+    )
+    check_cancel(cancel)
+    t = time.perf_counter()
+    _save_result(workdir, index, len(scan), core, segmented, net, geo, timings)
+    timings["save"] = time.perf_counter() - t
+    log.info(
+        "tile %d: %d points (%d core), %d segments",
+        index,
+        len(scan),
+        int(core.sum()),
+        geo.n_segments,
+    )
+    return timings
+
+
+def _load_outer(
+    workdir: Path, plan: TilePlan, index: int
+) -> tuple[Scan, TileBox, np.ndarray, np.ndarray]:
+    """Tile ``index``'s outer points, its box, its core mask and the points the geometry
+    segments (the core plus the geometry's margin, which joins segments across borders).
+
+    Raises
+    ------
+    ConfigError
+        For a tile with too few points to segment.
+    """
     scan, _ = load_tile(workdir, plan, index)
     if len(scan) < 10:
         raise ConfigError(f"tile {index} holds {len(scan)} points, too few to segment")
@@ -168,10 +210,19 @@ def run_tile(
     core = box.tile().core_mask(scan.xyz[:, :2])
     margin = min(plan.params.geometry_overlap, plan.params.overlap)
     segmented = box.tile().near_core_mask(scan.xyz[:, :2], margin) | core
-    geometry_scan = scan.subset(segmented) if not segmented.all() else scan
-    timings["load"] = time.perf_counter() - t
-    check_cancel(cancel)
-    seed = config.seed
+    return scan, box, core, segmented
+
+
+def _network_fn(
+    workdir: Path,
+    plan: TilePlan,
+    predictor: Predictor,
+    scan: Scan,
+    box: TileBox,
+    seed: int,
+) -> Callable[[ProgressFn, CancelToken], Any]:
+    """The tile's network stage: per sub-sampled cell of the shared crop plan when there is
+    one (so tiles add up to an untiled run), else the predictor on the tile on its own."""
     network: Callable[[ProgressFn, CancelToken], Any]
     if plan.anchoring is not None and isinstance(predictor, TilePredictor):
         crops = read_crops(workdir, plan)
@@ -196,21 +247,24 @@ def run_tile(
         def network(progress: ProgressFn, cancel: CancelToken) -> Any:
             return predictor.predict(scan, progress, cancel, seed=seed)
 
-    net, geo = network_and_geometry(
-        scan,
-        config,
-        network,
-        progress,
-        cancel,
-        timings,
-        resolved=plan.geometry,
-        geometry_scan=geometry_scan,
-    )
-    check_cancel(cancel)
-    t = time.perf_counter()
-    segments = np.full(len(scan), -1, dtype=np.int32)
+    return network
+
+
+def _save_result(
+    workdir: Path,
+    index: int,
+    n_points: int,
+    core: np.ndarray,
+    segmented: np.ndarray,
+    net: Any,
+    geo: GeometryResult,
+    timings: dict[str, float],
+) -> None:
+    """Write the tile's files, the big arrays first and ``result.npz`` last: its rename marks
+    the tile done."""
+    segments = np.full(n_points, -1, dtype=np.int32)
     segments[segmented] = geo.segments
-    main_plane = np.zeros(len(scan), dtype=bool)
+    main_plane = np.zeros(n_points, dtype=bool)
     main_plane[segmented] = geo.main_plane
     common = {
         "segments": segments,
@@ -236,15 +290,6 @@ def run_tile(
         extra = {"point_cell": cells.point_cell[core]}
     savez = cast(Any, np.savez)  # numpy's stubs take ** arrays for its own keywords
     _save(result_path(workdir, index), lambda fh: savez(fh, **common, **extra))
-    timings["save"] = time.perf_counter() - t
-    log.info(
-        "tile %d: %d points (%d core), %d segments",
-        index,
-        len(scan),
-        int(core.sum()),
-        geo.n_segments,
-    )
-    return timings
 
 
 def load_result(workdir: Path, index: int) -> TileResult:

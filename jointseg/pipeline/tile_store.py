@@ -204,11 +204,16 @@ def prepare(
         params=tiles,
         anchoring=anchoring,
     )
+    _write_plan(workdir, plan)
+    log.info("tiles: %d points in %d tiles (%s)", count, len(boxes), source)
+    return plan
+
+
+def _write_plan(workdir: Path, plan: TilePlan) -> None:
+    """Write ``plan.json`` through a temporary file and a rename, so a plan is never partial."""
     tmp = workdir / f".{PLAN_FILE}.tmp"
     tmp.write_text(plan.model_dump_json(indent=1))
     os.replace(tmp, workdir / PLAN_FILE)
-    log.info("tiles: %d points in %d tiles (%s)", count, len(boxes), source)
-    return plan
 
 
 def _anchor(

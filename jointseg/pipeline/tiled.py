@@ -111,19 +111,7 @@ def run_tiled(
             )
             timings["prepare"] = time.perf_counter() - t
             t = time.perf_counter()
-            for box in plan.tiles:
-                check_cancel(cancel)
-                tile_progress = TileProgress(progress, box.index, len(plan.tiles))
-                run_tile(
-                    work,
-                    box.index,
-                    config,
-                    predictor=predictor,
-                    plan=plan,
-                    progress=tile_progress,
-                    cancel=cancel,
-                )
-                report(progress, "tiles", (box.index + 1) / len(plan.tiles))
+            _run_tiles(work, plan, config, predictor, progress, cancel)
             timings["tiles"] = time.perf_counter() - t
             merged = merge(work, config, plan=plan, progress=progress, cancel=cancel)
             timings.update(merged.timings)
@@ -136,6 +124,30 @@ def run_tiled(
             shutil.rmtree(work, ignore_errors=True)
     timings["total"] = time.perf_counter() - started
     return TiledRun(merged, plan, tiled_report(merged, plan, config, timings))
+
+
+def _run_tiles(
+    work: Path,
+    plan: TilePlan,
+    config: PipelineConfig,
+    predictor: Predictor,
+    progress: ProgressFn | None,
+    cancel: CancelToken | None,
+) -> None:
+    """Run the plan's tiles one after the other in this process (one tile's memory at a time)."""
+    for box in plan.tiles:
+        check_cancel(cancel)
+        tile_progress = TileProgress(progress, box.index, len(plan.tiles))
+        run_tile(
+            work,
+            box.index,
+            config,
+            predictor=predictor,
+            plan=plan,
+            progress=tile_progress,
+            cancel=cancel,
+        )
+        report(progress, "tiles", (box.index + 1) / len(plan.tiles))
 
 
 def prepare_from(

@@ -24,6 +24,19 @@ log = logging.getLogger(__name__)
 MAX_SCANNERS = 10
 
 
+def _check_args(
+    seed: int, points: int, shape: str, yaw: float | None, scanners: int | None
+) -> tuple[int, int, float | None, int | None]:
+    """Validate ``make_room``'s arguments before any random draw, so errors cost nothing."""
+    seed = check_seed(seed)
+    points = check_points(points)
+    if shape not in ("box", "L"):
+        raise ConfigError(f"shape must be 'box' or 'L', got {shape!r}")
+    yaw = check_yaw(yaw)
+    scanners = None if scanners is None else check_count("scanners", scanners, 1, MAX_SCANNERS)
+    return seed, points, yaw, scanners
+
+
 def make_room(
     seed: int,
     *,
@@ -63,12 +76,7 @@ def make_room(
     ConfigError
         On a bad ``seed``, ``points``, ``shape``, ``yaw`` or ``scanners``.
     """
-    seed = check_seed(seed)
-    points = check_points(points)
-    if shape not in ("box", "L"):
-        raise ConfigError(f"shape must be 'box' or 'L', got {shape!r}")
-    yaw = check_yaw(yaw)
-    scanners = None if scanners is None else check_count("scanners", scanners, 1, MAX_SCANNERS)
+    seed, points, yaw, scanners = _check_args(seed, points, shape, yaw, scanners)
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     drawn_yaw = float(rng.uniform(0.0, 360.0))

@@ -9,10 +9,10 @@ import pytest
 from jointseg.metrics import evaluate
 from jointseg.network import load
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import REGISTRY
 from jointseg.synth import make_room
 
-BUNDLED = DEFAULT_WEIGHTS["randlanet"]
+BUNDLED = REGISTRY["randlanet"].bundled
 pytestmark = pytest.mark.skipif(not BUNDLED.is_file(), reason=f"no bundled weights at {BUNDLED}")
 
 

@@ -11,7 +11,7 @@ import torch
 
 from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.network import DGCNNParams, available_backends, load
-from jointseg.network.registry import WEIGHTS_ENV
+from jointseg.network.registry import REGISTRY
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
@@ -95,7 +95,7 @@ def test_room_size_places_every_block_in_the_middle_of_a_room(dgcnn_random_weigh
 
 
 def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
-    monkeypatch.delenv(WEIGHTS_ENV["dgcnn"], raising=False)
+    monkeypatch.delenv(REGISTRY["dgcnn"].env, raising=False)
     monkeypatch.setenv("JOINTSEG_CACHE", str(tmp_path / "empty-cache"))
     with pytest.raises(ConfigError, match="jointseg models pull dgcnn-s3dis-5"):
         load("dgcnn")
@@ -109,7 +109,7 @@ def test_missing_weights_say_where_to_get_them(tmp_path, monkeypatch) -> None:
 def test_weights_from_the_environment_and_by_suffix(
     dgcnn_random_weights, monkeypatch, tmp_path
 ) -> None:
-    monkeypatch.setenv(WEIGHTS_ENV["dgcnn"], str(dgcnn_random_weights))
+    monkeypatch.setenv(REGISTRY["dgcnn"].env, str(dgcnn_random_weights))
     assert load("dgcnn").card["data"] == "S3DIS, Area 9 held out"
     info = {b.name: b for b in available_backends()}["dgcnn"]
     assert info.available and info.weights == dgcnn_random_weights

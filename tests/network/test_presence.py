@@ -61,9 +61,9 @@ def test_the_option_reaches_the_predictor_through_the_pipeline_config(random_wei
 
 def test_whole_scan_inference_applies_it(small_room) -> None:
     from jointseg.network import load
-    from jointseg.network.registry import DEFAULT_WEIGHTS
+    from jointseg.network.registry import REGISTRY
 
-    weights = DEFAULT_WEIGHTS["randlanet"]
+    weights = REGISTRY["randlanet"].bundled
     raw = load("randlanet", weights, params=RandLANetParams(absent_share=0)).predict(small_room)
     pruned = load("randlanet", weights, params=RandLANetParams(absent_share=0.05)).predict(
         small_room

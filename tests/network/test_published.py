@@ -19,7 +19,7 @@ import pytest
 
 from jointseg.exceptions import ConfigError
 from jointseg.network import published
-from jointseg.network.registry import WEIGHTS_ENV, resolve_weights
+from jointseg.network.registry import REGISTRY, resolve_weights
 
 GOOD = bytes(range(256)) * 4096  # 1 MiB
 CUT = bytes(reversed(range(256))) * 6000
@@ -174,7 +174,7 @@ def test_unknown_name_and_bad_catalogue(catalogue: Path, tmp_path: Path, monkeyp
 
 
 def test_pulled_names_work_as_weights(catalogue: Path, tmp_path: Path, monkeypatch) -> None:
-    monkeypatch.delenv(WEIGHTS_ENV["dgcnn"], raising=False)
+    monkeypatch.delenv(REGISTRY["dgcnn"].env, raising=False)
     with pytest.raises(ConfigError, match="jointseg models pull good"):
         resolve_weights("dgcnn", "good")
     assert resolve_weights("dgcnn") is None  # the default DGCNN weights are not pulled

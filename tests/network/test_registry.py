@@ -19,13 +19,9 @@ from jointseg.network.dgcnn_predict import DGCNNParams as ReExported
 from jointseg.network.randlanet_params import RandLANetParams
 from jointseg.network.registry import (
     BACKENDS,
-    DEFAULT_PULLED,
-    DEFAULT_WEIGHTS,
     REGISTRY,
-    SUFFIX_BACKEND,
-    WEIGHTS_ENV,
-    WHERE_TO_GET,
     _declared,
+    backend_for_suffix,
 )
 
 
@@ -59,16 +55,22 @@ def test_the_registry_and_the_backend_records_import_no_torch() -> None:
     assert _imports_torch("from jointseg.network import load, DGCNN")
 
 
-def test_the_views_by_name_keep_their_old_meaning() -> None:
+def test_the_records_say_what_each_backend_reads() -> None:
     assert BACKENDS == ("randlanet", "dgcnn") == tuple(REGISTRY)
-    assert DEFAULT_WEIGHTS["randlanet"].name == "randlanet_indoor.pt"
-    assert "dgcnn" not in DEFAULT_WEIGHTS and DEFAULT_PULLED == {"dgcnn": "dgcnn-s3dis-5"}
-    assert WEIGHTS_ENV == {
-        "randlanet": "JOINTSEG_RANDLANET_WEIGHTS",
-        "dgcnn": "JOINTSEG_DGCNN_WEIGHTS",
-    }
-    assert SUFFIX_BACKEND == {".pt": "randlanet", ".pth": "randlanet", ".t7": "dgcnn"}
-    assert "jointseg models pull dgcnn-s3dis-5" in WHERE_TO_GET["dgcnn"]
+    bundled = REGISTRY["randlanet"].bundled
+    assert bundled is not None and bundled.name == "randlanet_indoor.pt"
+    assert REGISTRY["dgcnn"].bundled is None and REGISTRY["dgcnn"].published == "dgcnn-s3dis-5"
+    assert [b.env for b in REGISTRY.values()] == [
+        "JOINTSEG_RANDLANET_WEIGHTS",
+        "JOINTSEG_DGCNN_WEIGHTS",
+    ]
+    assert [backend_for_suffix(f"w{s}") for s in (".pt", ".pth", ".t7", ".npz")] == [
+        "randlanet",
+        "randlanet",
+        "dgcnn",
+        None,
+    ]
+    assert "jointseg models pull dgcnn-s3dis-5" in REGISTRY["dgcnn"].where_to_get
     assert ReExported is DGCNNParams
 
 

@@ -73,7 +73,7 @@ def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path, tiny_training) ->
 
 
 def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
-    from jointseg.network.checkpoint import pack_checkpoint
+    from jointseg.network.shipping import pack_checkpoint
 
     first = train(tiny_training())
     packed = pack_checkpoint(first, tmp_path / "packed.pt")
@@ -140,8 +140,8 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
 
 
 def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
-    from jointseg.network.checkpoint import pack_checkpoint
     from jointseg.network.registry import card_summary
+    from jointseg.network.shipping import pack_checkpoint
     from jointseg.network.training import S3DIS_TERMS, SYNTH_TERMS
 
     path = train(tiny_training(epochs=2, command="jointseg train --data synth --out m.pt"))
@@ -169,7 +169,7 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
 
 def test_blending_two_checkpoints_interpolates_the_weights(tmp_path, tiny_training) -> None:
     from jointseg.exceptions import ConfigError
-    from jointseg.network.checkpoint import blend_checkpoints
+    from jointseg.network.shipping import blend_checkpoints
 
     a = train(tiny_training(out=tmp_path / "a.pt", seed=1))
     b = train(tiny_training(out=tmp_path / "b.pt", seed=2))

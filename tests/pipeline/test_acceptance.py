@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jointseg.network.registry import DEFAULT_WEIGHTS
+from jointseg.network.registry import REGISTRY
 from jointseg.pipeline import PipelineConfig, load_predictor, run
 from jointseg.synth import make_room
 
 pytestmark = pytest.mark.skipif(
-    not DEFAULT_WEIGHTS["randlanet"].is_file(),
-    reason=f"no bundled weights at {DEFAULT_WEIGHTS['randlanet']}",
+    not REGISTRY["randlanet"].bundled.is_file(),
+    reason=f"no bundled weights at {REGISTRY['randlanet'].bundled}",
 )
 
 
