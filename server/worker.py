@@ -18,7 +18,7 @@ from types import FrameType
 
 from server import lifecycle, tiles
 from server.context import WorkerContext
-from server.db import SessionFactory, init_db, make_engine, make_sessions
+from server.db import init_db, make_engine, make_sessions
 from server.logs import configure_logging
 from server.queue import MERGE_TILES, RUN_TILE, JobQueue, set_handler
 from server.reaper import reap_and_requeue
@@ -77,7 +77,7 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
         log.info("worker %s: %s received, stopping", context.worker, signal.Signals(signum).name)
         stopping.set()
 
-    _beat(sessions, context)
+    _beat(context)
     consumer.start()
     signal.signal(signal.SIGTERM, stop)  # replaces the consumer's handlers
     signal.signal(signal.SIGINT, stop)
@@ -87,7 +87,7 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
         queue.kind,
         torch.get_num_threads(),
     )
-    _main_loop(settings, sessions, queue, context, parent_pid)
+    _main_loop(context, parent_pid)
     consumer.stop(graceful=True)
     with sessions() as session:
         lifecycle.forget_worker(session, context.worker)
@@ -96,10 +96,10 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     log.info("worker %s stopped", context.worker)
 
 
-def _beat(sessions: SessionFactory, context: WorkerContext) -> None:
+def _beat(context: WorkerContext) -> None:
     try:
         current = context.current
-        with sessions() as session:
+        with context.sessions() as session:
             if isinstance(current, tiles.PartClaim):
                 tiles.heartbeat(session, current, context.worker)
             else:
@@ -108,17 +108,12 @@ def _beat(sessions: SessionFactory, context: WorkerContext) -> None:
         log.warning("worker %s: heartbeat failed", context.worker, exc_info=True)
 
 
-def _main_loop(
-    settings: Settings,
-    sessions: SessionFactory,
-    queue: JobQueue,
-    context: WorkerContext,
-    parent_pid: int | None,
-) -> None:
+def _main_loop(context: WorkerContext, parent_pid: int | None) -> None:
     """Heartbeats and the reaper, every ``heartbeat_interval_s``, until asked to stop."""
+    settings = context.settings
     tasks: list[Callable[[], object]] = [
-        lambda: _beat(sessions, context),
-        lambda: reap_and_requeue(sessions, queue, settings),
+        lambda: _beat(context),
+        lambda: reap_and_requeue(context.sessions, context.queue, settings),
     ]
     while not context.stopping.wait(settings.heartbeat_interval_s):
         if parent_pid is not None and os.getppid() != parent_pid:

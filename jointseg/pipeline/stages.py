@@ -23,8 +23,8 @@ from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
-from jointseg.network.predict import NetworkResult
 from jointseg.network.registry import load, resolve_weights
+from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan

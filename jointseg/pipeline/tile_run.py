@@ -30,7 +30,7 @@ from jointseg.fusion.learned import normalised_entropy
 from jointseg.geometry import GeometryResult
 from jointseg.network.anchored import CropPlan, crops_inside
 from jointseg.network.backends import Predictor, TilePredictor
-from jointseg.network.predict import NetworkResult
+from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.stages import network_and_geometry
 from jointseg.pipeline.tile_store import TileBox, TilePlan, load_tile, read_plan, tile_folder
