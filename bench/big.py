@@ -31,9 +31,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from helpers.inputs import cached_floor
 
-#: Points per synthetic room of the floor (a 20 M-point floor has about 28 rooms).
-POINTS_PER_ROOM = 700_000
 #: Runs a command and prints the peak RSS (KiB) of that child, so each run is measured alone.
 PEAK_WRAPPER = (
     "import resource, subprocess, sys; "
@@ -41,17 +40,6 @@ PEAK_WRAPPER = (
     "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
     "sys.exit(code)"
 )
-
-
-def make_floor(points: int, folder: Path) -> Path:
-    """A cached synthetic floor of ``points`` points as LAZ."""
-    path = folder / f"floor_{points}.laz"
-    if not path.exists():
-        rooms = min(32, max(2, round(points / POINTS_PER_ROOM)))
-        cmd = [sys.executable, "-m", "jointseg", "synth", "-o", str(path), "--floor", str(rooms)]
-        cmd += ["--points", str(points), "--seed", "1"]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
-    return path
 
 
 def segment(scan: Path, out: Path, tile_points: int) -> dict[str, float]:
@@ -110,7 +98,7 @@ def main() -> None:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
         for points in sizes:
-            scan = make_floor(points, folder)
+            scan = cached_floor(points, folder)
             outputs: dict[str, Path] = {}
             for mode in modes:
                 out = Path(tmp) / f"out_{points}_{mode}.laz"

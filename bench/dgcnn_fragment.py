@@ -19,14 +19,15 @@ import time
 from pathlib import Path
 
 import torch
-from network_accuracy import FRAGMENT, fmt
+from helpers.inputs import FRAGMENT, MODELS
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
 from jointseg.network import DGCNNParams, load
+from jointseg.pipeline.tables import format_score as fmt
 
-WEIGHTS_DIR = FRAGMENT.parents[1] / "models" / "dgcnn_s3dis"
+WEIGHTS_DIR = MODELS / "dgcnn_s3dis"
 SETTINGS = {
     "reference (scan box, stride 1)": DGCNNParams(frame="scan", stride=1.0),
     "scan box, stride 0.5": DGCNNParams(frame="scan"),

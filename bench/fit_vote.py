@@ -32,8 +32,17 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import fusion_real as fr
 import numpy as np
+from helpers.inputs import AREA6, M6, MODELS, SCANNET, WEAK
+from helpers.scans import (
+    Item,
+    calibration_rooms,
+    content_key,
+    geometry_output,
+    load_items,
+    network_name,
+    network_output,
+)
 from sklearn.ensemble import HistGradientBoostingClassifier
 
 from jointseg.fusion.learned import (
@@ -46,19 +55,14 @@ from jointseg.fusion.learned import (
 )
 from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
+from jointseg.network.training.data import stable_order
 from jointseg.scan import Scan
-from jointseg.synth import make_floor, make_room
 
 log = logging.getLogger("fit_vote")
 
-MODELS = fr.SHARED / "models"
-M6 = f"dgcnn:{MODELS / 'dgcnn_s3dis' / 'model_6.t7'}"
 M1 = f"dgcnn:{MODELS / 'dgcnn_s3dis' / 'model_1.t7'}"
 GPU = f"randlanet:{MODELS / 'randlanet_area6_gpu' / 'randlanet_area6_gpu.pt'}"
 BUNDLED = "randlanet"
-#: A weak network: the synthetic-only RandLA-Net (bench/checkpoints).
-WEAK = f"randlanet:{Path(__file__).parent / 'checkpoints' / 'randlanet_synth.pt'}"
-CALIBRATION_SEED = 7000
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,7 @@ class Labeller:
 
     @property
     def name(self) -> str:
-        base = fr.network_name(self.spec)
+        base = network_name(self.spec)
         return f"{base}+{self.distortion}" if self.distortion else base
 
 
@@ -130,21 +134,6 @@ MONOTONIC = [
 ]
 
 
-def calibration_rooms(rooms: int, floors: int, points: int) -> list[fr.Item]:
-    """Synthetic rooms and floors with seeds no benchmark holds out."""
-    out = []
-    for i in range(rooms):
-        shape = "L" if i % 2 else "box"
-        name = f"room {CALIBRATION_SEED + i} ({shape})"
-        scan = make_room(CALIBRATION_SEED + i, points=points, shape=shape)
-        out.append(fr.Item(name, scan, fr.content_key(name, points), "calibration", "synthetic"))
-    for i in range(floors):
-        name = f"floor {CALIBRATION_SEED + 100 + i}"
-        scan = make_floor(CALIBRATION_SEED + 100 + i, points=3 * points)
-        out.append(fr.Item(name, scan, fr.content_key(name, points), "calibration", "synthetic"))
-    return out
-
-
 @dataclass
 class Room:
     """One scan as one labeller labelled it: its offers, what is true of them, and what scoring
@@ -161,13 +150,13 @@ class Room:
     weight: np.ndarray  # per offer: inverse frequency of the true class, rooms weigh alike
 
 
-def load_room(item: fr.Item, who: Labeller, predictors: dict, min_support: float) -> Room:
+def load_room(item: Item, who: Labeller, predictors: dict, min_support: float) -> Room:
     """Offers of one scan (segments of the default geometry), with their truth and weights."""
-    labels, probs = fr.network_output(who.spec, item, predictors)
+    labels, probs = network_output(who.spec, item, predictors)
     if who.distortion:
         probs = distort(probs, who.distortion)
         labels = probs.argmax(axis=1)
-    g = fr.geometry_output("default", item)
+    g = geometry_output("default", item)
     seg = g["segments"].astype(np.int64)
     gt = item.scan.labels
     assert gt is not None
@@ -259,7 +248,7 @@ def cross_validate(rooms: list[Room], args: argparse.Namespace) -> None:
     if args.cv_datasets:
         fold_of = {r.room: r.dataset for r in rooms}
     else:
-        names = fr.stable_order(sorted({r.room for r in rooms}))
+        names = stable_order(sorted({r.room for r in rooms}))
         fold_of = {name: str(i % args.cv) for i, name in enumerate(names)}
     found: dict[tuple[str, str], list[np.ndarray]] = {}
     for k in sorted(set(fold_of.values())):
@@ -317,7 +306,7 @@ def export(clf: HistGradientBoostingClassifier) -> dict:
 SLICE_HEIGHT = 1.0
 
 
-def floor_slice(item: fr.Item) -> fr.Item:
+def floor_slice(item: Item) -> Item:
     """The bottom SLICE_HEIGHT metres of a tuning scan, as a scan of its own in the same room
     (partial scans: the network and the geometry see only the slice)."""
     z = item.scan.xyz[:, 2]
@@ -328,21 +317,21 @@ def floor_slice(item: fr.Item) -> fr.Item:
         labels=None if item.scan.labels is None else item.scan.labels[keep],
     )
     name = f"{item.name} slice"
-    return fr.Item(
+    return Item(
         name,
         scan,
-        fr.content_key(item.key, "slice", SLICE_HEIGHT),
+        content_key(item.key, "slice", SLICE_HEIGHT),
         item.split,
         item.dataset,
         item.room,
     )
 
 
-def load_rooms(args: argparse.Namespace) -> tuple[list[Room], list[fr.Item]]:
+def load_rooms(args: argparse.Namespace) -> tuple[list[Room], list[Item]]:
     """Every tuning scan of every dataset, labelled by each of its dataset's labellers."""
     real = [
         i
-        for i in fr.load_items([str(fr.AREA6), str(fr.SCANNET)], args.judge, (0, 0, 0))
+        for i in load_items([str(AREA6), str(SCANNET)], args.judge, (0, 0, 0))
         if i.split == "tune"
     ]
     if args.slices:

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from network_accuracy import FRAGMENT, fmt, held_out
+from helpers.inputs import FRAGMENT
+from helpers.scans import held_out
 
 from jointseg.fusion import DEFAULT_MODE, FusionParams, fuse
 from jointseg.geometry import segment
@@ -35,6 +36,7 @@ from jointseg.io import read_scan
 from jointseg.metrics import evaluate, segment_majority
 from jointseg.network import load
 from jointseg.network.registry import BACKENDS
+from jointseg.pipeline.tables import format_score as fmt
 from jointseg.scan import Scan
 from jointseg.synth.label_noise import corrupt_labels
 

@@ -29,23 +29,27 @@ from __future__ import annotations
 
 import argparse
 import csv
-import functools
-import hashlib
 import logging
-import re
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from network_accuracy import held_out
+from helpers.inputs import AREA6, SCANNET
+from helpers.scans import (
+    GEOMETRY,
+    SCANNET_JUDGES,
+    Item,
+    geometry_output,
+    load_items,
+    network_name,
+    network_output,
+)
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.fusion import fuse
 from jointseg.fusion.variants import DEFAULT_VARIANT, VARIANTS
-from jointseg.geometry import GeometryParams, segment
-from jointseg.io import read_scan
 from jointseg.metrics import (
     confusion_matrix,
     evaluate,
@@ -53,43 +57,9 @@ from jointseg.metrics import (
     segment_majority,
     segment_purity,
 )
-from jointseg.network.train_data import stable_order
 from jointseg.pipeline.tables import format_score as fmt
-from jointseg.scan import Scan
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-AREA6 = SHARED / "data" / "s3dis_area6"
-SCANNET = SHARED / "data" / "scannet"
-#: ScanNet rooms judged (every re-scan of a room on one side): the three the bundled RandLA-Net
-#: never trained on (scene0002 and scene0007 excluded, scene0005 its validation room).
-SCANNET_JUDGES = ("scene0002", "scene0005", "scene0007")
-#: Folder (or file stem) -> dataset name in the tables.
-DATASET_NAMES = {"s3dis_area6": "S3DIS", "scannet": "ScanNet", "s3dis_fragment": "S3DIS fragment"}
-CACHE = Path(__file__).parent / "_cache"
 LOST = -0.005  # a room "lost" below network - 0.5 mIoU points
-
-#: Geometry settings compared (name -> GeometryParams overrides).
-GEOMETRY: dict[str, dict] = {
-    "default": {},
-    "colour0.6": {"colour_scale": 0.6},
-    "colour0.6-min10": {"colour_scale": 0.6, "min_region_points": 10},
-    "voxel1.5": {"voxel_factor": 1.5},
-    "colour0.4": {"colour_scale": 0.4},
-    "colour0.4-min10": {"colour_scale": 0.4, "min_region_points": 10},
-    "colour0.3-min10": {"colour_scale": 0.3, "min_region_points": 10},
-}
-
-
-@dataclass
-class Item:
-    """One labelled scan and where it belongs."""
-
-    name: str
-    scan: Scan
-    key: str  # content hash for the cache
-    split: str  # "judge", "tune" or "synthetic"
-    dataset: str = "synthetic"
-    room: str = ""  # scans of one room share it (ScanNet re-scans)
 
 
 @dataclass
@@ -109,128 +79,6 @@ class Row:
     fused: dict[str, float] = field(default_factory=dict)
     cm_net: np.ndarray | None = None
     cm_fused: dict[str, np.ndarray] = field(default_factory=dict)
-
-
-def content_key(*parts: object) -> str:
-    """A short hash of the parts (arrays by their bytes)."""
-    h = hashlib.sha1()
-    for p in parts:
-        h.update(p.tobytes() if isinstance(p, np.ndarray) else repr(p).encode())
-    return h.hexdigest()[:16]
-
-
-def cached(path: Path, compute) -> dict[str, np.ndarray]:
-    """Arrays from ``path`` (npz) if there, else ``compute()`` saved there."""
-    if path.is_file():
-        with np.load(path) as data:
-            return {k: data[k] for k in data.files}
-    out = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, **out)
-    tmp.replace(path)
-    return out
-
-
-def dataset_of(path: Path) -> str:
-    """The dataset a scan belongs to, by its folder (or, for a lone file, its stem)."""
-    key = path.parent.name if path.parent.name in DATASET_NAMES else path.stem
-    return DATASET_NAMES.get(key, path.parent.name)
-
-
-def room_of(stem: str) -> str:
-    """The room a scan shows: ScanNet's ``sceneNNNN_MM`` re-scans share ``sceneNNNN``."""
-    return re.sub(r"^(scene\d{4})_\d{2}$", r"\1", stem)
-
-
-def judging_rooms(dataset: str, rooms: list[str], judge: int) -> set[str]:
-    """Rooms judged: ScanNet's fixed three (see SCANNET_JUDGES), else the first ``judge`` rooms
-    of the dataset in name-hash order."""
-    if dataset == "ScanNet":
-        return set(SCANNET_JUDGES)
-    return set(stable_order(rooms)[:judge])
-
-
-def load_items(paths: list[str], judge: int, synth: tuple[int, int, int]) -> list[Item]:
-    """Real labelled scans (split by room, per dataset) and held-out synthetic ones."""
-    files: list[Path] = []
-    for p in paths:
-        if p == "none":
-            continue
-        path = Path(p)
-        files += sorted(path.glob("*.ply")) if path.is_dir() else [path]
-    rooms_by_dataset: dict[str, list[str]] = {}
-    for f in files:
-        rooms_by_dataset.setdefault(dataset_of(f), []).append(room_of(f.stem))
-    judges = {d: judging_rooms(d, sorted(set(r)), judge) for d, r in rooms_by_dataset.items()}
-    items = []
-    for f in files:
-        scan = read_scan(f)
-        if scan.labels is None:
-            raise SystemExit(f"{f}: no label field")
-        key = content_key(scan.xyz, scan.labels)
-        dataset, room = dataset_of(f), room_of(f.stem)
-        split = "judge" if room in judges[dataset] else "tune"
-        items.append(Item(f.stem, scan, key, split, dataset, room))
-    rooms, floors, points = synth
-    for name, scan in held_out(rooms, floors, points):
-        items.append(Item(name, scan, content_key(name, points), "synthetic", "synthetic", name))
-    return items
-
-
-def network_output(spec: str, item: Item, predictors: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Labels and probabilities of network ``spec`` ("backend[:weights]") on a scan, cached."""
-
-    def compute() -> dict[str, np.ndarray]:
-        from jointseg.network import load
-
-        if spec not in predictors:
-            backend, _, weights = spec.partition(":")
-            predictors[spec] = load(backend, weights or None)
-        result = predictors[spec].predict(item.scan, seed=0)
-        return {"labels": result.labels.astype(np.int8), "probs": result.probs.astype(np.float16)}
-
-    key = content_key(spec, weights_fingerprint(spec), INFERENCE_VERSION)
-    out = cached(CACHE / "net" / f"{item.key}-{key}.npz", compute)
-    return out["labels"].astype(np.int64), out["probs"].astype(np.float32)
-
-
-#: Part of every cached network output's key: bump it when whole-scan inference changes what it
-#: computes (2: RandLA-Net's linear possibility weight; 3: classes a scan does not hold taken
-#: out, RandLANetParams.absent_share), so no stale labels are reused.
-INFERENCE_VERSION = 3
-
-
-@functools.cache
-def weights_fingerprint(spec: str) -> str:
-    """Size and modification time of the weights file ``spec`` resolves to: a spec without a
-    path ("randlanet") names whatever weights are bundled now, so the key must follow them."""
-    from jointseg.network.registry import resolve_weights
-
-    backend, _, weights = spec.partition(":")
-    path = resolve_weights(backend, weights or None)
-    if path is None or not path.is_file():
-        return "none"
-    stat = path.stat()
-    return f"{stat.st_size}-{stat.st_mtime_ns}"
-
-
-def geometry_output(name: str, item: Item) -> dict[str, np.ndarray]:
-    """Segments and main-plane ids of geometry setting ``name`` on a scan, cached."""
-    params = GeometryParams(**GEOMETRY[name])
-
-    def compute() -> dict[str, np.ndarray]:
-        result = segment(item.scan, params, seed=0)
-        return {"segments": result.segments, "plane_id": result.plane_id}
-
-    return cached(
-        CACHE / "geo" / f"{item.key}-{content_key(params.model_dump_json())}.npz", compute
-    )
-
-
-def network_name(spec: str) -> str:
-    """A network spec as the tables name it: its weights file, or the bare backend."""
-    return spec.rpartition("/")[2] or spec
 
 
 def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: dict) -> Row:

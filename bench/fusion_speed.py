@@ -15,11 +15,12 @@ a refitted model's speed with the one it replaces.
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
-import time
 from pathlib import Path
 
 import numpy as np
+from helpers.measure import best_time
 
 from jointseg.fusion import FusionParams, fuse, learned
 from jointseg.fusion.variants import VARIANTS
@@ -58,11 +59,9 @@ def main() -> None:
     for name, params, model in runs:
         if model is not None:
             use_model(model)
-        best = np.inf
-        for _ in range(args.repeat):
-            t = time.perf_counter()
-            fuse(scan.xyz, segments, labels, probs, params)
-            best = min(best, time.perf_counter() - t)
+        best = best_time(
+            functools.partial(fuse, scan.xyz, segments, labels, probs, params), args.repeat
+        )
         base = base or best
         per_m = best / len(scan) * 1e6
         print(f"| {name} | {best:.3f} | {per_m:.3f} | {best / base:.2f} |")

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import argparse
 import collections
-import resource
 import time
 
 import numpy as np
 import open3d as o3d
+from helpers.measure import peak_rss_mb
 
 from jointseg.geometry import segment
 from jointseg.geometry.params import ResolvedGeometryParams
@@ -26,10 +26,6 @@ from jointseg.scan import Scan
 from jointseg.synth import make_room
 
 FACES = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 0), (2, 1))
-
-
-def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def baseline(scan: Scan, p: ResolvedGeometryParams) -> tuple[np.ndarray, dict[str, float]]:

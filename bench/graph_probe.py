@@ -22,9 +22,9 @@ import argparse
 import itertools
 import logging
 
-import fusion_real as fr
 import numpy as np
-from fit_vote import M6, WEAK, calibration_rooms
+from helpers.inputs import AREA6, M6, WEAK
+from helpers.scans import calibration_rooms, geometry_output, load_items, network_output
 from scipy import sparse
 from scipy.spatial import cKDTree
 
@@ -155,7 +155,7 @@ def main() -> None:
     parser.add_argument("--split", default="tune", choices=["tune", "judge"])
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
-    real = [i for i in fr.load_items([str(fr.AREA6)], 10, (0, 0, 0)) if i.split == args.split]
+    real = [i for i in load_items([str(AREA6)], 10, (0, 0, 0)) if i.split == args.split]
     synth = calibration_rooms(10, 2, 100_000)
     predictors: dict = {}
     groups = {n.rpartition("/")[2]: [(i, n) for i in real] for n in args.networks}
@@ -164,8 +164,8 @@ def main() -> None:
     for gname, pairs in groups.items():
         rows = []
         for item, spec in pairs:
-            labels, probs = fr.network_output(spec, item, predictors)
-            g = fr.geometry_output("default", item)
+            labels, probs = network_output(spec, item, predictors)
+            g = geometry_output("default", item)
             gt = item.scan.labels
             net = evaluate(gt, labels).miou or 0.0
             learned = fuse(

@@ -12,10 +12,11 @@ from __future__ import annotations
 import argparse
 import logging
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
+from helpers.inputs import FRAGMENT
+from helpers.scans import held_out
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
@@ -23,29 +24,6 @@ from jointseg.metrics import confusion_matrix, evaluate, per_class_iou
 from jointseg.network import load
 from jointseg.network.registry import REGISTRY
 from jointseg.pipeline.tables import format_score as fmt
-from jointseg.scan import Scan
-from jointseg.synth import make_floor, make_room
-
-FRAGMENT = Path(__file__).resolve().parents[2] / "shared" / "data" / "s3dis_fragment.ply"
-# Seeds far from the training (1000+, 3000+) and validation (2000+) seeds.
-ROOM_SEEDS = 5000
-FLOOR_SEEDS = 6000
-
-
-def held_out(rooms: int, floors: int, points: int) -> list[tuple[str, Scan]]:
-    """Synthetic scans with seeds no training run uses; yaw drawn from the seed."""
-    scans = []
-    for i in range(rooms):
-        shape = "L" if i % 2 else "box"
-        scans.append(
-            (
-                f"room {ROOM_SEEDS + i} ({shape})",
-                make_room(ROOM_SEEDS + i, points=points, shape=shape),
-            )
-        )
-    for i in range(floors):
-        scans.append((f"floor {FLOOR_SEEDS + i}", make_floor(FLOOR_SEEDS + i, points=points * 3)))
-    return scans
 
 
 def main() -> None:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from helpers.inputs import AREA6, FRAGMENT, SCANNET
 
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
@@ -33,10 +34,6 @@ from jointseg.network import load
 from jointseg.network.registry import REGISTRY
 from jointseg.scan import Scan
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-AREA6 = SHARED / "data" / "s3dis_area6"
-SCANNET = SHARED / "data" / "scannet"
-FRAGMENT = SHARED / "data" / "s3dis_fragment.ply"
 #: Rooms the handed-over GPU checkpoint's stage 1 never trained on; stage 2 saw all but office_4.
 AREA6_JUDGE = ("area6_office_4",)
 #: ScanNet rooms kept out of training and checkpoint selection (every re-scan of each).

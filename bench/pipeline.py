@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import tempfile
@@ -27,11 +26,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from helpers.measure import peak_rss_mb
+
 STAGES = ("network", "geometry", "fusion", "metrics")
-
-
-def peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def measure_one(scan_path: Path, weights: str, sequential: bool) -> dict[str, Any]:
@@ -108,7 +105,7 @@ def random_weights(folder: Path) -> str:
     import torch
 
     from jointseg.network.checkpoint import save_checkpoint
-    from jointseg.network.randlanet import RandLANet, RandLANetConfig
+    from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
     torch.manual_seed(0)
     path = folder / "random.pt"

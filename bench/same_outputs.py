@@ -92,7 +92,7 @@ def variant_runs(work: Path) -> dict[str, str]:
 
 
 def openapi_digest(work: Path) -> dict[str, str]:
-    from server.app import create_app
+    from server.api.app import create_app
     from server.settings import Settings
 
     app = create_app(Settings(data_dir=work / "data"))

@@ -17,10 +17,7 @@ import argparse
 import os
 import random
 import signal
-import socket
 import statistics
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -29,17 +26,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
+from helpers.service import start_service
 
 from jointseg.io import write_scan
 from jointseg.synth import make_room
-
-JOINTSEG = str(Path(sys.executable).parent / "jointseg")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def rss_mib(pid: int) -> float:
@@ -53,31 +43,6 @@ def rss_mib(pid: int) -> float:
 def percentile(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(round(q * (len(ordered) - 1))))]
-
-
-def start(data: Path, workers: int) -> tuple[subprocess.Popen[bytes], str]:
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
-    env.update(JOINTSEG_DATA_DIR=str(data), JOINTSEG_LOG_LEVEL="WARNING")
-    log = open(data / "serve.log", "wb")  # noqa: SIM115 - the child's
-    proc = subprocess.Popen(
-        [JOINTSEG, "serve", "--port", str(port), "--workers", str(workers), "--no-viewer"],
-        env=env,
-        stdout=log,
-        stderr=subprocess.STDOUT,
-    )
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline:
-        try:
-            health = httpx.get(f"{url}/healthz", timeout=5).json()
-            if len(health["workers"]) >= workers:
-                return proc, url
-        except (httpx.HTTPError, ValueError, KeyError):
-            pass
-        time.sleep(0.3)
-    proc.kill()
-    raise SystemExit(f"service did not come up; see {data / 'serve.log'}")
 
 
 def load_test(url: str, rooms: list[Path], jobs: int, pollers: int) -> dict[str, float]:
@@ -220,7 +185,7 @@ def main() -> None:
             path = data / f"room_{seed}.ply"
             write_scan(make_room(seed, points=args.points), path)
             rooms.append(path)
-        proc, url = start(data, args.workers)
+        proc, url = start_service(data, args.workers, wait_s=180, JOINTSEG_LOG_LEVEL="WARNING")
         try:
             load = load_test(url, rooms, args.jobs, args.pollers)
             upload = big_upload(url, proc.pid, args.upload_gib) if args.upload_gib > 0 else None

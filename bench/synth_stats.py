@@ -6,9 +6,9 @@ Usage: ``python bench/synth_stats.py [--points N] [--seeds K]``
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
+from helpers.measure import best_time
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.synth import make_floor, make_room
@@ -30,16 +30,6 @@ def shares(shape: str, seeds: range, points: int) -> np.ndarray:
         scan = make_room(seed, points=points, shape=shape)  # type: ignore[arg-type]
         out[i] = np.bincount(scan.labels, minlength=NUM_CLASSES) / len(scan)
     return out
-
-
-def timed(fn, repeats: int = 2) -> float:  # type: ignore[no-untyped-def]
-    """Best wall time of ``repeats`` calls."""
-    best = float("inf")
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main() -> None:
@@ -65,9 +55,11 @@ def main() -> None:
     n_classes = (np.concatenate([box, ell]) > 0).sum(axis=1)
     print(f"classes per room: min {n_classes.min()}, mean {n_classes.mean():.1f}")
     print("generation time for 1 000 000 points (best of 2):")
-    print(f"  make_room box : {timed(lambda: make_room(0, points=1_000_000)):.2f} s")
-    print(f"  make_room L   : {timed(lambda: make_room(0, points=1_000_000, shape='L')):.2f} s")
-    print(f"  make_floor    : {timed(lambda: make_floor(0, points=1_000_000)):.2f} s")
+    print(f"  make_room box : {best_time(lambda: make_room(0, points=1_000_000), 2):.2f} s")
+    print(
+        f"  make_room L   : {best_time(lambda: make_room(0, points=1_000_000, shape='L'), 2):.2f} s"
+    )
+    print(f"  make_floor    : {best_time(lambda: make_floor(0, points=1_000_000), 2):.2f} s")
 
 
 if __name__ == "__main__":

@@ -26,8 +26,6 @@ import argparse
 import json
 import os
 import signal
-import socket
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,15 +34,8 @@ from typing import Any
 
 import httpx
 import psutil
-from big import make_floor  # the same cached floors as bench/big.py
-
-JOINTSEG = str(Path(sys.executable).parent / "jointseg")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+from helpers.inputs import cached_floor  # the same cached floors as bench/big.py
+from helpers.service import start_service
 
 
 class Memory:
@@ -64,28 +55,6 @@ class Memory:
                 pass
         self.peak_one = max(self.peak_one, max(sizes, default=0))
         self.peak_all = max(self.peak_all, sum(sizes))
-
-
-def start(data: Path, workers: int, nice: int) -> tuple[subprocess.Popen[bytes], str]:
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
-    env.update(JOINTSEG_DATA_DIR=str(data), JOINTSEG_LOG_LEVEL="INFO")
-    env.update(JOINTSEG_WORKER_NICE=str(nice))
-    args = [JOINTSEG, "serve", "--port", str(port), "--workers", str(workers), "--no-viewer"]
-    log = open(data / "serve.log", "wb")  # noqa: SIM115 - the child's
-    proc = subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:
-        try:
-            health = httpx.get(f"{url}/healthz", timeout=5).json()
-            if len(health["workers"]) >= workers:
-                return proc, url
-        except (httpx.HTTPError, ValueError, KeyError):
-            pass
-        time.sleep(0.3)
-    proc.kill()
-    raise SystemExit(f"service did not come up; see {data / 'serve.log'}")
 
 
 def folder_bytes(folder: Path) -> int:
@@ -163,11 +132,17 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="jointseg-tiles-") as tmp:
         folder = args.keep or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)
-        scan = make_floor(args.points, folder)
+        scan = cached_floor(args.points, folder)
         for workers in counts:
             data = Path(tmp) / f"service-{workers}"
             data.mkdir()
-            proc, url = start(data, workers, args.nice)
+            proc, url = start_service(
+                data,
+                workers,
+                wait_s=300,
+                JOINTSEG_LOG_LEVEL="INFO",
+                JOINTSEG_WORKER_NICE=str(args.nice),
+            )
             memory = Memory(proc.pid)
             try:
                 row = run_job(url, scan, config, memory, data)

@@ -31,18 +31,16 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from helpers.inputs import AREA6, SCANNET
 
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
-from jointseg.network.train_batches import BatchMaker, batch_stream
-from jointseg.network.training import TrainConfig, TrainingRun, device_batch, training_data
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
+from jointseg.network.training.batches import BatchMaker, batch_stream
+from jointseg.network.training.loop import TrainConfig, TrainingRun, device_batch, training_data
 
 
 def default_data() -> list[str]:
-    area6, scannet = SHARED / "s3dis_area6", SHARED / "scannet"
-    if area6.is_dir() and scannet.is_dir():
-        return [f"a6={area6}:0.45", f"scannet={scannet}:0.4", "synth:0.15"]
+    if AREA6.is_dir() and SCANNET.is_dir():
+        return [f"a6={AREA6}:0.45", f"scannet={SCANNET}:0.4", "synth:0.15"]
     return ["synth"]
 
 

@@ -69,7 +69,7 @@ def worker(
     """Run one worker process (any number, on any machine sharing the data directory)."""
     settings = load_settings(data_dir=data_dir)
     # deferred: the worker stack (SQLAlchemy, Huey, the pipeline); see the module doc
-    from server.worker import worker_main
+    from server.worker.process import worker_main
 
     worker_main(settings)
 

@@ -1,5 +1,5 @@
 """The API's request and response bodies (pydantic), apart from the tables in
-:mod:`server.models`: what clients see never leaks an ORM object or a column they should not.
+:mod:`server.state.models`: what clients see never leaks an ORM object or a column they should not.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from server.models import FINAL_STATUSES
+from server.state.models import FINAL_STATUSES
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 

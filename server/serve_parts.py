@@ -2,9 +2,9 @@
 :data:`SERVE_PARTS_GROUP`, so that ``server`` never imports the layers built on it.
 
 An entry point names a callable returning :class:`ServeParts`: routers to mount on the API
-(they can depend on :func:`server.auth.require_api_key` and :mod:`server.deps`) and processes
-to run beside it. ``web`` registers its job page and viewer this way (see pyproject.toml);
-without it the service runs the API and the workers only.
+(they can depend on :func:`server.api.auth.require_api_key` and :mod:`server.api.deps`)
+and processes to run beside it. ``web`` registers its job page and viewer this way (see
+pyproject.toml); without it the service runs the API and the workers only.
 """
 
 from __future__ import annotations

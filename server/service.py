@@ -21,12 +21,12 @@ from types import FrameType
 import uvicorn
 from fastapi import APIRouter
 
-from server.app import create_app
-from server.db import init_db, make_engine
+from server.api.app import create_app
 from server.logs import configure_logging
 from server.serve_parts import ExtraProcess
 from server.settings import Settings
-from server.worker import worker_main
+from server.state.db import init_db, make_engine
+from server.worker.process import worker_main
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ def run_service(
     settings : Settings
     extra_routers : sequence of APIRouter
         Added to the API app (e.g. the job page, from :func:`server.serve_parts.load_serve_parts`);
-        they can depend on :func:`server.auth.require_api_key`.
+        they can depend on :func:`server.api.auth.require_api_key`.
     extra_processes : sequence of callables
         Each runs as ``target(settings)`` in its own spawned process (e.g. the viewer); it
         must be a module-level function and should exit on SIGTERM.

@@ -10,9 +10,9 @@ import pytest
 import torch
 
 from jointseg.network.checkpoint import save_checkpoint
-from jointseg.network.dgcnn import DGCNN
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
-from jointseg.network.training import TrainConfig
+from jointseg.network.dgcnn.model import DGCNN
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
+from jointseg.network.training.loop import TrainConfig
 
 #: Real scans and published weights shared between checkouts (never copied into the repository).
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

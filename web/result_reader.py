@@ -3,11 +3,11 @@
 The viewer shows at most a few million points per panel, but its legend counts every point. A
 20 M-point result PLY is 1.3 GB (double xyz and a dozen other properties); reading it whole, as
 :func:`jointseg.io.read_scan` does, takes seconds and gigabytes for columns the viewer never
-looks at. So a binary PLY (what ``jointseg segment`` and the service write) is read here block by
-block into one reused buffer: each block adds its labels to the counts and hands over the sample
-rows that fall in it. Memory is one block plus the sample, whatever the size of the file. Any
-other file (ASCII PLY, LAS, colour that is not 8-bit, ...) is read whole with ``read_scan`` and
-sampled in the same way.
+looks at. So a binary PLY (what ``jointseg segment`` and the service write) is read block by
+block into one reused buffer (:mod:`jointseg.io.ply_blocks`): each block adds its labels to the
+counts and hands over the sample rows that fall in it. Memory is one block plus the sample,
+whatever the size of the file. Any other file (ASCII PLY, LAS, colour that is not 8-bit, ...) is
+read whole with ``read_scan`` and sampled in the same way.
 
 The sample takes one row from every run of ``stride`` consecutive rows, at a seeded random place
 in the run. It therefore covers every part of the file, in whatever order the points are
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,17 +27,14 @@ import numpy as np
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import read_scan
-from jointseg.io.common import LABEL_NAMES, pick_colour_names, pick_name
-from jointseg.io.ply import PlyElement, PlyHeader, parse_header, vertex_element
+from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
+from jointseg.io.ply_blocks import VertexBlock, open_vertex_blocks
 
 #: Result fields the viewer needs (written by jointseg.pipeline.outputs.annotate).
 REQUIRED_FIELDS = ("network_label", "segment", "fused_label")
 #: Bytes of file read per block: small enough that counting three columns of a block finds it in
 #: the CPU cache (8 MiB measured fastest on the 2-core reference machine, 32 MiB 2x slower).
 BLOCK_BYTES = 8 << 20
-#: The longest PLY header read (as jointseg.io.ply does).
-MAX_HEADER_BYTES = 1 << 20
-_ORDER = {"binary_little_endian": "<", "binary_big_endian": ">"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,11 +108,9 @@ def read_sample(path: str | os.PathLike[str], budget: int) -> ResultSample:
     """
     path = Path(path)
     if path.suffix.lower() == ".ply":
-        header = _binary_header(path)
-        if header is not None:
-            sample = _read_ply_blocks(path, header, budget)
-            if sample is not None:
-                return sample
+        sample = _read_ply_blocks(path, budget)
+        if sample is not None:
+            return sample
     return _read_whole(path, budget)
 
 
@@ -125,101 +121,46 @@ def _missing(path: Path, names: list[str]) -> ScanFormatError | None:
     return ScanFormatError(f"{path}: not a jointseg result, missing field(s) {', '.join(missing)}")
 
 
-def _binary_header(path: Path) -> PlyHeader | None:
-    """The header of a binary PLY, None for ASCII (read whole instead)."""
-    with open(path, "rb") as fh:
-        head = fh.read(MAX_HEADER_BYTES)
-    header = parse_header(head, path)
-    return header if header.encoding in _ORDER else None
-
-
-def _vertex_offset(header: PlyHeader, vertex: PlyElement, order: str) -> int | None:
-    """Byte offset of the vertex records; None when a list element before them hides it."""
-    offset = header.body_offset
-    for element in header.elements:
-        if element is vertex:
-            break
-        if not element.fixed_size:
-            return None
-        offset += element.count * element.dtype(order).itemsize
-    return offset
-
-
-def _check_size(path: Path, n_vertices: int, need: int) -> None:
-    """Fail early, with the sizes, on a file shorter than its header says."""
-    if os.path.getsize(path) < need:
-        raise ScanFormatError(
-            f"{path}: truncated PLY: the header declares {n_vertices:,} vertices "
-            f"({need:,} bytes with the header) but the file has {os.path.getsize(path):,}"
-        )
-
-
-def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample | None:
+def _read_ply_blocks(path: Path, budget: int) -> ResultSample | None:
     """Counts and sample of a binary PLY, block by block; None when it needs the full reader
-    (list elements before the vertices, colour that is not 8-bit, labels that are not integers).
+    (ASCII, list elements before the vertices, colour that is not 8-bit, labels that are not
+    integers).
     """
-    order = _ORDER[header.encoding]
-    vertex = vertex_element(header, path)
-    offset = _vertex_offset(header, vertex, order)
-    if offset is None:
+    source = open_vertex_blocks(path)
+    if source is None:
         return None
-    record = vertex.dtype(order)
-    names = list(record.names or ())
+    record, names = source.dtype, source.names
     error = _missing(path, names)
     if error is not None:
         raise error
-    axes = [pick_name(names, (a,)) for a in "xyz"]
     colour = pick_colour_names(names)
     label = pick_name(names, LABEL_NAMES)
     if colour is not None and any(record[c] != np.dtype("u1") for c in colour):
         return None
     if label is not None and record[label].kind not in "iu":
         return None
-    _check_size(path, vertex.count, offset + vertex.count * record.itemsize)
-
+    blocks = source.blocks(BLOCK_BYTES)  # checks the file's size first
     counted = {"network": "network_label", "fused": "fused_label"}
     if label is not None:
         counted["truth"] = label
-    counts = {key: np.zeros(NUM_CLASSES + 1, np.int64) for key in counted}
-    rows = sample_rows(vertex.count, budget)
+    rows = sample_rows(source.count, budget)
     xyz = np.empty((rows.size, 3), dtype=np.float64)
     rgb = None if colour is None else np.empty((rows.size, 3), dtype=np.uint8)
     ints = {name: np.empty(rows.size, dtype=np.int32) for name in REQUIRED_FIELDS}
     truth = None if label is None else np.empty(rows.size, dtype=record[label].newbyteorder("="))
-    block_rows = max(1, BLOCK_BYTES // record.itemsize)
-    buffer = np.empty((min(block_rows, max(vertex.count, 1)), record.itemsize), dtype=np.uint8)
-    block = buffer.view(record).reshape(buffer.shape[0])
-    with open(path, "rb") as fh:
-        fh.seek(offset)
-        start = 0
-        while start < vertex.count:
-            n = min(block_rows, vertex.count - start)
-            got = fh.readinto(buffer[:n].data.cast("B"))
-            if got != n * record.itemsize:  # the file shrank after the size check
-                raise ScanFormatError(
-                    f"{path}: truncated PLY: vertex {start + got // record.itemsize:,} of "
-                    f"{vertex.count:,} is cut short"
-                )
-            for key, name in counted.items():
-                counts[key] += class_counts(block[:n][name])
-            lo, hi = np.searchsorted(rows, (start, start + n))
-            # the sample's records are gathered as bytes first: numpy's take on a 2-D byte
-            # array is several times faster than fancy indexing of a structured one
-            part = np.take(buffer, rows[lo:hi] - start, axis=0).view(record).reshape(hi - lo)
-            for i, axis in enumerate(axes):
-                xyz[lo:hi, i] = part[axis]
-            if rgb is not None and colour is not None:
-                for i, channel in enumerate(colour):
-                    rgb[lo:hi, i] = part[channel]
-            for name, out in ints.items():
-                out[lo:hi] = part[name]
-            if truth is not None and label is not None:
-                truth[lo:hi] = part[label]
-            start += n
-    del buffer, block
+    # where each sampled column goes (every name is a different vertex property)
+    targets: dict[str, np.ndarray] = {
+        pick_name(names, (a,)) or a: xyz[:, i] for i, a in enumerate("xyz")
+    }
+    if rgb is not None and colour is not None:
+        targets.update({channel: rgb[:, i] for i, channel in enumerate(colour)})
+    targets.update(ints)
+    if truth is not None and label is not None:
+        targets[label] = truth
+    counts = _gather(blocks, rows, targets, counted)
     _check_finite(path, xyz, rows)
     return ResultSample(
-        total=vertex.count,
+        total=source.count,
         rows=rows,
         xyz=xyz,
         rgb=rgb,
@@ -229,6 +170,26 @@ def _read_ply_blocks(path: Path, header: PlyHeader, budget: int) -> ResultSample
         truth=None if truth is None else _as_classes(truth),
         counts=counts,
     )
+
+
+def _gather(
+    blocks: Iterator[VertexBlock],
+    rows: np.ndarray,
+    targets: dict[str, np.ndarray],
+    counted: dict[str, str],
+) -> dict[str, np.ndarray]:
+    """Fill ``targets`` (column name -> values at ``rows``) from every block, and return the
+    class counts of the ``counted`` columns (key -> column name) over every vertex."""
+    counts = {key: np.zeros(NUM_CLASSES + 1, np.int64) for key in counted}
+    names = list(targets)
+    for block in blocks:
+        for key, name in counted.items():
+            counts[key] += class_counts(block.column(name))
+        lo, hi = np.searchsorted(rows, (block.start, block.start + len(block.records)))
+        part = block.take(rows[lo:hi] - block.start, names)
+        for name, out in targets.items():
+            out[lo:hi] = part[name]
+    return counts
 
 
 def _as_classes(labels: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The job service's finished jobs as a :class:`web.sources.JobSource`.
 
-Reads the job table through :mod:`server.jobs` and the files through
+Reads the job table through :mod:`server.state.jobs` and the files through
 :class:`server.storage.Storage`, so the viewer sees exactly what the API serves.
 """
 
@@ -9,9 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from jointseg.exceptions import JobNotFound
-from server.db import make_engine, make_sessions
-from server.jobs import get_job, list_jobs
 from server.settings import Settings
+from server.state.db import make_engine, make_sessions
+from server.state.jobs import get_job, list_jobs
 from server.storage import Storage
 from web.sources import JobEntry
 

@@ -179,9 +179,9 @@ def _run_train(
     resume: Path | None,
 ) -> None:
     """Body of ``jointseg train``, apart from its long option list so both stay readable."""
-    from jointseg.network.augment import AugmentParams
-    from jointseg.network.training import TrainConfig, best_path, default_workers
-    from jointseg.network.training import train as run_training
+    from jointseg.network.training.augment import AugmentParams
+    from jointseg.network.training.loop import TrainConfig, best_path, default_workers
+    from jointseg.network.training.loop import train as run_training
 
     cfg = TrainConfig(
         data=data,

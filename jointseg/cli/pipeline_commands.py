@@ -17,14 +17,13 @@ import typer
 from jointseg.cli.geometry_command import load_params_file
 from jointseg.cli.progress_bar import progress_bar
 from jointseg.exceptions import ConfigError, ScanFormatError
-from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan, write_scan
+from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan
 from jointseg.io.atomic import atomic_open
 from jointseg.network.registry import BACKENDS
 
 if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
-    from jointseg.metrics import SegmentationMetrics
-    from jointseg.network.backends import Predictor
     from jointseg.pipeline.config import PipelineConfig
+    from jointseg.pipeline.segment import SegmentedFile
 
 #: Output formats that keep per-point fields (text formats would drop them).
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
@@ -85,7 +84,7 @@ def segment_scan(
     A scan with more points than the tile size is processed tile by tile in bounded memory,
     with the same labels as a run on the whole scan on all but a few border points.
     """
-    from jointseg.pipeline import annotate, load_predictor, report_body, run
+    from jointseg.pipeline import load_predictor, segment_file
 
     cfg = _config(config, network, weights)
     if tile_points is not None:
@@ -106,72 +105,37 @@ def segment_scan(
     started = time.perf_counter()
     predictor = load_predictor(cfg.network)
     load_s = time.perf_counter() - started
-    if info.n_points > cfg.tiles.max_points:
-        _segment_tiled(source, output, report, cfg, predictor, max_points, work_dir, load_s)
-        return
     with progress_bar() as progress:
-        scan = read_scan(source, max_points=max_points, progress=progress)
-        read_s = time.perf_counter() - started - load_s
-        result = run(scan, cfg, progress, predictor=predictor)
-        t = time.perf_counter()
-        write_scan(annotate(scan, result), output, progress=progress)
-        write_s = time.perf_counter() - t
-    body: dict[str, Any] = {"input": str(source), "output": str(output)}
-    extra = {"load_network": load_s, "read": read_s, "write": write_s}
-    body.update(report_body(scan, result, extra_timings=extra))
-    _finish(body, report, output, result.metrics)
-
-
-def _segment_tiled(
-    source: Path,
-    output: Path,
-    report: Path | None,
-    cfg: PipelineConfig,
-    predictor: Predictor,
-    max_points: int,
-    work_dir: Path | None,
-    load_s: float,
-) -> None:
-    """`jointseg segment` for a scan above the tile size: tile by tile, streamed output."""
-    from jointseg.pipeline.tiled import run_tiled
-
-    with progress_bar() as progress:
-        done = run_tiled(
+        done = segment_file(
             source,
             output,
             cfg,
             predictor=predictor,
             max_points=max_points,
+            load_s=load_s,
+            points=info.n_points,
             progress=progress,
             workdir=work_dir,
         )
-    body: dict[str, Any] = {"input": str(source), "output": str(output), **done.report}
-    body["timings_s"] = {"load_network": load_s, **body["timings_s"]}
-    body["timings_s"]["total"] += load_s
-    _finish(body, report, output, done.merged.metrics, where=f" in {len(done.plan.tiles)} tiles")
+    _finish(done, report, output)
 
 
-def _finish(
-    body: dict[str, Any],
-    report: Path | None,
-    output: Path,
-    metrics: dict[str, SegmentationMetrics] | None,
-    *,
-    where: str = "",
-) -> None:
+def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:
     """Write the report (when asked for) and print the one-line summary of a run."""
     from jointseg.pipeline.tables import format_score
 
+    body = done.report
     if report is not None:
         _write_text(report, json.dumps(body, indent=2))
+    where = "" if done.tiles is None else f" in {done.tiles} tiles"
     line = (
         f"{body['points']:,} points{where} -> {body['segments']:,} segments, "
         f"{body['labels_changed']:,} labels changed by fusion, "
         f"{body['timings_s']['total']:.1f} s -> {output}"
     )
-    if metrics is not None:
+    if done.metrics is not None:
         network, fused, oracle = (
-            format_score(metrics[k].miou) for k in ("network", "fused", "oracle")
+            format_score(done.metrics[k].miou) for k in ("network", "fused", "oracle")
         )
         line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)

@@ -6,6 +6,7 @@ import json
 import time
 from enum import StrEnum
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.console import Console
@@ -13,7 +14,9 @@ from rich.table import Table
 
 from jointseg.cli.progress_bar import progress_bar
 from jointseg.io import read_scan, write_scan
-from jointseg.summary import ScanSummary, summarise
+
+if TYPE_CHECKING:  # the summary loads scipy's KD-tree, which `jointseg --help` does not need
+    from jointseg.summary import ScanSummary
 
 DEFAULT_MAX_POINTS = 50_000_000
 stdout_console = Console(highlight=False)
@@ -58,6 +61,8 @@ def info(
     """Describe a scan: points, bounds, spacing, fields and label histogram."""
     with progress_bar(enabled=not as_json) as progress:
         scan = read_scan(path, max_points=max_points, progress=progress)
+    from jointseg.summary import summarise
+
     summary = summarise(scan)
     if as_json:
         typer.echo(json.dumps(summary.model_dump(), indent=2))

@@ -16,19 +16,12 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
-from collections.abc import Callable
 from pathlib import Path
 
-from jointseg.exceptions import ConfigError, ScanFormatError
-from jointseg.io.common import DEFAULT_MAX_POINTS, ScanInfo, check_input_file
-from jointseg.io.formats import (
-    READ_EXTENSIONS,
-    WRITE_EXTENSIONS,
-    detect_format,
-    get_format,
-    writer_for,
-)
+from jointseg.exceptions import ScanFormatError
+from jointseg.io.dispatch import INPUT_ERRORS, prepare_input, prepare_output
+from jointseg.io.formats import READ_EXTENSIONS, WRITE_EXTENSIONS, detect_format, get_format
+from jointseg.io.limits import DEFAULT_MAX_POINTS, ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
 
@@ -45,31 +38,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-# Errors third-party readers raise on bad input that a format module did not already wrap.
-_INPUT_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile)
-
-
-def _prepare_input(path: str | os.PathLike[str], max_points: int) -> tuple[Path, str]:
-    path = Path(path)
-    if max_points < 1:
-        raise ConfigError(f"max_points must be a positive integer, got {max_points}")
-    if not path.exists():
-        raise ScanFormatError(f"{path}: file not found")
-    fmt = detect_format(path)
-    if fmt != "s3dis":
-        check_input_file(path)
-    return path, fmt
-
-
-def _prepare_output(path: Path) -> Callable[[Scan, Path, ProgressFn | None], None]:
-    """The writer for ``path``, after checking that a file can be written there."""
-    write = writer_for(path)
-    if path.is_dir():
-        raise ScanFormatError(f"{path}: is a directory; give a file name to write to")
-    if not path.parent.is_dir():
-        raise ScanFormatError(f"{path}: folder {path.parent} does not exist")
-    return write
 
 
 def read_scan(
@@ -103,13 +71,13 @@ def read_scan(
         or non-finite coordinates; the message names the file and where it can the line,
         element or field.
     """
-    path, fmt = _prepare_input(path, max_points)
+    path, fmt = prepare_input(path, max_points)
     logger.debug("reading %s as %s", path, fmt)
     try:
         scan = get_format(fmt).read(path, max_points=max_points, progress=progress)
     except ScanFormatError:
         raise
-    except _INPUT_ERRORS as exc:
+    except INPUT_ERRORS as exc:
         raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
     logger.info("read %s: %d points (%s)", path, len(scan), fmt)
     return scan
@@ -138,12 +106,12 @@ def probe_scan(path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_PO
     ScanFormatError
         As :func:`read_scan`, for what can be seen without reading the points.
     """
-    path, fmt = _prepare_input(path, max_points)
+    path, fmt = prepare_input(path, max_points)
     try:
         return get_format(fmt).probe(path, max_points=max_points)
     except ScanFormatError:
         raise
-    except _INPUT_ERRORS as exc:
+    except INPUT_ERRORS as exc:
         raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
 
 
@@ -176,7 +144,7 @@ def write_scan(
         a field the format cannot store.
     """
     path = Path(path)
-    write = _prepare_output(path)
+    write = prepare_output(path)
     write(scan, path, progress)
     logger.info("wrote %s: %d points", path, len(scan))
     return path

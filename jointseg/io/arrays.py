@@ -18,13 +18,10 @@ import numpy as np
 
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
-from jointseg.io.common import (
-    ScanInfo,
-    build_scan,
-    check_max_points,
-    normalise_labels,
-    to_rgb8,
-)
+from jointseg.io.build import build_scan
+from jointseg.io.colour import to_rgb8
+from jointseg.io.labels import normalise_labels
+from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.io.text import POSITIONAL_COLUMNS, columns_to_parts
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan

@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from jointseg.exceptions import ScanFormatError
-from jointseg.io.common import ScanInfo, build_scan, check_max_points, to_rgb8
+from jointseg.io.build import build_scan
+from jointseg.io.colour import to_rgb8
+from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from jointseg.exceptions import ScanFormatError, UnsupportedFormatError
 from jointseg.io import arrays, e57, las, pcd, ply, s3dis, text
-from jointseg.io.common import ScanInfo
+from jointseg.io.limits import ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
 

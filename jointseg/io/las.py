@@ -29,20 +29,11 @@ import numpy as np
 
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
-from jointseg.io.common import (
-    ColourRange,
-    FieldColumn,
-    LabelSummary,
-    ScanInfo,
-    build_scan,
-    check_max_points,
-    field_columns,
-    label_summary,
-    log_outside_labels,
-    merge_colour_ranges,
-    normalise_labels,
-    to_rgb8,
-)
+from jointseg.io.build import build_scan
+from jointseg.io.colour import ColourRange, merge_colour_ranges, to_rgb8
+from jointseg.io.fields import FieldColumn, field_columns
+from jointseg.io.labels import LabelSummary, label_summary, log_outside_labels, normalise_labels
+from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 

@@ -23,18 +23,12 @@ import numpy as np
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import lzf
 from jointseg.io.atomic import atomic_open
-from jointseg.io.common import (
-    LABEL_NAMES,
-    ScanInfo,
-    build_scan,
-    check_max_points,
-    narrow_dtype,
-    normalise_labels,
-    pick_colour_names,
-    pick_name,
-    safe_field_name,
-    to_rgb8,
-)
+from jointseg.io.build import build_scan
+from jointseg.io.colour import to_rgb8
+from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
+from jointseg.io.fields import narrow_dtype, safe_field_name
+from jointseg.io.labels import normalise_labels
+from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.io.tabular import count_lines, parse_table
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan

@@ -22,25 +22,12 @@ import numpy as np
 
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
-from jointseg.io.common import (
-    LABEL_NAMES,
-    ColourRange,
-    FieldColumn,
-    LabelSummary,
-    ScanInfo,
-    build_scan,
-    check_max_points,
-    colour_range,
-    field_columns,
-    label_summary,
-    merge_colour_ranges,
-    narrow_dtype,
-    narrow_like,
-    normalise_labels,
-    pick_colour_names,
-    pick_name,
-    to_rgb8,
-)
+from jointseg.io.build import build_scan
+from jointseg.io.colour import ColourRange, colour_range, merge_colour_ranges, to_rgb8
+from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
+from jointseg.io.fields import FieldColumn, field_columns, narrow_dtype, narrow_like
+from jointseg.io.labels import LabelSummary, label_summary, normalise_labels
+from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.io.tabular import parse_table
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
@@ -116,6 +103,11 @@ class PlyHeader:
     elements: list[PlyElement]
     body_offset: int
     n_lines: int
+
+    @property
+    def byte_order(self) -> str:
+        """numpy's byte-order prefix of the body (``"<"`` or ``">"``; ``""`` for ASCII)."""
+        return _FORMATS[self.encoding]
 
 
 def _parse_property(words: list[str], where: str) -> PlyProperty:
@@ -223,6 +215,25 @@ def vertex_element(header: PlyHeader, path: Path) -> PlyElement:
     raise ScanFormatError(f"{path}: PLY file has no 'vertex' element (elements: {found})")
 
 
+def vertex_offset(header: PlyHeader, path: Path) -> int | None:
+    """Byte offset of a binary PLY's vertex records; None when a list element before them hides it.
+
+    Raises
+    ------
+    ScanFormatError
+        When the header has no vertex element.
+    """
+    offset = header.body_offset
+    vertex = vertex_element(header, path)
+    for element in header.elements:
+        if element is vertex:
+            break
+        if not element.fixed_size:
+            return None
+        offset += element.count * element.dtype(header.byte_order).itemsize
+    return offset
+
+
 def binary_vertex_block(path: Path, header: PlyHeader) -> tuple[int, np.dtype] | None:
     """Where the vertices of a binary PLY start and their record dtype, checked against the size.
 
@@ -237,17 +248,11 @@ def binary_vertex_block(path: Path, header: PlyHeader) -> tuple[int, np.dtype] |
     ScanFormatError
         When the file is shorter or longer than the header's counts need.
     """
-    order = _FORMATS[header.encoding]
-    offset = header.body_offset
-    vertex = vertex_element(header, path)
-    for element in header.elements:
-        if element is vertex:
-            break
-        if not element.fixed_size:
-            return None
-        offset += element.count * element.dtype(order).itemsize
+    offset = vertex_offset(header, path)
+    if offset is None:
+        return None
     _check_binary_size(path, header, os.path.getsize(path), offset)
-    return offset, vertex.dtype(order)
+    return offset, vertex_element(header, path).dtype(header.byte_order)
 
 
 def _read_binary(path: Path, header: PlyHeader) -> np.ndarray:
@@ -553,15 +558,12 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     header = probe_header(path)
     vertex = vertex_element(header, path)
     check_max_points(vertex.count, max_points, path)
-    idx = header.elements.index(vertex)
     if header.encoding == "ascii":
         _ascii_body(path, header)
-    elif all(e.fixed_size for e in header.elements[:idx]):
-        order = _FORMATS[header.encoding]
-        offset = header.body_offset + sum(
-            e.count * e.dtype(order).itemsize for e in header.elements[:idx]
-        )
-        _check_binary_size(path, header, os.path.getsize(path), offset)
+    else:
+        offset = vertex_offset(header, path)
+        if offset is not None:
+            _check_binary_size(path, header, os.path.getsize(path), offset)
     names = [p.name for p in vertex.properties]
     colour = pick_colour_names(names)
     label = pick_name(names, LABEL_NAMES)

@@ -43,15 +43,12 @@ import laspy
 import numpy as np
 
 from jointseg.exceptions import ConfigError, ScanFormatError
-from jointseg.io import _INPUT_ERRORS, _prepare_input, _prepare_output, read_scan, write_scan
+from jointseg.io import read_scan, write_scan
 from jointseg.io.atomic import atomic_open
-from jointseg.io.common import (
-    DEFAULT_MAX_POINTS,
-    build_scan,
-    check_colour_range,
-    check_max_points,
-    log_outside_labels,
-)
+from jointseg.io.build import build_scan
+from jointseg.io.colour import check_colour_range
+from jointseg.io.dispatch import INPUT_ERRORS, prepare_input, prepare_output
+from jointseg.io.labels import log_outside_labels
 from jointseg.io.las import (
     LASPY_ERRORS,
     LasFacts,
@@ -68,6 +65,7 @@ from jointseg.io.las import (
     points_to_scan,
     short_read_error,
 )
+from jointseg.io.limits import DEFAULT_MAX_POINTS, check_max_points
 from jointseg.io.ply import (
     PlyLayout,
     VertexFacts,
@@ -197,7 +195,7 @@ class ScanChunks:
                     break
                 except ScanFormatError:
                     raise
-                except _INPUT_ERRORS as exc:
+                except INPUT_ERRORS as exc:
                     raise ScanFormatError(
                         f"{self.path}: cannot read as {self.format}: {exc}"
                     ) from exc
@@ -458,7 +456,7 @@ def open_chunks(
         fallback: for everything). Non-finite coordinates in a streamed file are found when the
         chunk holding them is read.
     """
-    path, fmt = _prepare_input(path, max_points)
+    path, fmt = prepare_input(path, max_points)
     try:
         if fmt in ("las", "laz"):
             chunks = _open_las(path, max_points)
@@ -468,7 +466,7 @@ def open_chunks(
             chunks = _whole(path, fmt, max_points)
     except ScanFormatError:
         raise
-    except _INPUT_ERRORS as exc:
+    except INPUT_ERRORS as exc:
         raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
     logger.info(
         "opened %s for chunked reading: %d points (%s, %s)",
@@ -773,7 +771,7 @@ def open_writer(
         For a negative ``count`` or malformed ``bounds``.
     """
     path = Path(path)
-    _prepare_output(path)
+    prepare_output(path)
     if isinstance(count, bool) or not isinstance(count, int | np.integer) or count < 0:
         raise ValueError(f"count must be a non-negative integer, got {count!r}")
     lo, hi = _check_bounds(bounds)

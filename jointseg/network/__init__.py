@@ -14,24 +14,24 @@ from jointseg.lazy import lazy_attributes
 
 if TYPE_CHECKING:
     from jointseg.network.backends import Backend, Predictor
-    from jointseg.network.dgcnn import DGCNN
-    from jointseg.network.dgcnn_params import DGCNNParams
-    from jointseg.network.dgcnn_predict import DGCNNPredictor
-    from jointseg.network.predict import RandLANetPredictor
-    from jointseg.network.randlanet import RandLANet, RandLANetConfig
+    from jointseg.network.dgcnn.model import DGCNN
+    from jointseg.network.dgcnn.params import DGCNNParams
+    from jointseg.network.dgcnn.predict import DGCNNPredictor
+    from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
+    from jointseg.network.randlanet.predict import RandLANetPredictor
     from jointseg.network.registry import available_backends, load
     from jointseg.network.results import NetworkResult
 
 _HOME = {
     "Backend": "jointseg.network.backends",
-    "DGCNN": "jointseg.network.dgcnn",
-    "DGCNNParams": "jointseg.network.dgcnn_params",
-    "DGCNNPredictor": "jointseg.network.dgcnn_predict",
+    "DGCNN": "jointseg.network.dgcnn.model",
+    "DGCNNParams": "jointseg.network.dgcnn.params",
+    "DGCNNPredictor": "jointseg.network.dgcnn.predict",
     "NetworkResult": "jointseg.network.results",
     "Predictor": "jointseg.network.backends",
-    "RandLANet": "jointseg.network.randlanet",
-    "RandLANetConfig": "jointseg.network.randlanet",
-    "RandLANetPredictor": "jointseg.network.predict",
+    "RandLANet": "jointseg.network.randlanet.model",
+    "RandLANetConfig": "jointseg.network.randlanet.model",
+    "RandLANetPredictor": "jointseg.network.randlanet.predict",
     "available_backends": "jointseg.network.registry",
     "load": "jointseg.network.registry",
 }

@@ -13,7 +13,7 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.io.atomic import atomic_open
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
 FORMAT = "jointseg-randlanet/1"
 INPUT_CONVENTIONS = (

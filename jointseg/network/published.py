@@ -52,6 +52,10 @@ _DGCNN_URL = (
 _OPEN3D_ML_URL = (
     "https://storage.googleapis.com/open3d-releases/model-zoo/randlanet_s3dis_202201071330utc.pth"
 )
+#: The backends published weights can be for, and the suffix their cached files take (the one
+#: that backend reads: a jointseg checkpoint, or dgcnn.pytorch's ``.t7``). Kept here, not read
+#: from the registry, because the registry imports this module.
+SUFFIXES: dict[str, str] = {"randlanet": ".pt", "dgcnn": ".t7"}
 #: The DGCNN weights `--network dgcnn` uses when pulled and nothing else is given: model_5 leaves
 #: S3DIS Area 5 out, the usual benchmark split.
 DEFAULT_DGCNN = "dgcnn-s3dis-5"
@@ -87,7 +91,7 @@ class PublishedWeights(BaseModel):
     @property
     def filename(self) -> str:
         """The file's name in the cache: the name and the suffix its backend reads."""
-        return self.name + (".t7" if self.backend == "dgcnn" else ".pt")
+        return self.name + SUFFIXES[self.backend]
 
 
 BUILT_IN: tuple[PublishedWeights, ...] = (

@@ -23,13 +23,7 @@ from types import MappingProxyType
 
 from jointseg.exceptions import ConfigError
 from jointseg.network import published
-from jointseg.network.backends import (
-    WEIGHTS_DIR,
-    Backend,
-    Options,
-    Predictor,
-    card_summary,
-)
+from jointseg.network.backends import Backend, Options, Predictor
 
 __all__ = [
     "BACKENDS",
@@ -37,13 +31,9 @@ __all__ = [
     "BACKEND_MODULES",
     "DEFAULT_BACKEND",
     "REGISTRY",
-    "WEIGHTS_DIR",
-    "Backend",
     "BackendInfo",
-    "Predictor",
     "available_backends",
     "backend",
-    "card_summary",
     "load",
     "resolve_weights",
 ]
@@ -51,8 +41,8 @@ __all__ = [
 #: The torch-free modules that declare the backends (each a ``BACKEND``), in the order
 #: `jointseg models list` shows them.
 BACKEND_MODULES = (
-    "jointseg.network.randlanet_backend",
-    "jointseg.network.dgcnn_backend",
+    "jointseg.network.randlanet.backend",
+    "jointseg.network.dgcnn.backend",
 )
 
 

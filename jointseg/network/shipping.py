@@ -9,8 +9,8 @@ from pathlib import Path
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
-from jointseg.network.randlanet import RandLANet
-from jointseg.network.training import TrainConfig, card_facts
+from jointseg.network.randlanet.model import RandLANet
+from jointseg.network.training.loop import TrainConfig, card_facts
 
 
 def pack_checkpoint(

@@ -3,7 +3,8 @@
 Names are imported on first use (PEP 562), so configuration alone (``PipelineConfig``: the CLI,
 the service's request checks) does not pull in torch and open3d. The stages live in
 ``jointseg.pipeline.stages``, not in a module called ``run``, so the submodule never shadows
-the ``run`` function on this package.
+the ``run`` function on this package. ``segment_file`` is a whole file in, a file and a report
+out (the CLI and the job service); big scans go through ``pipeline/tiled/``.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 
 if TYPE_CHECKING:
     from jointseg.pipeline.outputs import OUTPUT_FIELDS, annotate, report_body
+    from jointseg.pipeline.segment import SegmentedFile, segment_file
     from jointseg.pipeline.stages import PipelineResult, load_predictor, run
 
 _LAZY = {
@@ -24,6 +26,8 @@ _LAZY = {
     "PipelineResult": "jointseg.pipeline.stages",
     "load_predictor": "jointseg.pipeline.stages",
     "run": "jointseg.pipeline.stages",
+    "SegmentedFile": "jointseg.pipeline.segment",
+    "segment_file": "jointseg.pipeline.segment",
 }
 
 __all__ = [
@@ -31,10 +35,12 @@ __all__ = [
     "NetworkConfig",
     "PipelineConfig",
     "PipelineResult",
+    "SegmentedFile",
     "annotate",
     "load_predictor",
     "report_body",
     "run",
+    "segment_file",
 ]
 
 

@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
-from jointseg.pipeline.tiles import TileParams
+from jointseg.pipeline.tiled.grid import TileParams
 
 
 class NetworkSettings(BaseModel):

@@ -12,7 +12,7 @@ import torch
 
 from jointseg.io import read_scan, write_scan
 from jointseg.network.checkpoint import save_checkpoint
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.synth import make_room
 
 
@@ -65,7 +65,7 @@ def test_models_list_shows_randlanet() -> None:
 
 def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:
     from jointseg.network.checkpoint import load_checkpoint
-    from jointseg.network.training import train
+    from jointseg.network.training.loop import train
 
     source = train(tiny_training(out=tmp_path / "train.pt", steps_per_epoch=1))
     packed = tmp_path / "ship.pt"

@@ -20,7 +20,7 @@ from jointseg.fusion.learned import (
     shipped_model,
     vote_offers,
 )
-from jointseg.network.train_data import stable_order
+from jointseg.network.training.data import stable_order
 from tests.fusion.test_evidence import probs_for
 
 LEARNED = FusionParams(mode="learned")

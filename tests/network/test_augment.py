@@ -4,16 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from jointseg.network.augment import (
+from jointseg.network.randlanet.crops import grid_subsample
+from jointseg.network.training.augment import (
     AugmentParams,
     augment_colour,
     cut_region,
     density_sample,
     tilt_matrix,
 )
-from jointseg.network.crops import grid_subsample
-from jointseg.network.train_batches import region_crop
-from jointseg.network.train_sources import BASE_GRID
+from jointseg.network.training.batches import region_crop
+from jointseg.network.training.sources import BASE_GRID
 from jointseg.synth import make_room
 
 

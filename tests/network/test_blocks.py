@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jointseg.network.blocks import block_features, column_blocks, sample_columns
-from jointseg.network.room_frame import DEFAULT_ROOM_HEIGHT, room_frame, scan_frame
+from jointseg.network.dgcnn.blocks import block_features, column_blocks, sample_columns
+from jointseg.network.dgcnn.room_frame import DEFAULT_ROOM_HEIGHT, room_frame, scan_frame
 from jointseg.synth import make_room
 
 

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from jointseg.exceptions import Cancelled
-from jointseg.network.dgcnn import DGCNN, knn
-from jointseg.network.dgcnn_predict import load_dgcnn_state
+from jointseg.network.dgcnn.model import DGCNN, knn
+from jointseg.network.dgcnn.predict import load_dgcnn_state
 
 
 def brute_force_knn(points: torch.Tensor, k: int) -> torch.Tensor:

@@ -7,9 +7,9 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from jointseg.network.crops import build_batch
-from jointseg.network.knn import knn, layer_indices
-from jointseg.network.randlanet import RandLANetConfig
+from jointseg.network.randlanet.crops import build_batch
+from jointseg.network.randlanet.knn import knn, layer_indices
+from jointseg.network.randlanet.model import RandLANetConfig
 
 
 def _same_up_to_ties(d_ref, i_ref, d, i, points, queries) -> None:

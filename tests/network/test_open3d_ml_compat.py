@@ -27,8 +27,8 @@ from jointseg.network.convert import (  # noqa: E402
     import_open3d_ml,
     open3d_ml_config,
 )
-from jointseg.network.crops import Batch, build_batch, crop_indices, grid_subsample  # noqa: E402
-from jointseg.network.randlanet import RandLANet, RandLANetConfig  # noqa: E402
+from jointseg.network.randlanet.crops import Batch, build_batch, crop_indices, grid_subsample  # noqa: E402
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig  # noqa: E402
 from jointseg.synth import make_room  # noqa: E402
 
 CROP = 4096

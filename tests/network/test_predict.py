@@ -11,8 +11,8 @@ import torch
 
 from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.network import load
-from jointseg.network.crops import build_batch, grid_subsample
-from jointseg.network.randlanet import RandLANet, RandLANetConfig
+from jointseg.network.randlanet.crops import build_batch, grid_subsample
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
 
 def test_model_shapes_and_repr() -> None:

@@ -7,7 +7,7 @@ import pytest
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.presence import absent_classes, drop_absent
-from jointseg.network.randlanet_params import RandLANetParams
+from jointseg.network.randlanet.params import RandLANetParams
 
 
 def _probs(winners: np.ndarray, runner_up: int = 2) -> np.ndarray:

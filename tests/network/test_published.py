@@ -11,6 +11,7 @@ import json
 import subprocess
 import sys
 import threading
+import typing
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -189,7 +190,7 @@ def test_open3d_ml_checkpoint_is_converted_on_arrival(
 
     from jointseg.network.checkpoint import load_checkpoint
     from jointseg.network.convert import ZOO_FILE, to_open3d_ml_state
-    from jointseg.network.randlanet import RandLANet, RandLANetConfig
+    from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
     torch.manual_seed(0)
     ours = RandLANet(RandLANetConfig(num_points=4096)).eval()
@@ -214,6 +215,18 @@ def test_open3d_ml_checkpoint_is_converted_on_arrival(
         if key.startswith("stem.") and key.endswith("weight"):
             continue  # colour columns are rescaled by the converter (0-255 vs 0-1)
         assert torch.allclose(a.float(), b.float(), atol=1e-6), key
+
+
+def test_cached_files_take_a_suffix_their_backend_reads() -> None:
+    """published cannot import the registry (the registry imports it), so its table of suffixes
+    is checked against the backends' records here."""
+    backends = typing.get_args(published.PublishedWeights.model_fields["backend"].annotation)
+    assert backends == tuple(published.SUFFIXES)
+    for name, suffix in published.SUFFIXES.items():
+        assert suffix in REGISTRY[name].suffixes, name
+    names = {e.name: e.filename for e in published.BUILT_IN}
+    assert names["dgcnn-s3dis-5"] == "dgcnn-s3dis-5.t7"
+    assert names["randlanet-s3dis-open3d-ml"] == "randlanet-s3dis-open3d-ml.pt"
 
 
 def test_built_in_checksums_match_the_shared_copies(shared_file) -> None:

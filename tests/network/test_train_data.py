@@ -9,13 +9,13 @@ import pytest
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.train_data import (
+from jointseg.network.training.data import (
     centre_weights,
     labelled_scan_files,
     split_validation,
     stable_order,
 )
-from jointseg.network.training import train
+from jointseg.network.training.loop import train
 from jointseg.synth import make_room
 
 

@@ -10,8 +10,9 @@ import torch
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.train_batches import BatchMaker, batch_stream
-from jointseg.network.train_sources import (
+from jointseg.network.training.batches import BatchMaker, batch_stream
+from jointseg.network.training.loop import best_path, train, training_data
+from jointseg.network.training.sources import (
     S3DIS_TERMS,
     SCANNET_TERMS,
     SYNTH_TERMS,
@@ -19,7 +20,6 @@ from jointseg.network.train_sources import (
     resolve_shares,
     terms_for,
 )
-from jointseg.network.training import best_path, train, training_data
 from jointseg.synth import make_room
 
 
@@ -107,7 +107,7 @@ def test_the_best_checkpoint_is_kept_beside_the_last(two_datasets, tiny_training
 def _maker(tiny_training, a, b, count=4):
     cfg = _config(tiny_training, a, b)
     data = training_data(cfg, 0.04)
-    from jointseg.network.randlanet import RandLANetConfig
+    from jointseg.network.randlanet.model import RandLANetConfig
 
     return BatchMaker(
         data.clouds,

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from jointseg.exceptions import ConfigError
-from jointseg.network.augment import augment
 from jointseg.network.checkpoint import load_checkpoint
-from jointseg.network.training import class_weights, train
+from jointseg.network.training.augment import augment
+from jointseg.network.training.loop import class_weights, train
 
 
 def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path, tiny_training) -> None:
@@ -30,7 +30,7 @@ def test_training_changes_the_weights(tmp_path, tiny_training) -> None:
     path = train(tiny_training(seed=1))
     trained, _, _ = load_checkpoint(path)
     torch.manual_seed(0)
-    from jointseg.network.randlanet import RandLANet, RandLANetConfig
+    from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
     fresh = RandLANet(RandLANetConfig(num_points=2048))
     diffs = [
@@ -85,7 +85,7 @@ def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
 def test_elastic_distortion_is_smooth_and_small() -> None:
     import numpy as np
 
-    from jointseg.network.augment import ELASTIC_MAGNITUDE, elastic_distortion
+    from jointseg.network.training.augment import ELASTIC_MAGNITUDE, elastic_distortion
 
     rng = np.random.default_rng(0)
     xyz = rng.uniform(0, 3, (20_000, 3)).astype(np.float32)
@@ -140,9 +140,9 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
 
 
 def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
-    from jointseg.network.registry import card_summary
+    from jointseg.network.backends import card_summary
     from jointseg.network.shipping import pack_checkpoint
-    from jointseg.network.training import S3DIS_TERMS, SYNTH_TERMS
+    from jointseg.network.training.loop import S3DIS_TERMS, SYNTH_TERMS
 
     path = train(tiny_training(epochs=2, command="jointseg train --data synth --out m.pt"))
     _, card, _ = load_checkpoint(path)

@@ -9,7 +9,7 @@ import pytest
 from pydantic import ValidationError
 
 from jointseg.network import DGCNNParams
-from jointseg.network.randlanet_params import RandLANetParams
+from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.registry import REGISTRY
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 

@@ -11,11 +11,10 @@ import pytest
 
 from jointseg.exceptions import Cancelled
 from jointseg.io import read_scan, write_scan
-from jointseg.pipeline import PipelineConfig, load_predictor, run
-from jointseg.pipeline.tile_merge import MIN_LINK_POINTS, _Gathered, join_segments, merge
-from jointseg.pipeline.tile_run import cells_path, load_result, result_path, run_tile
-from jointseg.pipeline.tile_store import prepare
-from jointseg.pipeline.tiled import run_tiled
+from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file
+from jointseg.pipeline.tiled.merge import MIN_LINK_POINTS, _Gathered, join_segments, merge
+from jointseg.pipeline.tiled.run import cells_path, load_result, result_path, run_tile
+from jointseg.pipeline.tiled.store import prepare
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
 
@@ -176,7 +175,7 @@ def test_cli_path_streams_the_output_with_every_field(
     source = tmp_path / "floor.laz"
     write_scan(floor, source)
     output = tmp_path / "out.laz"
-    done = run_tiled(
+    done = segment_file(
         source,
         output,
         config,
@@ -188,9 +187,10 @@ def test_cli_path_streams_the_output_with_every_field(
     np.testing.assert_allclose(back.xyz, read_scan(source).xyz, atol=2e-4)
     for name in ("network_label", "segment", "fused_label", "fused_confidence"):
         assert name in back.fields
-    assert np.array_equal(back.fields["fused_label"], done.merged.fused_label)
     assert back.fields["fused_label"].max() <= 12
-    assert done.report["tiles"]["count"] == len(done.plan.tiles) >= 3
+    assert done.tiles == done.report["tiles"]["count"] >= 3
+    assert done.report["points"] == POINTS and done.report["input"] == str(source)
+    assert list(done.report["timings_s"])[:3] == ["load_network", "prepare", "tiles"]
     assert not list(tmp_path.glob(".jointseg-tiles-*")), "the work folder was not removed"
 
 
@@ -207,7 +207,7 @@ def test_cancel_between_tiles_stops_and_leaves_no_output(
             stop.set()  # one tile done: stop before the next
 
     with pytest.raises(Cancelled):
-        run_tiled(
+        segment_file(
             source,
             output,
             config,
@@ -250,6 +250,7 @@ def test_a_network_without_a_shared_crop_plan_runs_each_tile_on_its_own(
     assert merged.network_confidence.min() > 0  # every point got an owner's output
     assert merged.network_label.max() <= 12 and merged.fused_label.max() <= 12
     first = load_result(tmp_path, 0)
-    assert first.probs is not None and first.labels is not None
-    assert first.probs.shape == (len(first.core_index), 13)
-    assert np.array_equal(merged.network_label[first.core_index], first.labels)
+    assert not first.network.per_cell
+    assert first.network.probs is not None and first.network.labels is not None
+    assert first.network.probs.shape == (len(first.core_index), 13)
+    assert np.array_equal(merged.network_label[first.core_index], first.network.labels)

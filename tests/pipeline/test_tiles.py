@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from jointseg.exceptions import ConfigError
-from jointseg.pipeline.tiles import TileParams, core_tile, plan_tiles
+from jointseg.pipeline.tiled.grid import TileParams, core_tile, plan_tiles
 
 
 def floor_sample(rng: np.random.Generator, n: int = 200_000) -> np.ndarray:

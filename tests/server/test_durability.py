@@ -10,9 +10,9 @@ import time
 
 from service_process import post_scan, running, scan_file, start_service, wait_for
 
-from server import jobs
-from server.db import make_engine, make_sessions
 from server.settings import Settings
+from server.state import jobs
+from server.state.db import make_engine, make_sessions
 
 LONG = 30_000  # points: a job of several seconds with the random network on one thread
 

@@ -8,12 +8,12 @@ from datetime import timedelta
 import pytest
 from sqlalchemy import update
 
-from server import jobs, lifecycle
-from server.db import init_db, make_engine, make_sessions
-from server.models import Job, utcnow
 from server.queue import JobQueue
-from server.reaper import reap_and_requeue
 from server.settings import Settings
+from server.state import jobs, lifecycle
+from server.state.db import init_db, make_engine, make_sessions
+from server.state.models import Job, utcnow
+from server.state.reaper import reap_and_requeue
 
 
 @pytest.fixture

@@ -11,13 +11,13 @@ from datetime import timedelta
 import pytest
 from sqlalchemy import select, update
 
-from server import jobs, lifecycle, tiles
-from server.db import init_db, make_engine, make_sessions
-from server.models import JobTile, utcnow
 from server.queue import JobQueue
-from server.reaper import reap_and_requeue
 from server.settings import Settings
-from server.tile_reaper import reap_parts
+from server.state import jobs, lifecycle, parts
+from server.state.db import init_db, make_engine, make_sessions
+from server.state.models import JobTile, utcnow
+from server.state.part_reaper import reap_parts
+from server.state.reaper import reap_and_requeue
 
 TILES = 4
 
@@ -35,7 +35,7 @@ def sessions(request, tmp_path):
 
 
 def _planned(sessions, n: int = 1, count: int = TILES) -> str:
-    """A job claimed and fanned out into ``count`` tiles."""
+    """A job claimed and fanned out into ``count`` parts."""
     job_id = f"{n:032x}"
     with sessions() as session:
         jobs.create_job(
@@ -51,7 +51,7 @@ def _planned(sessions, n: int = 1, count: int = TILES) -> str:
         claim = lifecycle.claim_job(session, job_id, "planner:1")
         assert claim is not None
         now = utcnow()
-        assert tiles.fan_out(session, claim, count, worker="planner:1", started_at=now, seconds=1)
+        assert parts.fan_out(session, claim, count, worker="planner:1", started_at=now, seconds=1)
     return job_id
 
 
@@ -83,43 +83,43 @@ def test_tiles_then_exactly_one_merge_then_success(sessions) -> None:
             "done": 0,
             "running": 0,
         }
-        assert view.progress == pytest.approx(tiles.PLAN_SHARE)
-        parts = [tiles.claim_part(session, job_id, "tile", i, f"w:{i}") for i in range(TILES)]
-        assert all(p is not None for p in parts)
-        assert tiles.claim_part(session, job_id, "tile", 0, "other:9") is None  # taken
-        assert tiles.claim_part(session, job_id, "merge", 0, "other:9") is None  # waiting
-        tiles.record_progress(session, parts[0], 0.5)
+        assert view.progress == pytest.approx(parts.PLAN_SHARE)
+        claims = [parts.claim_part(session, job_id, "tile", i, f"w:{i}") for i in range(TILES)]
+        assert all(p is not None for p in claims)
+        assert parts.claim_part(session, job_id, "tile", 0, "other:9") is None  # taken
+        assert parts.claim_part(session, job_id, "merge", 0, "other:9") is None  # waiting
+        parts.record_progress(session, claims[0], 0.5)
         view = jobs.get_job(session, job_id)
         assert view.tiles.running == TILES
-        expected = tiles.PLAN_SHARE + tiles.TILES_SHARE * 0.5 / TILES
+        expected = parts.PLAN_SHARE + parts.TILES_SHARE * 0.5 / TILES
         assert view.progress == pytest.approx(expected)
-        due = [tiles.finish_tile(session, p, 1.0) for p in parts]
+        due = [parts.finish_tile(session, p, 1.0) for p in claims]
         assert due == [(True, False)] * (TILES - 1) + [(True, True)]
-        assert tiles.finish_tile(session, parts[0], 1.0) == (False, False)  # once only
+        assert parts.finish_tile(session, claims[0], 1.0) == (False, False)  # once only
         view = jobs.get_job(session, job_id)
         assert view.stage == f"tiles {TILES}/{TILES}" and view.tiles.done == TILES
-        assert view.progress == pytest.approx(tiles.PLAN_SHARE + tiles.TILES_SHARE)
-        merge = tiles.claim_part(session, job_id, "merge", 0, "w:0")
+        assert view.progress == pytest.approx(parts.PLAN_SHARE + parts.TILES_SHARE)
+        merge = parts.claim_part(session, job_id, "merge", 0, "w:0")
         assert merge is not None and merge.name == "merge" and merge.tiles == TILES
-        tiles.record_progress(session, merge, 0.5, "fusion")
+        parts.record_progress(session, merge, 0.5, "fusion")
         assert jobs.get_job(session, job_id).stage == "fusion"
-        assert tiles.finish_merge(session, merge, seconds=1, points=1000, timings={"total": 1})
+        assert parts.finish_merge(session, merge, seconds=1, points=1000, timings={"total": 1})
         view = jobs.get_job(session, job_id)
-        assert tiles.idle_and_final(session, job_id)
+        assert parts.idle_and_final(session, job_id)
     assert view.status == "succeeded" and view.progress == 1.0 and view.tiles.done == TILES
 
 
-def _finish_together(sessions, parts: list[tiles.PartClaim]) -> list[bool]:
-    """Finish ``parts`` from as many threads at once; whether each was told to queue the merge."""
-    barrier = threading.Barrier(len(parts))
+def _finish_together(sessions, claims: list[parts.PartClaim]) -> list[bool]:
+    """Finish ``claims`` from as many threads at once; whether each was told to queue the merge."""
+    barrier = threading.Barrier(len(claims))
     due: list[bool] = []
 
-    def finish(part: tiles.PartClaim) -> None:
+    def finish(part: parts.PartClaim) -> None:
         with sessions() as session:
             barrier.wait()
-            due.append(tiles.finish_tile(session, part, 1.0)[1])
+            due.append(parts.finish_tile(session, part, 1.0)[1])
 
-    threads = [threading.Thread(target=finish, args=(p,)) for p in parts]
+    threads = [threading.Thread(target=finish, args=(p,)) for p in claims]
     for thread in threads:
         thread.start()
     for thread in threads:
@@ -131,8 +131,8 @@ def test_racing_finishers_enqueue_the_merge_once(sessions) -> None:
     for n in range(1, 6):
         job_id = _planned(sessions, n, count=6)
         with sessions() as session:
-            parts = [tiles.claim_part(session, job_id, "tile", i, f"w:{i}") for i in range(6)]
-        due = _finish_together(sessions, [p for p in parts if p is not None])
+            claims = [parts.claim_part(session, job_id, "tile", i, f"w:{i}") for i in range(6)]
+        due = _finish_together(sessions, [p for p in claims if p is not None])
         assert sorted(due) == [False] * 5 + [True], due
         assert _statuses(sessions, job_id)[("merge", 0)] == "queued"
 
@@ -140,30 +140,30 @@ def test_racing_finishers_enqueue_the_merge_once(sessions) -> None:
 def test_a_lost_tile_is_requeued_and_its_stale_worker_fenced(sessions) -> None:
     job_id = _planned(sessions)
     with sessions() as session:
-        first = tiles.claim_part(session, job_id, "tile", 2, "dead:1")
-        tiles.record_progress(session, first, 0.7)
+        first = parts.claim_part(session, job_id, "tile", 2, "dead:1")
+        parts.record_progress(session, first, 0.7)
     _age(sessions, job_id, 10, kind="tile", tile=2)
     with sessions() as session:
         # the job row's own heartbeat is old too: the job reaper leaves a fanned-out job alone
         assert lifecycle.reap_stale(session, timeout_s=0, max_attempts=3) == []
         sweep = reap_parts(session, timeout_s=3, max_attempts=3)
         assert sweep.enqueue == [(job_id, "tile", 2)]
-        second = tiles.claim_part(session, job_id, "tile", 2, "alive:2")
+        second = parts.claim_part(session, job_id, "tile", 2, "alive:2")
         assert second is not None and second.attempt == 2
-        assert tiles.cancel_requested(session, first)
-        assert not tiles.cancel_requested(session, second)
-        assert tiles.finish_tile(session, first, 1.0) == (False, False)
-        assert tiles.finish_tile(session, second, 1.0) == (True, False)
+        assert parts.cancel_requested(session, first)
+        assert not parts.cancel_requested(session, second)
+        assert parts.finish_tile(session, first, 1.0) == (False, False)
+        assert parts.finish_tile(session, second, 1.0) == (True, False)
         view = jobs.get_job(session, job_id)
     assert view.status == "running" and view.tiles.done == 1
-    assert view.progress >= tiles.PLAN_SHARE + tiles.TILES_SHARE * 0.7 / TILES  # not lowered
+    assert view.progress >= parts.PLAN_SHARE + parts.TILES_SHARE * 0.7 / TILES  # not lowered
 
 
 def test_a_tile_lost_max_attempts_times_fails_the_job(sessions) -> None:
     job_id = _planned(sessions)
     for attempt in (1, 2):
         with sessions() as session:
-            assert tiles.claim_part(session, job_id, "tile", 1, f"w:{attempt}") is not None
+            assert parts.claim_part(session, job_id, "tile", 1, f"w:{attempt}") is not None
         _age(sessions, job_id, 10, kind="tile", tile=1)
         with sessions() as session:
             sweep = reap_parts(session, timeout_s=3, max_attempts=2)
@@ -181,29 +181,29 @@ def test_a_tile_lost_max_attempts_times_fails_the_job(sessions) -> None:
 def test_a_failed_tile_fails_the_job_and_stops_the_others(sessions) -> None:
     job_id = _planned(sessions)
     with sessions() as session:
-        bad = tiles.claim_part(session, job_id, "tile", 0, "w:1")
-        other = tiles.claim_part(session, job_id, "tile", 1, "w:2")
-        assert tiles.fail_part(session, bad, "tile 1/4 failed: too few points")
+        bad = parts.claim_part(session, job_id, "tile", 0, "w:1")
+        other = parts.claim_part(session, job_id, "tile", 1, "w:2")
+        assert parts.fail_part(session, bad, "tile 1/4 failed: too few points")
         view = jobs.get_job(session, job_id)
         assert view.status == "failed" and view.error == "tile 1/4 failed: too few points"
-        assert tiles.cancel_requested(session, other)  # stops at its next check
-        assert not tiles.idle_and_final(session, job_id)  # tile 2 still runs
-        tiles.stop_part(session, other)
-        assert tiles.idle_and_final(session, job_id)
-        assert tiles.claim_part(session, job_id, "tile", 2, "w:3") is None
+        assert parts.cancel_requested(session, other)  # stops at its next check
+        assert not parts.idle_and_final(session, job_id)  # tile 2 still runs
+        parts.stop_part(session, other)
+        assert parts.idle_and_final(session, job_id)
+        assert parts.claim_part(session, job_id, "tile", 2, "w:3") is None
     assert _statuses(sessions, job_id)[("tile", 2)] == "cancelled"
 
 
 def test_cancel_settles_once_no_tile_runs(sessions) -> None:
     job_id = _planned(sessions)
     with sessions() as session:
-        running = tiles.claim_part(session, job_id, "tile", 0, "w:1")
+        running = parts.claim_part(session, job_id, "tile", 0, "w:1")
         view = jobs.cancel_job(session, job_id)
         assert view.status == "running"  # tile 1 still runs
-        assert tiles.cancel_requested(session, running)
-        assert tiles.claim_part(session, job_id, "tile", 1, "w:2") is None  # skipped
-        tiles.stop_part(session, running)
-        assert tiles.settle_cancel(session, job_id)
+        assert parts.cancel_requested(session, running)
+        assert parts.claim_part(session, job_id, "tile", 1, "w:2") is None  # skipped
+        parts.stop_part(session, running)
+        assert parts.settle_cancel(session, job_id)
         view = jobs.get_job(session, job_id)
     assert view.status == "cancelled" and view.error == "cancelled by request"
     assert set(_statuses(sessions, job_id).values()) == {"done", "cancelled"}  # plan done
@@ -219,7 +219,7 @@ def test_cancel_settles_once_no_tile_runs(sessions) -> None:
 def test_the_reaper_queues_a_lost_merge_and_finishes_orphaned_cancels(sessions) -> None:
     job_id = _planned(sessions, 1, count=1)
     with sessions() as session:
-        part = tiles.claim_part(session, job_id, "tile", 0, "w:1")
+        part = parts.claim_part(session, job_id, "tile", 0, "w:1")
         # the finisher dies between committing its tile and queueing the merge
         session.execute(
             update(JobTile)
@@ -233,7 +233,7 @@ def test_the_reaper_queues_a_lost_merge_and_finishes_orphaned_cancels(sessions) 
 
     cancelled = _planned(sessions, 2)
     with sessions() as session:
-        tiles.claim_part(session, cancelled, "tile", 0, "dead:1")
+        parts.claim_part(session, cancelled, "tile", 0, "dead:1")
         jobs.cancel_job(session, cancelled)
     _age(sessions, cancelled, 10)
     with sessions() as session:
@@ -271,9 +271,9 @@ def test_queued_tiles_without_a_queue_entry_are_enqueued(tmp_path) -> None:
 def test_a_shutdown_releases_a_tile_without_counting_it(sessions) -> None:
     job_id = _planned(sessions)
     with sessions() as session:
-        part = tiles.claim_part(session, job_id, "tile", 3, "stopping:1")
-        tiles.record_progress(session, part, 0.4)
-        assert tiles.release_part(session, part)
-        assert not tiles.release_part(session, part)  # once
-        again = tiles.claim_part(session, job_id, "tile", 3, "w:2")
+        part = parts.claim_part(session, job_id, "tile", 3, "stopping:1")
+        parts.record_progress(session, part, 0.4)
+        assert parts.release_part(session, part)
+        assert not parts.release_part(session, part)  # once
+        again = parts.claim_part(session, job_id, "tile", 3, "w:2")
     assert again is not None and again.attempt == 1

@@ -20,8 +20,7 @@ import torch
 from service_process import floor_file, fresh_database, post_scan, running, scan_file, wait_for
 
 from jointseg.io import read_scan
-from jointseg.pipeline import PipelineConfig, load_predictor
-from jointseg.pipeline.tiled import run_tiled
+from jointseg.pipeline import PipelineConfig, load_predictor, segment_file
 
 #: A 120 k-point floor with cores of at most 40 k points: four tiles of about 2 s each (the
 #: random network on one torch thread).
@@ -145,7 +144,7 @@ def test_the_fan_out_labels_like_the_single_process_tiled_run(
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as the workers run it (JOINTSEG_TORCH_THREADS=1)
     try:
-        alone = run_tiled(
+        alone = segment_file(
             floor,
             tmp_path / "alone.ply",
             config,
@@ -155,10 +154,10 @@ def test_the_fan_out_labels_like_the_single_process_tiled_run(
     finally:
         torch.set_num_threads(threads)
     served = read_scan(killed_run.result)
-    assert killed_run.report["tiles"]["count"] == alone.report["tiles"]["count"]
-    np.testing.assert_array_equal(served.fields["network_label"], alone.merged.network_label)
-    np.testing.assert_array_equal(served.fields["segment"], alone.merged.segment)
-    np.testing.assert_array_equal(served.fields["fused_label"], alone.merged.fused_label)
+    expected = read_scan(tmp_path / "alone.ply")
+    assert killed_run.report["tiles"]["count"] == alone.tiles == alone.report["tiles"]["count"]
+    for name in ("network_label", "segment", "fused_label", "fused_confidence"):
+        np.testing.assert_array_equal(served.fields[name], expected.fields[name])
     np.testing.assert_array_equal(served.xyz, read_scan(floor).xyz)
 
 

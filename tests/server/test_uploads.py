@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from jointseg.exceptions import ConfigError, JobNotFound, UnsupportedFormatError
+from server.api.uploads import safe_filename, upload_suffix
 from server.storage import Storage
-from server.uploads import safe_filename, upload_suffix
 
 
 @pytest.mark.parametrize(

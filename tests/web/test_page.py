@@ -11,7 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 import web
-from server.app import create_app
+from server.api.app import create_app
 from server.serve_parts import load_serve_parts
 from server.settings import Settings
 from web.page import VIEWER_FILE, job_page_router

@@ -36,10 +36,10 @@ def test_directory_source_refuses_unknown_ids_and_paths(results: Path, bad: str)
 
 
 def test_service_source_lists_succeeded_jobs_only(results: Path, tmp_path: Path) -> None:
-    from server.db import init_db, make_engine, make_sessions
-    from server.jobs import create_job
-    from server.models import Job
     from server.settings import Settings
+    from server.state.db import init_db, make_engine, make_sessions
+    from server.state.jobs import create_job
+    from server.state.models import Job
     from server.storage import Storage
     from web.service_source import ServiceSource
 

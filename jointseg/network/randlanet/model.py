@@ -1,0 +1,95 @@
+"""RandLA-Net for semantic segmentation, with the official S3DIS configuration by default."""
+
+from __future__ import annotations
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from torch import nn
+
+from jointseg.network.randlanet.layers import (
+    BN_MOMENTUM,
+    DilatedResidualBlock,
+    SharedMLP,
+    nearest_upsample,
+    random_pool,
+)
+
+
+class RandLANetConfig(BaseModel):
+    """Architecture and input conventions; defaults are RandLA-Net's S3DIS configuration."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    num_classes: int = Field(13, gt=1)
+    in_channels: int = Field(6, description="xyz (crop-centred in x, y) + rgb in [0, 1]")
+    d_stem: int = 8
+    d_out: tuple[int, ...] = (16, 64, 128, 256, 512)
+    ratios: tuple[int, ...] = (4, 4, 4, 4, 2)
+    k: int = Field(16, gt=0, description="neighbours per point")
+    num_points: int = Field(40_960, gt=0, description="points per crop")
+    grid_size: float = Field(0.04, gt=0, description="grid sub-sampling, metres")
+
+
+class RandLANet(nn.Module):
+    """Encoder of dilated residual blocks with random sampling, decoder with nearest-neighbour
+    upsampling and skip connections, per-point class logits.
+
+    Shapes
+    ------
+    features (B, N, in_channels); per layer i: coords[i] (B, N_i, 3), neighbours[i] (B, N_i, k),
+    pools[i] (B, N_{i+1}, k), upsamples[i] (B, N_i, 1) -> logits (B, N, num_classes)
+    """
+
+    def __init__(self, config: RandLANetConfig | None = None) -> None:
+        super().__init__()
+        self.config = cfg = config or RandLANetConfig()
+        if len(cfg.d_out) != len(cfg.ratios):
+            raise ValueError("d_out and ratios must have one entry per layer")
+        self.stem = nn.Linear(cfg.in_channels, cfg.d_stem)
+        self.stem_bn = nn.BatchNorm2d(cfg.d_stem, eps=1e-6, momentum=BN_MOMENTUM)
+        blocks, skip_dims, d = [], [], cfg.d_stem
+        for i, d_out in enumerate(cfg.d_out):
+            blocks.append(DilatedResidualBlock(d, d_out))
+            d = 2 * d_out
+            skip_dims += [d, d] if i == 0 else [d]
+        self.encoder = nn.ModuleList(blocks)
+        self.bottleneck = SharedMLP(d, d)
+        decoder = []
+        for i in range(len(cfg.d_out)):
+            skip = skip_dims[-i - 2]
+            decoder.append(SharedMLP(skip + d, skip))
+            d = skip
+        self.decoder = nn.ModuleList(decoder)
+        self.head = nn.Sequential(
+            SharedMLP(d, 64),
+            SharedMLP(64, 32),
+            nn.Dropout(0.5),
+            SharedMLP(32, cfg.num_classes, bn=False, slope=None),
+        )
+
+    def forward(
+        self,
+        features: torch.Tensor,
+        coords: list[torch.Tensor],
+        neighbours: list[torch.Tensor],
+        pools: list[torch.Tensor],
+        upsamples: list[torch.Tensor],
+    ) -> torch.Tensor:
+        x = self.stem(features).transpose(1, 2).unsqueeze(3)
+        x = nn.functional.leaky_relu(self.stem_bn(x), 0.2)
+        skips = []
+        for i, block in enumerate(self.encoder):
+            x = block(coords[i], x, neighbours[i])
+            if i == 0:
+                skips.append(x)
+            x = random_pool(x, pools[i])
+            skips.append(x)
+        x = self.bottleneck(x)
+        for i, layer in enumerate(self.decoder):
+            up = nearest_upsample(x, upsamples[-i - 1])
+            x = layer(torch.cat([skips[-i - 2], up], dim=1))
+        return self.head(x).squeeze(3).transpose(1, 2)
+
+    def extra_repr(self) -> str:
+        c = self.config
+        return f"classes={c.num_classes}, d_out={c.d_out}, ratios={c.ratios}, k={c.k}"

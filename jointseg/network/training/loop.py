@@ -1,0 +1,510 @@
+"""Training RandLA-Net on several sources at once: folders of labelled scans, S3DIS's own
+folder layout, synthetic rooms, each with a share of the crops.
+
+Weighted cross-entropy (weights from the class mixture the crops have), Adam with exponential
+decay, augmentation for other sensors (:mod:`jointseg.network.training.augment`),
+class-balanced crop centres per source, batches built by worker processes
+(:mod:`jointseg.network.training.batches`), neighbour searches on the GPU when training on one,
+validation mIoU per source every epoch, resumable checkpoints with a model card, and the best
+checkpoint by validation kept beside the last.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import platform
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from jointseg.classes import CLASS_NAMES, NUM_CLASSES
+from jointseg.exceptions import ConfigError
+from jointseg.metrics import evaluate
+from jointseg.network.base import pick_device
+from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
+from jointseg.network.randlanet.crops import (
+    MIN_CROP,
+    Batch,
+    GridCloud,
+    build_batch,
+    crop_indices,
+    pad_to,
+)
+from jointseg.network.randlanet.knn import layer_indices
+from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
+from jointseg.network.training.augment import AugmentParams
+from jointseg.network.training.batches import BatchMaker, CropBatch, batch_stream
+from jointseg.network.training.data import centre_weights
+from jointseg.network.training.sources import (
+    S3DIS_TERMS,
+    SCANNET_TERMS,
+    SYNTH_TERMS,
+    Source,
+    SourceOptions,
+    load_sources,
+    parse_source,
+    resolve_shares,
+    terms_for,
+)
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+
+__all__ = ["S3DIS_TERMS", "SCANNET_TERMS", "SYNTH_TERMS", "TrainConfig", "train"]
+
+log = logging.getLogger(__name__)
+STAGE = "train"
+
+
+class TrainConfig(BaseModel):
+    """Everything a training run needs; stored in the checkpoint's model card."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    data: list[str] = Field(
+        default_factory=lambda: ["synth"],
+        description="sources, each '[NAME=]PATH[:SHARE]' or 'synth[:SHARE]': a folder of "
+        "labelled scans or a Stanford3dDataset_v1.2 folder (see jointseg.network.training.sources)",
+    )
+    out: Path
+    test_area: int = Field(5, ge=1, le=6, description="S3DIS area held out for validation")
+    synth_rooms: int = Field(40, ge=1, description="synthetic training rooms")
+    synth_floors: int = Field(4, ge=0, description="synthetic training floors")
+    synth_points: int = Field(300_000, ge=10_000, description="points per synthetic room")
+    val_rooms: int = Field(4, ge=0, description="synthetic validation rooms")
+    val_scans: list[str] = Field(
+        default_factory=list,
+        description="folder data: file stems (or fnmatch patterns, e.g. 'scene0002_*' for every "
+        "re-scan of a room) kept out of training for validation",
+    )
+    val_count: int = Field(
+        5, ge=1, description="folder data without val_scans: this many, in a name-hash order"
+    )
+    exclude_scans: list[str] = Field(
+        default_factory=list,
+        description="folder data: file stems or patterns kept out of training and validation "
+        "alike (scans kept to judge the result)",
+    )
+    synth_share: float = Field(
+        0.0,
+        ge=0,
+        lt=1,
+        description="share of crops from synthetic rooms (the same as adding 'synth:SHARE')",
+    )
+    balanced_crops: bool = Field(True, description="centre crops on rare classes more often")
+    init: Path | None = Field(None, description="start from these weights (fresh optimiser)")
+    epochs: int = Field(20, ge=1)
+    steps_per_epoch: int = Field(100, ge=1)
+    batch_size: int = Field(2, ge=1)
+    num_points: int = Field(16_384, ge=1024, description="points per training crop")
+    lr: float = Field(0.01, gt=0)
+    gamma: float = Field(0.95, gt=0, le=1, description="learning-rate decay per epoch")
+    seed: int = 0
+    resume: Path | None = None
+    threads: int | None = None
+    num_channels_scale: float = Field(
+        1.0, gt=0, le=1, description="scale RandLA-Net's channel widths (lighter network)"
+    )
+    elastic: float = Field(
+        0.3, ge=0, le=1, description="share of training crops given an elastic distortion"
+    )
+    augment: AugmentParams = Field(
+        default_factory=AugmentParams,
+        description="density, partial-room, slice, tilt and colour augmentation",
+    )
+    prefetch: bool = Field(
+        True,
+        description="without workers: build the next batch in a background thread while the "
+        "network runs",
+    )
+    workers: int = Field(
+        0,
+        ge=0,
+        le=64,
+        description="processes building batches (0: in the training process); the batches "
+        "are the same for any number",
+    )
+    neighbours_on_device: bool | None = Field(
+        None,
+        description="run the per-layer neighbour searches on the training device (default: "
+        "on CUDA devices, where they are faster than the workers' KD-trees)",
+    )
+    device: str | None = Field(None, description="'cpu' or 'cuda' (default: cuda when present)")
+    command: str | None = Field(
+        None, description="the command line that started the run, kept in the model card"
+    )
+
+    @field_validator("data", mode="before")
+    @classmethod
+    def _one_or_many(cls, value: object) -> object:
+        """A single source (as older cards store it) is a list of one."""
+        return [value] if isinstance(value, str) else value
+
+    def sources(self) -> list[str]:
+        """The source specs, with ``synth_share`` as a synthetic source when none is named."""
+        specs = list(self.data)
+        if self.synth_share > 0 and not any(parse_source(s).is_synth for s in specs):
+            real = [parse_source(s) for s in specs]
+            if any(r.share is not None for r in real):
+                raise ConfigError("give synth a share with --data synth:SHARE, not synth_share")
+            specs = [f"{r.name}={r.path}:{(1 - self.synth_share) / len(real):.6g}" for r in real]
+            specs.append(f"synth:{self.synth_share:.6g}")
+        return specs
+
+    def augmentation(self) -> AugmentParams:
+        """The augmentation settings, ``elastic`` included."""
+        return self.augment.model_copy(update={"elastic": self.elastic})
+
+
+def _model_config(cfg: TrainConfig) -> RandLANetConfig:
+    """The official configuration, channel widths scaled by ``num_channels_scale``."""
+    base = RandLANetConfig(num_points=cfg.num_points)
+    if cfg.num_channels_scale == 1.0:
+        return base
+    scale = cfg.num_channels_scale
+    return base.model_copy(
+        update={
+            "d_stem": max(4, round(base.d_stem * scale)),
+            "d_out": tuple(max(8, round(d * scale)) for d in base.d_out),
+        }
+    )
+
+
+def weights_from_frequency(freq: np.ndarray) -> torch.Tensor:
+    """RandLA-Net's weights 1 / (frequency + 0.02), so rare classes are not ignored."""
+    return torch.tensor(1.0 / (np.asarray(freq) + 0.02), dtype=torch.float32)
+
+
+def class_weights(labels: list[np.ndarray]) -> torch.Tensor:
+    """:func:`weights_from_frequency` of the labels' class frequencies (-1 left out)."""
+    counts = np.bincount(np.concatenate([lab[lab >= 0] for lab in labels]), minlength=NUM_CLASSES)
+    return weights_from_frequency(counts / max(counts.sum(), 1))
+
+
+def source_options(cfg: TrainConfig, grid: float) -> SourceOptions:
+    """How :func:`load_sources` reads the configuration's sources."""
+    return SourceOptions(
+        grid=grid,
+        val_patterns=list(cfg.val_scans),
+        exclude_patterns=list(cfg.exclude_scans),
+        val_count=cfg.val_count,
+        test_area=cfg.test_area,
+        synth_rooms=cfg.synth_rooms,
+        synth_floors=cfg.synth_floors,
+        synth_val_rooms=cfg.val_rooms,
+        synth_points=cfg.synth_points,
+    )
+
+
+@dataclass
+class TrainingData:
+    """What the steps draw from: every source's clouds, their draw and centre probabilities, and
+    the loss weights of the mixture."""
+
+    sources: list[Source]
+    clouds: list[GridCloud]
+    draw_p: np.ndarray
+    centre_p: list[np.ndarray | None]
+    loss_weights: torch.Tensor
+    description: str
+
+
+def training_data(cfg: TrainConfig, grid: float) -> TrainingData:
+    """Load the sources; class statistics per source: crop centres are balanced within each
+    source, and the loss weights follow the class mixture the crops actually have."""
+    sources = load_sources(cfg.sources(), source_options(cfg, grid))
+    clouds: list[GridCloud] = []
+    draw: list[float] = []
+    centre_p: list[np.ndarray | None] = []
+    mixture = np.zeros(NUM_CLASSES)
+    for src in sources:
+        freq = src.class_frequency
+        mixture += src.share * freq
+        weights = weights_from_frequency(freq).numpy()
+        for cloud in src.train:
+            clouds.append(cloud)
+            draw.append(src.share / len(src.train))
+            assert cloud.labels is not None
+            centre_p.append(centre_weights(cloud.labels, weights) if cfg.balanced_crops else None)
+    text = "; ".join(f"{s.spec.name} ({s.share:.0%} of crops): {s.description}" for s in sources)
+    draw_p = np.asarray(draw) / np.sum(draw)
+    return TrainingData(sources, clouds, draw_p, centre_p, weights_from_frequency(mixture), text)
+
+
+def validation_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator):
+    """A crop of the validation cloud around a random point, as inference sees it."""
+    centre = rng.integers(len(cloud.xyz))
+    idx = crop_indices(cloud, cloud.xyz[centre], num_points)
+    idx = rng.permutation(pad_to(idx, min(num_points, max(len(idx), MIN_CROP)), rng))
+    assert cloud.labels is not None
+    return cloud.xyz[idx], cloud.rgb[idx], cloud.labels[idx], idx
+
+
+def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> float | None:
+    """mIoU on deterministic crops of each validation cloud (about twice its points)."""
+    if not clouds:
+        return None
+    rng = np.random.default_rng(12345)
+    gts, preds = [], []
+    device = next(model.parameters()).device
+    model.eval()
+    with torch.no_grad():
+        for cloud in clouds:
+            for _ in range(max(2, int(np.ceil(2 * len(cloud.xyz) / cfg.num_points)))):
+                xyz, rgb, lab, idx = validation_crop(cloud, cfg.num_points, rng)
+                batch = build_batch([(xyz, rgb, lab, idx)], model.config).to(device)
+                logits = model(
+                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+                )
+                preds.append(logits.argmax(-1).cpu().numpy().ravel())
+                gts.append(lab)
+    model.train()
+    return evaluate(np.concatenate(gts), np.concatenate(preds)).miou
+
+
+def validate_sources(
+    model: RandLANet, sources: list[Source], cfg: TrainConfig
+) -> tuple[float | None, dict[str, float | None]]:
+    """Validation mIoU per source, and the score that picks the best checkpoint: the mean over
+    the real sources that have validation scans (over synth when there is no real one)."""
+    per = {s.spec.name: validate(model, s.val, cfg) for s in sources}
+    real = [per[s.spec.name] for s in sources if not s.spec.is_synth]
+    pool = [v for v in real if v is not None] or [v for v in per.values() if v is not None]
+    return (float(np.mean(pool)) if pool else None), per
+
+
+def default_workers() -> int:
+    """Batch-building processes by default: one per core beside the training process, at most
+    8 (on a GPU machine the batches are the bottleneck; on two cores one worker)."""
+    return max(0, min(8, len(os.sched_getaffinity(0)) - 1))
+
+
+def best_path(out: Path) -> Path:
+    """Where the best checkpoint by validation is kept, beside the last one."""
+    return out.with_name(f"{out.stem}.best{out.suffix}")
+
+
+def train(
+    cfg: TrainConfig, progress: ProgressFn | None = None, cancel: CancelToken | None = None
+) -> Path:
+    """Train, writing ``cfg.out`` after every epoch (with optimiser state, for ``resume``) and
+    :func:`best_path` whenever the validation score is the best so far.
+
+    Returns
+    -------
+    Path of the last checkpoint.
+    """
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    cfg.out.parent.mkdir(parents=True, exist_ok=True)
+    run = _start(cfg)
+    report(progress, STAGE, 0.0)
+    data = training_data(cfg, run.model.config.grid_size)
+    if cfg.init is not None:
+        data.description += f"; started from {cfg.init.name}"
+    on_device = (
+        cfg.neighbours_on_device
+        if cfg.neighbours_on_device is not None
+        else run.device.type == "cuda"
+    )
+    maker = BatchMaker(
+        clouds=data.clouds,
+        draw_p=data.draw_p,
+        centre_p=data.centre_p,
+        model_config=run.model.config,
+        aug=cfg.augmentation(),
+        batch_size=cfg.batch_size,
+        num_points=cfg.num_points,
+        seed=cfg.seed,
+        first=run.start_epoch * cfg.steps_per_epoch,
+        count=(cfg.epochs - run.start_epoch) * cfg.steps_per_epoch,
+        neighbours_on_device=on_device,
+    )
+    loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights.to(run.device), ignore_index=-1)
+    run.model.train()
+    stream = batch_stream(
+        maker, workers=cfg.workers, prefetch=cfg.prefetch, pin=run.device.type == "cuda"
+    )
+    with stream as batches:
+        _train_epochs(cfg, run, loss_fn, batches, data, progress, cancel)
+    return cfg.out
+
+
+@dataclass
+class TrainingRun:
+    """The model and optimiser of a run, where it starts and what it has recorded so far."""
+
+    model: RandLANet
+    device: torch.device
+    optimiser: torch.optim.Optimizer
+    scheduler: torch.optim.lr_scheduler.LRScheduler
+    start_epoch: int
+    history: list[dict]
+
+
+def _start(cfg: TrainConfig) -> TrainingRun:
+    """A fresh, initialised or resumed model with its optimiser, on the training device."""
+    history: list[dict] = []
+    start_epoch = 0
+    body: dict | None = None
+    if cfg.resume is not None:
+        model, card, body = load_checkpoint(cfg.resume)
+        # A packed checkpoint (models pack) has no optimiser state or epoch: continue its
+        # weights from the epoch its card records, with a fresh optimiser.
+        start_epoch = int(body.get("epoch", card.get("epochs", 0)))
+        history = list(card.get("history", []))
+    elif cfg.init is not None:
+        model, _, _ = load_checkpoint(cfg.init)
+    else:
+        model = RandLANet(_model_config(cfg))
+    device = pick_device(cfg.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {cfg.device!r}: this machine's torch sees no CUDA device")
+    model.to(device)
+    optimiser = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimiser, cfg.gamma)
+    if body is not None and "optimizer" in body:
+        optimiser.load_state_dict(body["optimizer"])
+        scheduler.load_state_dict(body["scheduler"])
+    return TrainingRun(model, device, optimiser, scheduler, start_epoch, history)
+
+
+def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
+    """What a user deciding whether to trust the weights wants: the hardware, the command, the
+    validation figures and the data's terms of use."""
+    scores = [(h["val_miou"], h["epoch"]) for h in history if h.get("val_miou") is not None]
+    best = max(scores) if scores else None
+    specs = [parse_source(s) for s in cfg.sources()]
+    shares = resolve_shares(specs)
+    real = any(not s.is_synth for s in specs)
+    device = pick_device(cfg.device)
+    gpu = torch.cuda.get_device_name(device) if device.type == "cuda" else "no GPU"
+    terms = list(dict.fromkeys(terms_for(s) for s in specs))
+    return {
+        "hardware": (
+            f"{platform.machine()} CPU, {os.cpu_count()} cores, torch {torch.__version__}, "
+            f"{torch.get_num_threads()} torch threads, {gpu}"
+        ),
+        "command": cfg.command,
+        "validation": {
+            "last_miou": scores[-1][0] if scores else None,
+            "best_miou": best[0] if best else None,
+            "best_epoch": best[1] if best else None,
+            "what": "mean over the real sources of mIoU on random crops of their held-out "
+            "scans (per source in the history's val_by_source)"
+            if real
+            else "mIoU on random crops of held-out synthetic rooms",
+        },
+        "sources": {s.name: round(share, 4) for s, share in zip(specs, shares, strict=True)},
+        "synthetic_share": sum(share for s, share in zip(specs, shares, strict=True) if s.is_synth),
+        "terms": "; ".join(terms),
+    }
+
+
+def device_batch(item: Batch | CropBatch, run: TrainingRun) -> Batch:
+    """A batch on the training device; crops sent without neighbours get them there."""
+    if isinstance(item, Batch):
+        return item.to(run.device, non_blocking=True)
+    xyz = item.xyz.to(run.device, non_blocking=True)
+    rgb = item.rgb.to(run.device, non_blocking=True)
+    centred = xyz.clone()
+    centred[:, :, :2] -= centred[:, :, :2].mean(dim=1, keepdim=True)
+    coords, neighbours, pools, ups = layer_indices(centred, run.model.config)
+    return Batch(
+        torch.cat([centred, rgb], dim=2),
+        coords,
+        neighbours,
+        pools,
+        ups,
+        np.empty((0, 0), dtype=np.int64),
+        item.labels.to(run.device, non_blocking=True),
+    )
+
+
+def _train_epochs(
+    cfg: TrainConfig,
+    run: TrainingRun,
+    loss_fn: torch.nn.Module,
+    batches: Iterator[Batch | CropBatch],
+    data: TrainingData,
+    progress: ProgressFn | None,
+    cancel: CancelToken | None,
+) -> None:
+    """The epochs from the run's start: steps on ``batches``, validation, checkpoints."""
+    total_steps = cfg.epochs * cfg.steps_per_epoch
+    model, optimiser = run.model, run.optimiser
+    for epoch in range(run.start_epoch, cfg.epochs):
+        started, losses, hits, seen = time.perf_counter(), [], 0, 0
+        for step in range(cfg.steps_per_epoch):
+            check_cancel(cancel)
+            batch = device_batch(next(batches), run)
+            logits = model(
+                batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+            )
+            assert batch.labels is not None
+            loss = loss_fn(logits.reshape(-1, NUM_CLASSES), batch.labels.reshape(-1))
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            losses.append(float(loss.detach()))
+            known = batch.labels >= 0
+            hits += int((logits.detach().argmax(-1) == batch.labels)[known].sum())
+            seen += int(known.sum())
+            report(progress, STAGE, (epoch * cfg.steps_per_epoch + step + 1) / total_steps)
+        train_seconds = time.perf_counter() - started
+        run.scheduler.step()
+        miou, per_source = validate_sources(model, data.sources, cfg)
+        run.history.append(
+            {
+                "epoch": epoch + 1,
+                "loss": float(np.mean(losses)),
+                "train_accuracy": hits / max(seen, 1),
+                "val_miou": miou,
+                "val_by_source": per_source,
+                "seconds": time.perf_counter() - started,
+                "steps_per_second": cfg.steps_per_epoch / max(train_seconds, 1e-9),
+            }
+        )
+        log.info(
+            "epoch %d loss %.3f train accuracy %.3f val mIoU %s %s",
+            epoch + 1,
+            np.mean(losses),
+            hits / max(seen, 1),
+            miou,
+            per_source,
+        )
+        _save(cfg, run, data, epoch + 1)
+
+
+def _save(cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int) -> None:
+    """The last checkpoint, and the best one when this epoch's validation is the best yet."""
+    card = {
+        "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
+        "classes": list(CLASS_NAMES),
+        "data": data.description,
+        "class_frequency": {
+            s.spec.name: [round(float(f), 5) for f in s.class_frequency] for s in data.sources
+        },
+        "epochs": epochs,
+        "steps": epochs * cfg.steps_per_epoch,
+        "history": run.history,
+        "train_config": cfg.model_dump(mode="json"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        **card_facts(cfg, run.history),
+    }
+    extra = {
+        "optimizer": run.optimiser.state_dict(),
+        "scheduler": run.scheduler.state_dict(),
+        "epoch": epochs,
+    }
+    save_checkpoint(cfg.out, run.model, card, extra=extra)
+    scores = [h["val_miou"] for h in run.history if h.get("val_miou") is not None]
+    latest = run.history[-1].get("val_miou")
+    if latest is not None and latest >= max(scores):
+        save_checkpoint(best_path(cfg.out), run.model, {**card, "best_of_run": True}, extra=extra)

@@ -1,0 +1,197 @@
+"""The first and last of a tiled run's three steps, as the one-process run and the job service
+call them (the middle one, ``run_tile``, is :mod:`jointseg.pipeline.tiled.run`'s).
+
+``plan`` spills the scan and cuts it into tiles, ``run_tile`` runs network and geometry on one
+tile, ``finish`` joins the tiles, votes and streams the output. ``jointseg segment`` calls them
+one after the other (:func:`jointseg.pipeline.segment.segment_file`); the job service calls them
+as separate queue tasks so that several workers share one scan. Peak memory is one tile's run
+plus the per-point outputs (13 bytes a point), never the whole scan's probabilities.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jointseg.exceptions import ConfigError
+from jointseg.io.stream import ScanChunks, open_chunks, open_writer
+from jointseg.network.backends import Predictor
+from jointseg.pipeline.config import PipelineConfig
+from jointseg.pipeline.tiled.merge import MergedScan, merge
+from jointseg.pipeline.tiled.run import tile_done
+from jointseg.pipeline.tiled.store import CHUNK_POINTS, TilePlan, prepare, read_plan
+from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.scan import Scan
+
+
+@dataclass(frozen=True)
+class TiledRun:
+    """A finished tiled run: the merged outputs, the plan and the seconds of its last steps
+    (the merge's ``join``, ``fusion``, ``metrics`` and ``write``)."""
+
+    merged: MergedScan
+    plan: TilePlan
+    timings: dict[str, float]
+
+    def report(self, config: PipelineConfig, timings: dict[str, float]) -> dict[str, Any]:
+        """The run's report with ``timings`` (the caller's, whole-run), with the same keys as
+        an untiled run's plus ``tiles``."""
+        merged, plan = self.merged, self.plan
+        return {
+            "points": plan.points,
+            "segments": merged.n_segments,
+            "labels_changed": merged.labels_changed,
+            "segments_split": None,
+            "segments_kept": None,
+            "timings_s": timings,
+            "steps_s": {"tiles": merged.tile_timings},
+            "params": {
+                "geometry": plan.geometry.model_dump(),
+                "fusion": config.fusion.model_dump(),
+                "network": config.network.model_dump(mode="json"),
+                "seed": config.seed,
+            },
+            "tiles": {
+                "count": len(plan.tiles),
+                "max_points": plan.params.max_points,
+                "overlap_m": plan.params.overlap,
+                "core_points": [box.core_points for box in plan.tiles],
+                "outer_points": [box.outer_points for box in plan.tiles],
+                "tile_segments": merged.tile_segments,
+                "joins": merged.joins,
+            },
+            "metrics": None
+            if merged.metrics is None
+            else {name: m.model_dump() for name, m in merged.metrics.items()},
+        }
+
+
+class TileProgress:
+    """Progress of one tile's stages as a fraction of all tiles (``(i + f) / n``), so a bar
+    per stage runs once from 0 to 1 over the whole scan."""
+
+    def __init__(self, progress: ProgressFn | None, index: int, count: int) -> None:
+        self.progress = progress
+        self.index = index
+        self.count = count
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        report(self.progress, stage, (self.index + fraction) / self.count)
+
+
+def plan(
+    source: Path,
+    workdir: Path,
+    config: PipelineConfig,
+    *,
+    name: str,
+    predictor: Predictor,
+    max_points: int,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+) -> TilePlan:
+    """Spill ``source`` into ``workdir`` (empty or missing) and plan its tiles with the run's
+    tile, geometry and seed settings; the network takes part (a crop plan shared by the tiles,
+    so the tiles together label the scan as one run would).
+
+    ``name`` is the scan's name for the plan and messages; progress stages ``read``, ``plan``.
+
+    Raises
+    ------
+    ScanFormatError, ConfigError, Cancelled
+    """
+    with open_chunks(source, max_points=max_points) as chunks:
+        return prepare(
+            chunks.chunks(CHUNK_POINTS),
+            chunks.count,
+            workdir,
+            source=name,
+            tiles=config.tiles,
+            geometry=config.geometry,
+            seed=config.seed,
+            predictor=predictor,
+            progress=progress,
+            cancel=cancel,
+        )
+
+
+def finish(
+    workdir: Path,
+    config: PipelineConfig,
+    source: Path,
+    output: Path,
+    *,
+    max_points: int,
+    plan: TilePlan | None = None,
+    progress: ProgressFn | None = None,
+    cancel: CancelToken | None = None,
+) -> TiledRun:
+    """Join the tiles of ``workdir`` (all run), vote, score, and stream ``source`` again into
+    ``output`` with the pipeline's fields. Progress stages ``join``, ``fusion``, ``write``.
+
+    Raises
+    ------
+    ConfigError
+        When a tile has no result.
+    ScanFormatError, Cancelled
+    """
+    plan = plan or read_plan(workdir)
+    missing = [box.index for box in plan.tiles if not tile_done(workdir, box.index)]
+    if missing:
+        raise ConfigError(
+            f"tiles {missing} are marked done but have no result in the data directory "
+            f"(do all workers share it?)"
+        )
+    merged = merge(workdir, config, plan=plan, progress=progress, cancel=cancel)
+    check_cancel(cancel)
+    timings = dict(merged.timings)
+    t = time.perf_counter()
+    with open_chunks(source, max_points=max_points) as chunks:
+        _write_merged(chunks, merged, plan, output, progress=progress)
+    timings["write"] = time.perf_counter() - t
+    return TiledRun(merged, plan, timings)
+
+
+def _annotated_chunks(chunks: Iterator[Scan], merged: MergedScan) -> Iterator[Scan]:
+    """The input's chunks with the pipeline's fields, as :func:`annotate` gives them."""
+    start = 0
+    for chunk in chunks:
+        stop = start + len(chunk)
+        yield chunk.with_fields(
+            network_label=merged.network_label[start:stop].astype(np.int32),
+            network_confidence=merged.network_confidence[start:stop],
+            segment=merged.segment[start:stop],
+            fused_label=merged.fused_label[start:stop].astype(np.int32),
+            fused_confidence=merged.fused_confidence[start:stop],
+        )
+        start = stop
+
+
+def _write_merged(
+    chunks: ScanChunks,
+    merged: MergedScan,
+    plan: TilePlan,
+    output: Path,
+    *,
+    progress: ProgressFn | None = None,
+) -> None:
+    """Stream the input again, chunk by chunk, into ``output`` with the pipeline's fields."""
+    bounds = (np.array(plan.lower), np.array(plan.upper))
+    stream = _annotated_chunks(chunks.chunks(CHUNK_POINTS), merged)
+    first = next(stream)
+    written = 0
+    with open_writer(output, count=plan.points, like=first, bounds=bounds) as writer:
+        for chunk in _prepend(first, stream):
+            writer.write(chunk)
+            written += len(chunk)
+            report(progress, "write", written / plan.points)
+
+
+def _prepend(first: Scan, rest: Iterator[Scan]) -> Iterator[Scan]:
+    yield first
+    yield from rest

@@ -1,0 +1,65 @@
+"""The FastAPI application: services wired at start-up, one exception handler, the routes.
+
+``create_app`` is what uvicorn serves; ``jointseg serve`` adds the routers of its installed
+parts (the job page, see :mod:`server.serve_parts`) to the app it returns.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+
+from jointseg.exceptions import JointsegError
+from server.api.deps import Services
+from server.api.errors import domain_error
+from server.api.routes import health_router, jobs_router
+from server.queue import JobQueue
+from server.settings import Settings
+from server.state.db import init_db, make_engine, make_sessions
+from server.state.reaper import ReaperThread
+from server.storage import Storage
+
+log = logging.getLogger(__name__)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the API for ``settings`` (default: from the environment and JOINTSEG_CONFIG)."""
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        engine = make_engine(settings)
+        init_db(engine)
+        storage = Storage(settings.data_dir)
+        storage.clean_incoming()
+        services = Services(settings, engine, make_sessions(engine), storage, JobQueue(settings))
+        app.state.services = services
+        # recovers jobs of lost workers even when every worker is gone
+        reaper = ReaperThread(services.sessions, services.queue, settings)
+        reaper.start()
+        log.info(
+            "API ready: data in %s, %s queue, %s",
+            settings.data_dir,
+            settings.queue,
+            "API keys required" if settings.api_keys else "no API keys",
+        )
+        try:
+            yield
+        finally:
+            reaper.stop()
+            services.queue.close()
+            engine.dispose()
+
+    app = FastAPI(
+        title="jointseg job service",
+        version="1",
+        summary="Upload indoor scans, poll their segmentation jobs, download the results.",
+        lifespan=lifespan,
+    )
+    app.add_exception_handler(JointsegError, domain_error)
+    app.include_router(jobs_router)
+    app.include_router(health_router)
+    return app

@@ -1,0 +1,127 @@
+"""``/v1/jobs...``: thin wrappers that parse, call :mod:`server.state.jobs` and friends, and answer
+:mod:`server.schemas` models.
+
+Every route depends on :func:`server.api.auth.require_api_key`; errors are raised as jointseg's
+domain errors and turned into status codes by the app's one exception handler
+(:mod:`server.api.errors`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Depends, Path, Query, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse
+
+from jointseg.exceptions import JobStateError
+from server.api.auth import require_api_key
+from server.api.deps import Services, ServicesDep, SessionDep
+from server.api.errors import ERROR_RESPONSES
+from server.api.results import result_file
+from server.api.submissions import submit
+from server.api.uploads import UPLOAD_OPENAPI, receive_upload
+from server.schemas import JobList, JobResponse, JobStatus, JobView
+from server.state import jobs
+from server.state.models import FINAL_STATUSES
+from server.storage import ResultFormat
+
+JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="Job id: 32 hex digits.")]
+
+jobs_router = APIRouter(
+    prefix="/v1", tags=["jobs"], dependencies=[Depends(require_api_key)], responses=ERROR_RESPONSES
+)
+
+
+@jobs_router.post(
+    "/jobs", status_code=201, response_model=JobResponse, openapi_extra=UPLOAD_OPENAPI
+)
+async def create_job(request: Request, services: ServicesDep, response: Response) -> JobResponse:
+    """Upload a scan (form field ``file``) with an optional ``config`` (PipelineConfig JSON).
+
+    The upload streams to disk; it is checked (header, point count, and every point of files
+    up to ``full_check_max_bytes``) before the job is queued.
+    """
+    upload = await receive_upload(
+        request, services.storage, max_bytes=services.settings.max_upload_bytes
+    )
+    view = await run_in_threadpool(submit, services, upload)
+    response.headers["Location"] = f"/v1/jobs/{view.id}"
+    return JobResponse.from_view(view)
+
+
+@jobs_router.get("/jobs", response_model=JobList)
+def list_jobs(
+    session: SessionDep,
+    status: Annotated[JobStatus | None, Query(description="Only this status.")] = None,
+    limit: Annotated[int, Query(ge=1, le=500)] = 50,
+    offset: Annotated[int, Query(ge=0, le=1 << 40)] = 0,
+) -> JobList:
+    """Jobs, newest first, a page at a time."""
+    items = jobs.list_jobs(session, status=status, limit=limit, offset=offset)
+    total = jobs.count_jobs(session, status=status)
+    return JobList(
+        items=[JobResponse.from_view(v) for v in items], total=total, limit=limit, offset=offset
+    )
+
+
+@jobs_router.get("/jobs/{job_id}", response_model=JobResponse)
+def get_job(job_id: JobId, session: SessionDep) -> JobResponse:
+    """Status, stage, progress, timings, points and error of one job."""
+    return JobResponse.from_view(jobs.get_job(session, job_id))
+
+
+@jobs_router.get(
+    "/jobs/{job_id}/result",
+    response_class=FileResponse,
+    responses={200: {"content": {"application/octet-stream": {}}}},
+)
+async def get_result(
+    job_id: JobId,
+    services: ServicesDep,
+    format: Annotated[ResultFormat, Query(description="ply, las or laz.")] = "ply",
+) -> FileResponse:
+    """The segmented scan with every field of ``jointseg segment`` (409 until it succeeded)."""
+    view = await run_in_threadpool(_current_view, services, job_id)
+    if view.status != "succeeded":
+        raise JobStateError(f"job {job_id} is {view.status}; no result")
+    path = await run_in_threadpool(result_file, services.storage, job_id, format)
+    stem = view.filename.rsplit(".", 1)[0]
+    return FileResponse(
+        path, media_type="application/octet-stream", filename=f"{stem}_segmented.{format}"
+    )
+
+
+@jobs_router.get("/jobs/{job_id}/report", responses={200: {"content": {"application/json": {}}}})
+async def get_report(job_id: JobId, services: ServicesDep) -> FileResponse:
+    """The job's report.json (as ``jointseg segment --report`` writes it)."""
+    view = await run_in_threadpool(_current_view, services, job_id)
+    path = services.storage.report_path(job_id)
+    if view.status != "succeeded" or not path.is_file():
+        raise JobStateError(f"job {job_id} is {view.status}; no report")
+    return FileResponse(path, media_type="application/json")
+
+
+def _current_view(services: Services, job_id: str) -> JobView:
+    """The job as it is now, read in its own session (the async routes run this in a thread)."""
+    with services.sessions() as session:
+        return jobs.get_job(session, job_id)
+
+
+@jobs_router.delete(
+    "/jobs/{job_id}",
+    status_code=202,
+    response_model=JobResponse,
+    responses={204: {"description": "The finished job and its files were deleted."}},
+)
+def delete_job(job_id: JobId, services: ServicesDep, session: SessionDep) -> Any:
+    """Cancel a queued or running job (202); delete a finished job and its files (204)."""
+    view = jobs.get_job(session, job_id)
+    if view.status not in FINAL_STATUSES:
+        view = jobs.cancel_job(session, job_id)
+        if view.finished:  # a queued job, or a tiled one with no tile running: its folder goes
+            services.storage.remove_tiles(job_id)
+        return JobResponse.from_view(view)
+    jobs.delete_job_row(session, job_id)
+    services.storage.delete(job_id)
+    return Response(status_code=204)

@@ -1,0 +1,146 @@
+"""From a received upload to a queued job: config and file checked, upload stored, id enqueued.
+
+Everything that can be refused is refused before the job row exists, so bad input leaves no job
+and no file behind.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import uuid
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
+from jointseg.io import ScanInfo, probe_scan, read_scan
+from jointseg.network import published
+from jointseg.network.registry import BACKENDS
+from jointseg.pipeline import PipelineConfig
+from server.api.deps import Services
+from server.api.uploads import ReceivedUpload
+from server.messages import public_message
+from server.settings import Settings
+from server.state import jobs
+from server.state.lifecycle import fail_queued
+
+log = logging.getLogger(__name__)
+
+
+def _location(loc: tuple[int | str, ...]) -> str:
+    return ".".join(str(part) for part in loc) or "(root)"
+
+
+def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
+    """The job's PipelineConfig from the ``config`` form field (empty: defaults).
+
+    Raises
+    ------
+    ConfigError
+        For invalid JSON or values, naming the field (``config.fusion.ratio_threshold``), an
+        unknown network, or weights that do not exist or lie outside ``settings.weights_dirs``.
+    """
+    if text is None or not text.strip():
+        return PipelineConfig()
+    try:
+        config = PipelineConfig.model_validate_json(text)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        if first["type"] == "json_invalid":
+            raise ConfigError(f"config: not valid JSON: {first['msg']}") from exc
+        problems = "; ".join(f"config.{_location(e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+        raise ConfigError(problems) from exc
+    network = config.network
+    if network.name not in BACKENDS:
+        raise ConfigError(
+            f"config.network.name: unknown network {network.name!r}; available: "
+            f"{', '.join(BACKENDS)}"
+        )
+    if network.weights is not None:
+        _check_weights(network.weights, settings)
+    if config.tiles.max_points > settings.max_tile_points:
+        raise ConfigError(
+            f"config.tiles.max_points: {config.tiles.max_points:,} is above this service's "
+            f"limit of {settings.max_tile_points:,} points per tile (the memory one worker "
+            f"is sized for)"
+        )
+    return config
+
+
+def _check_weights(weights: Path, settings: Settings) -> None:
+    name = str(weights)
+    if not weights.exists() and name in published.catalogue():  # published weights by name
+        if published.pulled_path(name) is None:
+            raise ConfigError(
+                f"config.network.weights: {name} is not pulled on this service "
+                f"(`jointseg models pull {name}` on its machines)"
+            )
+        return
+    path = weights.expanduser().resolve()
+    if settings.weights_dirs and not any(
+        path.is_relative_to(d.expanduser().resolve()) for d in settings.weights_dirs
+    ):
+        raise ConfigError(
+            f"config.network.weights: {weights} is outside the allowed weights folders"
+        )
+    if not path.is_file():
+        raise ConfigError(f"config.network.weights: {weights}: file not found")
+
+
+def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
+    """Validate the stored upload: header and point count, and every point when small enough.
+
+    Raises
+    ------
+    ScanFormatError
+        With the reader's message, the temporary name replaced by the client's file name.
+    """
+    try:
+        info = probe_scan(upload.path, max_points=settings.max_points)
+        if upload.size <= settings.full_check_max_bytes:
+            read_scan(upload.path, max_points=settings.max_points)
+    except JointsegError as exc:
+        raise type(exc)(public_message(exc, upload.path, upload.filename)) from exc
+    return info
+
+
+def submit(services: Services, upload: ReceivedUpload) -> jobs.JobView:
+    """Check, store and enqueue an upload (blocking: run it in a worker thread).
+
+    The temporary upload is removed when anything is refused.
+
+    Raises
+    ------
+    ConfigError, ScanFormatError
+        For a bad config or scan (no job is created).
+    QueueUnavailable
+        When the id cannot be enqueued (the job is then marked failed).
+    """
+    try:
+        config = parse_config(upload.config, services.settings)
+        info = check_scan(upload, services.settings)
+        job_id = uuid.uuid4().hex
+        services.storage.commit_upload(upload.path, job_id, upload.suffix)
+    except BaseException:
+        upload.path.unlink(missing_ok=True)
+        raise
+    with services.sessions() as session:
+        view = jobs.create_job(
+            session,
+            job_id=job_id,
+            filename=upload.filename,
+            fmt=upload.suffix.lstrip("."),
+            size_bytes=upload.size,
+            points=info.n_points,
+            config=json.loads(config.model_dump_json()),
+            network=config.network.name,
+        )
+    try:
+        services.queue.enqueue(job_id)
+    except QueueUnavailable as exc:
+        with services.sessions() as session:
+            fail_queued(session, job_id, str(exc))
+        raise
+    log.info("job %s queued: %s, %d points", job_id, upload.filename, info.n_points)
+    return view

@@ -1,8 +1,0 @@
-"""The API's routers: ``/v1/jobs...`` (:mod:`.jobs`) and ``/healthz`` (:mod:`.health`)."""
-
-from __future__ import annotations
-
-from server.routes.health import health_router
-from server.routes.jobs import jobs_router
-
-__all__ = ["health_router", "jobs_router"]

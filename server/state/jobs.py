@@ -1,0 +1,170 @@
+"""What the routes (and the viewer) do with jobs: create, list, look up, cancel, delete.
+
+Functions take a SQLAlchemy session and return :class:`server.schemas.JobView`, the pydantic
+model the API answers with, so callers never hold ORM objects. A tiled job's view carries its
+tiles' counts (from ``job_tiles``, :mod:`server.state.parts`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from jointseg.exceptions import JobNotFound, JobStateError
+from server.schemas import JobStatus, JobView, TileCounts
+from server.state import parts
+from server.state.models import FINAL_STATUSES, Job, utcnow
+from server.storage import check_job_id
+
+__all__ = [
+    "JobNotFound",
+    "JobStatus",
+    "JobView",
+    "cancel_job",
+    "count_jobs",
+    "create_job",
+    "delete_job_row",
+    "get_job",
+    "list_jobs",
+]
+
+
+def _view(job: Job, counts: TileCounts | None = None) -> JobView:
+    view = JobView.model_validate(job)
+    return view if counts is None else view.model_copy(update={"tiles": counts})
+
+
+def _views(session: Session, rows: list[Job]) -> list[JobView]:
+    counts = parts.tile_counts(session, [job.id for job in rows])
+    return [_view(job, counts.get(job.id)) for job in rows]
+
+
+def _row(session: Session, job_id: str) -> Job:
+    job = session.get(Job, check_job_id(job_id))
+    if job is None:
+        raise JobNotFound(f"job {job_id} not found")
+    return job
+
+
+def create_job(
+    session: Session,
+    *,
+    job_id: str,
+    filename: str,
+    fmt: str,
+    size_bytes: int,
+    points: int | None,
+    config: dict[str, Any],
+    network: str,
+) -> JobView:
+    """Insert a queued job (its upload already stored) and commit."""
+    job = Job(
+        id=check_job_id(job_id),
+        filename=filename,
+        format=fmt,
+        size_bytes=size_bytes,
+        status="queued",
+        progress=0.0,
+        points=points,
+        config=config,
+        network=network,
+        created_at=utcnow(),
+        attempts=0,
+        cancel_requested=False,
+    )
+    session.add(job)
+    session.commit()
+    return _view(job)
+
+
+def get_job(session: Session, job_id: str) -> JobView:
+    """One job.
+
+    Raises
+    ------
+    JobNotFound
+        For an unknown (or malformed) id.
+    """
+    # the tile counts first, then the row: a plan records its tiles and the row's stage in one
+    # commit, so a row read after the counts is never older than them (no "read" stage beside
+    # tile counts under READ COMMITTED)
+    counts = parts.tile_counts(session, [check_job_id(job_id)])
+    job = _row(session, job_id)
+    return _view(job, counts.get(job.id))
+
+
+def list_jobs(
+    session: Session, *, status: str | None = None, limit: int = 50, offset: int = 0
+) -> list[JobView]:
+    """Jobs newest first, optionally only those with ``status``."""
+    query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
+    if status is not None:
+        query = query.where(Job.status == status)
+    return _views(session, list(session.scalars(query)))
+
+
+def count_jobs(session: Session, *, status: str | None = None) -> int:
+    """How many jobs (with ``status``) exist, for pagination."""
+    query = select(func.count()).select_from(Job)
+    if status is not None:
+        query = query.where(Job.status == status)
+    return int(session.scalar(query) or 0)
+
+
+def cancel_job(session: Session, job_id: str) -> JobView:
+    """Cancel a queued job at once, or ask a running job's worker to stop.
+
+    A queued job becomes ``cancelled`` immediately (its worker will skip it); a running one gets
+    its cancel flag, which the worker reads within about half a second and then marks the job
+    cancelled. A tiled job none of whose tiles runs right now is cancelled at once (its queued
+    tiles are skipped); otherwise its running tiles stop at their next cancel check and the
+    last to stop marks it cancelled. The caller removes a cancelled job's tile folder.
+
+    Raises
+    ------
+    JobNotFound
+    JobStateError
+        When the job has already finished.
+    """
+    job = _row(session, job_id)
+    queued = session.execute(
+        update(Job)
+        .where(Job.id == job.id, Job.status == "queued")
+        .values(status="cancelled", finished_at=utcnow(), error="cancelled by request")
+    )
+    changed = queued.rowcount  # type: ignore[attr-defined]
+    if not changed:
+        running = session.execute(
+            update(Job)
+            .where(Job.id == job.id, Job.status == "running")
+            .values(cancel_requested=True)
+        )
+        changed = running.rowcount  # type: ignore[attr-defined]
+    session.commit()
+    if changed:
+        parts.settle_cancel(session, job.id)
+    session.refresh(job)
+    if not changed:
+        raise JobStateError(f"job {job_id} has already finished ({job.status})")
+    return _views(session, [job])[0]
+
+
+def delete_job_row(session: Session, job_id: str) -> JobView:
+    """Delete a finished job's row (its files are the caller's: :meth:`Storage.delete`).
+
+    Raises
+    ------
+    JobNotFound
+    JobStateError
+        When the job is queued or running (cancel it first).
+    """
+    job = _row(session, job_id)
+    if job.status not in FINAL_STATUSES:
+        raise JobStateError(f"job {job_id} is {job.status}; cancel it before deleting it")
+    view = _views(session, [job])[0]
+    session.delete(job)
+    parts.delete_parts(session, job.id)
+    session.commit()
+    return view

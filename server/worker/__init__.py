@@ -1,0 +1,1 @@
+"""A worker process: claiming jobs from the queue and running them, big scans in tiles."""

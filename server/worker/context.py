@@ -1,0 +1,60 @@
+"""What a worker process's job, tile and merge tasks share: its settings and services, its
+identity, the claim it is working on (for the heartbeat) and its loaded networks.
+
+Handed to both :class:`server.worker.runner.JobRunner` and
+:class:`server.worker.fanout.FanOut`, so neither reaches into the other.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from typing import TYPE_CHECKING
+
+from jointseg.pipeline import PipelineConfig, load_predictor
+from server.lru import LRUCache
+from server.queue import JobQueue
+from server.settings import Settings
+from server.state import lifecycle, parts
+from server.state.db import SessionFactory
+from server.storage import Storage
+
+if TYPE_CHECKING:  # only for annotations: jointseg.network imports torch
+    from jointseg.network import Predictor
+
+#: Networks kept loaded per process (one per configuration).
+MAX_PREDICTORS = 2
+
+
+class WorkerContext:
+    """One worker process's shared state; tasks run one at a time, so no lock is needed."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        sessions: SessionFactory,
+        storage: Storage,
+        queue: JobQueue,
+        stopping: threading.Event,
+    ) -> None:
+        self.settings = settings
+        self.sessions = sessions
+        self.storage = storage
+        self.queue = queue
+        self.stopping = stopping
+        self.worker = lifecycle.worker_id()
+        #: The job or tile claim being worked on: the heartbeat keeps it alive.
+        self.current: lifecycle.Claim | parts.PartClaim | None = None
+        self.predictors: LRUCache[str, Predictor] = LRUCache(MAX_PREDICTORS)
+
+    def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
+        """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""
+        key = json.dumps(config.network.model_dump(mode="json"), sort_keys=True)
+        kept = self.predictors.get(key)
+        if kept is not None:
+            return kept, 0.0
+        started = time.perf_counter()
+        predictor = load_predictor(config.network)
+        self.predictors.put(key, predictor)
+        return predictor, time.perf_counter() - started

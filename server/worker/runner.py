@@ -1,0 +1,139 @@
+"""Running one job id in a worker process: claim, pipeline, result files, final status.
+
+A job whose scan has more points than its config's ``tiles.max_points`` is only planned here;
+its tiles and merge are queue tasks of their own that any worker runs (:mod:`server.worker.fanout`).
+
+Loaded networks are kept between jobs in the process's :class:`server.worker.context.WorkerContext`
+(a few configurations, least recently used dropped), so a stream of jobs with the same network
+pays the loading once per process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from pydantic import ValidationError
+
+from jointseg.exceptions import Cancelled, ConfigError, JointsegError
+from jointseg.pipeline import PipelineConfig, segment_file
+from server.messages import public_message
+from server.state import lifecycle
+from server.worker.context import WorkerContext
+from server.worker.fanout import FanOut
+from server.worker.tokens import RowCancelToken, RowProgress
+
+log = logging.getLogger(__name__)
+
+
+class JobRunner:
+    """Runs one job id at a time in this process; a big scan's plan goes to the fan-out."""
+
+    def __init__(self, context: WorkerContext) -> None:
+        self.context = context
+        self.settings = context.settings
+        self.sessions = context.sessions
+        self.storage = context.storage
+        self.queue = context.queue
+        self.stopping = context.stopping
+        self.worker = context.worker
+        self.fanout = FanOut(context)
+
+    def __call__(self, job_id: str) -> None:
+        """Run job ``job_id`` unless it was cancelled or claimed meanwhile."""
+        with self.sessions() as session:
+            claim = lifecycle.claim_job(session, job_id, self.worker)
+        if claim is None:
+            log.info("job %s: not queued any more, skipped", job_id)
+            return
+        self.context.current = claim
+        log.info("job %s: attempt %d started by %s", job_id, claim.attempt, self.worker)
+        try:
+            self._run(claim)
+        finally:
+            self.context.current = None
+
+    def _run(self, claim: lifecycle.Claim) -> None:
+        token = RowCancelToken(self.sessions, claim, self.stopping)
+        progress = RowProgress(self.sessions, claim)
+        upload = self.storage.upload_path(claim.job_id, f".{claim.format}")
+        try:
+            config = PipelineConfig.model_validate(claim.config)
+            if self.fanout.wants(claim, config, upload):
+                self.fanout.plan(claim, config, upload, token)
+                return
+            points, timings = self._pipeline(claim, config, upload, progress, token)
+        except Cancelled:
+            self._stopped(claim, token)
+            return
+        except (JointsegError, ValidationError) as exc:
+            message = _failure_message(exc, upload, claim.filename)
+            log.info("job %s failed: %s", claim.job_id, message)
+            self._finish(claim, "failed", error=message)
+            return
+        except Exception as exc:
+            log.exception("job %s: internal error", claim.job_id)
+            self._finish(claim, "failed", error=f"internal error: {type(exc).__name__}: {exc}")
+            return
+        self._finish(claim, "succeeded", points=points, timings=timings)
+        log.info("job %s succeeded: %d points in %.1f s", claim.job_id, points, timings["total"])
+
+    def _pipeline(
+        self,
+        claim: lifecycle.Claim,
+        config: PipelineConfig,
+        upload: Path,
+        progress: RowProgress,
+        token: RowCancelToken,
+    ) -> tuple[int, dict[str, float]]:
+        progress("read", 0.0)
+        progress.flush()
+        predictor, load_s = self.context.predictor(config)
+        done = segment_file(
+            upload,
+            self.storage.result_path(claim.job_id, "ply"),
+            config,
+            predictor=predictor,
+            max_points=self.settings.max_points,
+            load_s=load_s,
+            names=(claim.filename, "result.ply"),
+            points=claim.points,
+            progress=progress,
+            cancel=token,
+        )
+        body = done.report
+        self.storage.write_bytes(
+            self.storage.report_path(claim.job_id), json.dumps(body, indent=2).encode()
+        )
+        return body["points"], {k: round(float(v), 4) for k, v in body["timings_s"].items()}
+
+    def _stopped(self, claim: lifecycle.Claim, token: RowCancelToken) -> None:
+        """A cancel request, or this worker's shutdown: cancelled, or back to the queue."""
+        if self.stopping.is_set() and not token.requested:
+            with self.sessions() as session:
+                released = lifecycle.release_job(session, claim)
+            if released:
+                log.info("job %s: worker stopping, job re-queued", claim.job_id)
+                self.storage.remove_tiles(claim.job_id)  # a plan cut short, if any
+                self.queue.enqueue(claim.job_id)
+                return
+        self._finish(claim, "cancelled", error="cancelled by request")
+        log.info("job %s cancelled", claim.job_id)
+
+    def _finish(self, claim: lifecycle.Claim, status: str, **values: Any) -> None:
+        with self.sessions() as session:
+            finished = lifecycle.finish_job(session, claim, status, **values)
+        if not finished:
+            log.warning("job %s: attempt %d no longer ours", claim.job_id, claim.attempt)
+        elif status != "succeeded":
+            self.storage.remove_tiles(claim.job_id)  # a plan that failed or was cancelled
+
+
+def _failure_message(exc: BaseException, upload: Path, filename: str) -> str:
+    """Why the job failed, as the client sees it (a stored config that no longer validates is
+    a ConfigError; every other message names the user's file, not the stored upload)."""
+    if isinstance(exc, ValidationError):
+        return str(ConfigError(f"config: {exc}"))
+    return public_message(exc, upload, filename)
