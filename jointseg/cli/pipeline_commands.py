@@ -35,12 +35,25 @@ WEIGHTS_HELP = (
     "default: the backend's environment variable, else its bundled or pulled weights; "
     "`jointseg models list` shows them)."
 )
+DEVICE_HELP = (
+    "Where the network runs: cpu, cuda or cuda:N (overrides the config's network.device; "
+    "default: cuda when present)."
+)
 
 
-def _config(config: Path | None, network: str | None, weights: Path | None) -> PipelineConfig:
+def _config(
+    config: Path | None, network: str | None, weights: Path | None, device: str | None
+) -> PipelineConfig:
+    """The run's config: the file's, with the command line's overrides, and its device checked
+    now (CUDA asked for on a machine without it fails before any reading or output)."""
+    from jointseg.network.base import pick_device
     from jointseg.pipeline.config import PipelineConfig
 
-    return load_params_file(config, PipelineConfig).with_network(name=network, weights=weights)
+    cfg = load_params_file(config, PipelineConfig).with_network(
+        name=network, weights=weights, device=device
+    )
+    pick_device(cfg.network.device)
+    return cfg
 
 
 def _check_writable(path: Path, what: str) -> None:
@@ -64,6 +77,7 @@ def segment_scan(
     network: str | None = typer.Option(None, "--network", help=NETWORK_HELP),
     weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
     config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    device: str | None = typer.Option(None, "--device", help=DEVICE_HELP),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
     tile_points: int | None = typer.Option(
         None,
@@ -86,7 +100,7 @@ def segment_scan(
     """
     from jointseg.pipeline import load_predictor, segment_file
 
-    cfg = _config(config, network, weights)
+    cfg = _config(config, network, weights, device)
     if tile_points is not None:
         cfg = cfg.model_copy(
             update={"tiles": cfg.tiles.model_copy(update={"max_points": tile_points})}
@@ -165,6 +179,7 @@ def evaluate_scans(
     network: str | None = typer.Option(None, "--network", help=NETWORK_HELP),
     weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
     config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
+    device: str | None = typer.Option(None, "--device", help=DEVICE_HELP),
     out: Path | None = typer.Option(
         None, "--out", help="Folder for table1.csv, table2.csv and eval.json (created)."
     ),
@@ -174,7 +189,7 @@ def evaluate_scans(
     from jointseg.pipeline import load_predictor, report_body, run
     from jointseg.pipeline.tables import RoomScores, format_table, table1, table2, to_csv
 
-    cfg = _config(config, network, weights)
+    cfg = _config(config, network, weights, device)
     scans = _scan_paths(paths)
     for path in scans:  # refuse unlabelled input before any work
         if not probe_scan(path, max_points=max_points).has_labels:

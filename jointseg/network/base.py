@@ -3,21 +3,51 @@ size it holds (RandLA-Net's and DGCNN's predictors build on :class:`NetworkPredi
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import torch
 
+from jointseg.exceptions import ConfigError
+
+#: The devices a predictor runs on: the code paths are written and tested for these two only.
+DEVICE_PATTERN = re.compile(r"cpu|cuda(:[0-9]+)?")
+
 
 def pick_device(device: str | None = None) -> torch.device:
-    """CUDA when present (or asked for), else CPU."""
-    if device:
-        return torch.device(device)
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    """CUDA when present (or asked for), else CPU.
+
+    A device this machine cannot give fails here, with a message the user can act on, rather
+    than as torch's error somewhere in the first forward pass (the CLI and a job's worker both
+    pick their device through this).
+
+    Raises
+    ------
+    ConfigError
+        For a device other than ``cpu``, ``cuda`` or ``cuda:N``, or CUDA on a machine without
+        it (or without device ``N``).
+    """
+    if not device:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if DEVICE_PATTERN.fullmatch(str(device)) is None:
+        raise ConfigError(f"device {device!r}: unknown device; use 'cpu', 'cuda' or 'cuda:N'")
+    chosen = torch.device(device)
+    if chosen.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(
+                f"device {device!r}: this machine's torch sees no CUDA device "
+                "(torch.cuda.is_available() is False); use 'cpu'"
+            )
+        count = torch.cuda.device_count()
+        if chosen.index is not None and chosen.index >= count:
+            raise ConfigError(f"device {device!r}: this machine has {count} CUDA device(s)")
+    return chosen
 
 
 class NetworkPredictor:
     """What every backend's predictor holds: its network in eval mode on its device, the
-    model card, and how many crops or blocks go through one forward pass."""
+    model card, how many crops or blocks go through one forward pass, and whether the work around
+    the network runs on the device too."""
 
     name: str
 
@@ -28,8 +58,20 @@ class NetworkPredictor:
         *,
         device: str | None,
         batch_size: int,
+        device_path: bool | None = None,
     ) -> None:
         self.device = pick_device(device)
         self.model = model.to(self.device).eval()
         self.card = card or {}
         self.batch_size = batch_size
+        self.device_path = device_path
+
+    @property
+    def on_device(self) -> bool:
+        """Whether the work around the network (sub-sampling, crops or blocks, neighbour
+        searches, the projection back) runs in torch on :attr:`device`: by default on CUDA only,
+        where it keeps the GPU busy; on a CPU numpy and scipy's KD-tree are faster.
+        ``device_path=True`` forces it (the tests run the device code on the CPU that way)."""
+        if self.device_path is not None:
+            return self.device_path
+        return self.device.type == "cuda"

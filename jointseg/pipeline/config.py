@@ -9,8 +9,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, create_model
 
+from jointseg.exceptions import ConfigError
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
@@ -36,7 +37,11 @@ class NetworkSettings(BaseModel):
         description="Weights file; default: the backend's environment variable "
         "(JOINTSEG_DGCNN_WEIGHTS, ...), else the weights bundled for it.",
     )
-    device: str | None = Field(None, description="'cpu' or 'cuda'; default: cuda when present.")
+    device: str | None = Field(
+        None,
+        pattern=r"^(cpu|cuda(:[0-9]+)?)$",
+        description="'cpu', 'cuda' or 'cuda:N'; default: cuda when present.",
+    )
     batch_size: PositiveInt | None = Field(
         None,
         description="Crops (RandLA-Net) or 4 096-point blocks (DGCNN) per forward pass; default "
@@ -104,12 +109,24 @@ class PipelineConfig(BaseModel):
     )
 
     def with_network(
-        self, *, name: str | None = None, weights: Path | None = None
+        self, *, name: str | None = None, weights: Path | None = None, device: str | None = None
     ) -> PipelineConfig:
-        """A copy with the network name and/or weights replaced (command-line overrides)."""
+        """A copy with the network name, weights and/or device replaced (command-line overrides).
+
+        The device is validated like the config file's (``model_copy`` checks nothing), so a
+        bad ``--device`` is refused before any work.
+        """
         update: dict[str, object] = {}
         if name is not None:
             update["name"] = name
         if weights is not None:
             update["weights"] = weights
+        if device is not None:
+            try:
+                NetworkSettings(device=device)
+            except ValidationError as exc:
+                raise ConfigError(
+                    f"device {device!r}: unknown device; use 'cpu', 'cuda' or 'cuda:N'"
+                ) from exc
+            update["device"] = device
         return self.model_copy(update={"network": self.network.model_copy(update=update)})

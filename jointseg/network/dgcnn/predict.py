@@ -23,6 +23,7 @@ from jointseg.network.backends import Predictor
 from jointseg.network.base import NetworkPredictor
 from jointseg.network.checkpoint import read_torch_file
 from jointseg.network.dgcnn.blocks import block_features, column_blocks, sample_columns
+from jointseg.network.dgcnn.device_predict import predict_on_device
 from jointseg.network.dgcnn.model import DGCNN
 from jointseg.network.dgcnn.params import DGCNNParams
 from jointseg.network.dgcnn.room_frame import RoomFrame, room_frame, scan_frame
@@ -114,8 +115,9 @@ class DGCNNPredictor(NetworkPredictor):
         device: str | None = None,
         batch_size: int = 1,
         params: DGCNNParams | None = None,
+        device_path: bool | None = None,
     ) -> None:
-        super().__init__(model, card, device=device, batch_size=batch_size)
+        super().__init__(model, card, device=device, batch_size=batch_size, device_path=device_path)
         self.params = params or DGCNNParams()
 
     def frame(self, scan: Scan) -> RoomFrame:
@@ -146,6 +148,8 @@ class DGCNNPredictor(NetworkPredictor):
         """
         if len(scan) == 0:
             raise ConfigError("cannot run the network on an empty scan")
+        if self.on_device:  # blocks built and gathered on the device (device_predict.py)
+            return self._predict_on_device(scan, progress, cancel, seed)
         p = self.params
         timings: dict[str, float] = {}
         t = time.perf_counter()
@@ -203,6 +207,15 @@ class DGCNNPredictor(NetworkPredictor):
             100.0 * seen_np.mean(),
         )
         return NetworkResult(labels, probs_np.astype(np.float32), len(samples), timings)
+
+    def _predict_on_device(
+        self, scan: Scan, progress: ProgressFn | None, cancel: CancelToken | None, seed: int
+    ) -> NetworkResult:
+        """:meth:`predict` with the blocks built and gathered on the device."""
+        return predict_on_device(
+            self.model, self.params, scan, batch_size=self.batch_size,
+            seed=seed, progress=progress, cancel=cancel,
+        )  # fmt: skip
 
     def sample_features(self, xyz: np.ndarray, rgb: np.ndarray, frame: RoomFrame) -> np.ndarray:
         """The 9 network inputs of a batch of samples, as :func:`block_features` describes.

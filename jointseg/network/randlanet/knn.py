@@ -15,6 +15,9 @@ from jointseg.network.randlanet.model import RandLANetConfig
 
 #: Queries per block: 2 048 x 16 384 float32 distances per crop are 128 MiB.
 BLOCK = 2048
+#: Query-point pairs held at once over the whole batch (float32, three temporaries: 1.5 GiB),
+#: so a batch of many large crops takes smaller blocks instead of tens of GiB.
+PAIRS = 1 << 27
 
 
 def knn(
@@ -40,14 +43,24 @@ def knn(
     n = points.shape[1]
     if not 1 <= k <= n:
         raise ValueError(f"k={k} must be between 1 and the {n} points")
+    step = max(1, min(block, PAIRS // max(points.shape[0] * n, 1)))
     dists, idx = [], []
-    for start in range(0, queries.shape[1], block):
-        q = queries[:, start : start + block]
-        d2 = ((q.unsqueeze(2) - points.unsqueeze(1)) ** 2).sum(-1)  # (B, b, N)
+    for start in range(0, queries.shape[1], step):
+        q = queries[:, start : start + step]
+        d2 = _squared_distances(q, points)
         d, i = torch.topk(d2, k, dim=-1, largest=False, sorted=True)
         dists.append(d)
         idx.append(i)
     return torch.cat(dists, dim=1), torch.cat(idx, dim=1)
+
+
+def _squared_distances(queries: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """(B, b, N) squared distances, summed x, y, z in that order (as scipy), one coordinate at a
+    time so no (B, b, N, 3) difference tensor is held."""
+    d2 = (queries[..., 0].unsqueeze(2) - points[..., 0].unsqueeze(1)).square_()
+    for axis in (1, 2):
+        d2 += (queries[..., axis].unsqueeze(2) - points[..., axis].unsqueeze(1)).square_()
+    return d2
 
 
 def layer_indices(

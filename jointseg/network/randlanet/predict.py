@@ -33,8 +33,11 @@ from jointseg.network.backends import Predictor, card_summary
 from jointseg.network.base import NetworkPredictor
 from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.device_crops import device_plan_crops
+from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet.crops import Batch, build_batch
+from jointseg.network.randlanet.device import add_outputs, device_batches
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.results import CellSums, NetworkResult
@@ -81,8 +84,9 @@ class RandLANetPredictor(NetworkPredictor):
         num_points: int | None = None,
         min_possibility: float = 0.5,
         params: RandLANetParams | None = None,
+        device_path: bool | None = None,
     ) -> None:
-        super().__init__(model, card, device=device, batch_size=batch_size)
+        super().__init__(model, card, device=device, batch_size=batch_size, device_path=device_path)
         self.num_points = num_points or model.config.num_points
         self.min_possibility = min_possibility
         self.params = params or RandLANetParams()
@@ -132,9 +136,87 @@ class RandLANetPredictor(NetworkPredictor):
                 report(progress, STAGE, 0.95 * done / max(len(crops), 1))
         return prob_sum.numpy(), seen.numpy()
 
+    def _device_crop_sums(
+        self,
+        cloud: DeviceCloud,
+        plan: CropPlan,
+        crops: np.ndarray,
+        *,
+        seed: int,
+        progress: ProgressFn | None = None,
+        cancel: CancelToken | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`crop_sums` with every step on the device; the sums stay there."""
+        cfg = self.model.config
+        prob_sum = torch.zeros(
+            (len(cloud), cfg.num_classes), dtype=torch.float64, device=self.device
+        )
+        seen = torch.zeros(len(cloud), dtype=torch.float64, device=self.device)
+        source = device_batches(
+            cloud,
+            plan,
+            np.asarray(crops, dtype=np.int64),
+            seed=seed,
+            config=cfg,
+            batch_size=self.batch_size,
+        )
+        with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
+            for batch, done in ahead:
+                check_cancel(cancel)
+                logits = self.model(
+                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+                )
+                add_outputs(prob_sum, seen, batch, logits)
+                report(progress, STAGE, 0.95 * done / max(len(crops), 1))
+        return prob_sum, seen
+
     def plan(self, cloud: AnchoredCloud, seed: int) -> CropPlan:
-        """The crop plan of a whole scan's sub-sample (:func:`plan_crops`)."""
+        """The crop plan of a whole scan's sub-sample (:func:`plan_crops`; on the device when
+        :attr:`on_device`, the same plan)."""
+        if self.on_device:
+            xyz = torch.as_tensor(cloud.xyz, device=self.device)
+            return device_plan_crops(xyz, self.num_points, self.min_possibility, seed)
         return plan_crops(cloud, self.num_points, self.min_possibility, seed)
+
+    def _sync(self) -> None:
+        """Wait for the device, so that a stage's time is its own."""
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+
+    def _predict_on_device(
+        self, scan: Scan, progress: ProgressFn | None, cancel: CancelToken | None, seed: int
+    ) -> NetworkResult:
+        """:meth:`predict` with the sub-sample, plan, crops and projection on the device."""
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        torch.manual_seed(seed)
+        lower = scan.xyz.min(axis=0)
+        cloud = device_anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower, self.device)
+        plan = device_plan_crops(cloud.xyz, self.num_points, self.min_possibility, seed)
+        timings["subsample"] = time.perf_counter() - t
+        t = time.perf_counter()
+        prob_sum, seen = self._device_crop_sums(
+            cloud, plan, np.arange(len(plan)), seed=seed, progress=progress, cancel=cancel
+        )
+        self._sync()
+        timings["crops"] = time.perf_counter() - t
+        t = time.perf_counter()
+        sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).to(torch.float32).cpu().numpy()
+        sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
+        nearest = cloud.nearest(scan.xyz)
+        probs = torch.as_tensor(sub_probs, device=self.device)[nearest]
+        labels = probs.argmax(dim=1).to(torch.int32).cpu().numpy()
+        probs_full = probs.cpu().numpy()
+        timings["project"] = time.perf_counter() - t
+        report(progress, STAGE, 1.0)
+        log.info(
+            "network (%s): %d points, %d sub-sampled, %d crops",
+            self.device,
+            len(scan),
+            len(cloud),
+            len(plan),
+        )
+        return NetworkResult(labels, probs_full, len(plan), timings)
 
     def predict(
         self,
@@ -157,6 +239,8 @@ class RandLANetPredictor(NetworkPredictor):
         """
         if len(scan) == 0:
             raise ConfigError("cannot run the network on an empty scan")
+        if self.on_device:
+            return self._predict_on_device(scan, progress, cancel, seed)
         timings: dict[str, float] = {}
         t = time.perf_counter()
         torch.manual_seed(seed)
@@ -212,6 +296,8 @@ class RandLANetPredictor(NetworkPredictor):
             Sums per sub-sampled cell, to be added over all tiles, and the cell of every point.
         """
         torch.manual_seed(seed)
+        if self.on_device:
+            return self._cells_on_device(scan, plan, lower, crops, progress, cancel, seed)
         cloud = anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower)
         prob_sum, seen = self.crop_sums(
             cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
@@ -223,6 +309,31 @@ class RandLANetPredictor(NetworkPredictor):
             sums=prob_sum[touched],
             seen=seen[touched],
             point_cell=cloud.ids[cloud.nearest(scan.xyz)],
+        )
+
+    def _cells_on_device(
+        self,
+        scan: Scan,
+        plan: CropPlan,
+        lower: np.ndarray,
+        crops: np.ndarray,
+        progress: ProgressFn | None,
+        cancel: CancelToken | None,
+        seed: int,
+    ) -> CellSums:
+        """:meth:`predict_cells` with every step on the device."""
+        cloud = device_anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower, self.device)
+        prob_sum, seen = self._device_crop_sums(
+            cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
+        )
+        touched = seen > 0
+        point_cell = cloud.ids[cloud.nearest(scan.xyz)]
+        report(progress, STAGE, 1.0)
+        return CellSums(
+            ids=cloud.ids[touched].cpu().numpy(),
+            sums=prob_sum[touched].cpu().numpy(),
+            seen=seen[touched].cpu().numpy(),
+            point_cell=point_cell.cpu().numpy(),
         )
 
     @property
