@@ -34,6 +34,7 @@ from helpers.inputs import AREA6, CACHE, MODELS, cached_floor
 from helpers.side_by_side import rooms_side_by_side
 
 from jointseg.network import load
+from jointseg.network.base import synchronize
 from jointseg.scan import Scan
 
 #: RandLA-Net trained for the GPU path, when it is there (else the bundled weights).
@@ -71,11 +72,6 @@ class Row:
         )
 
 
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 def measure(
     backend: str, weights: Path | None, scan: Scan, device: str, batch: int | None, repeats: int
 ) -> Row:
@@ -89,10 +85,10 @@ def measure(
     best, timings = float("inf"), {}
     with GpuUsage() if cuda else contextlib.nullcontext() as usage:
         for _ in range(repeats):
-            _sync(dev)
+            synchronize(dev)
             t = time.perf_counter()
             result = predictor.predict(scan)
-            _sync(dev)
+            synchronize(dev)
             seconds = time.perf_counter() - t
             if seconds < best:
                 best, timings = seconds, dict(result.timings)

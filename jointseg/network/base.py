@@ -3,15 +3,12 @@ size it holds (RandLA-Net's and DGCNN's predictors build on :class:`NetworkPredi
 
 from __future__ import annotations
 
-import re
 from typing import Any
 
 import torch
 
 from jointseg.exceptions import ConfigError
-
-#: The devices a predictor runs on: the code paths are written and tested for these two only.
-DEVICE_PATTERN = re.compile(r"cpu|cuda(:[0-9]+)?")
+from jointseg.network.devices import check_device_name
 
 
 def pick_device(device: str | None = None) -> torch.device:
@@ -29,8 +26,7 @@ def pick_device(device: str | None = None) -> torch.device:
     """
     if not device:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if DEVICE_PATTERN.fullmatch(str(device)) is None:
-        raise ConfigError(f"device {device!r}: unknown device; use 'cpu', 'cuda' or 'cuda:N'")
+    check_device_name(device)
     chosen = torch.device(device)
     if chosen.type == "cuda":
         if not torch.cuda.is_available():
@@ -42,6 +38,13 @@ def pick_device(device: str | None = None) -> torch.device:
         if chosen.index is not None and chosen.index >= count:
             raise ConfigError(f"device {device!r}: this machine has {count} CUDA device(s)")
     return chosen
+
+
+def synchronize(device: torch.device) -> None:
+    """Wait for a CUDA device's queued work, so that a stage's measured time is its own and not
+    the next one's (nothing to wait for on the CPU)."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 class NetworkPredictor:

@@ -83,7 +83,7 @@ def _block_sums(
 
 
 def device_anchored_cloud(
-    blocks: Iterable[tuple[np.ndarray, np.ndarray | None]],
+    blocks: Iterable[tuple[np.ndarray | torch.Tensor, np.ndarray | None]],
     grid: float,
     lower: np.ndarray,
     device: torch.device | str,
@@ -95,7 +95,7 @@ def device_anchored_cloud(
     ids_parts, sum_parts = [], []
     for xyz, rgb in blocks:
         if len(xyz):
-            xyz_t = torch.as_tensor(np.asarray(xyz, dtype=np.float64), device=device)
+            xyz_t = torch.as_tensor(xyz, device=device).to(torch.float64)
             rgb_t = None if rgb is None else torch.as_tensor(rgb, device=device)
             ids, sums = _block_sums(xyz_t, rgb_t, grid, lower_t)
             ids_parts.append(ids)

@@ -9,11 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, ValidationError, create_model
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
 
-from jointseg.exceptions import ConfigError
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
+from jointseg.network.devices import DEVICE_NAMES, check_device_name
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
 from jointseg.pipeline.tiled.grid import TileParams
 
@@ -39,7 +39,7 @@ class NetworkSettings(BaseModel):
     )
     device: str | None = Field(
         None,
-        pattern=r"^(cpu|cuda(:[0-9]+)?)$",
+        pattern=rf"^({DEVICE_NAMES})$",
         description="'cpu', 'cuda' or 'cuda:N'; default: cuda when present.",
     )
     batch_size: PositiveInt | None = Field(
@@ -122,11 +122,6 @@ class PipelineConfig(BaseModel):
         if weights is not None:
             update["weights"] = weights
         if device is not None:
-            try:
-                NetworkSettings(device=device)
-            except ValidationError as exc:
-                raise ConfigError(
-                    f"device {device!r}: unknown device; use 'cpu', 'cuda' or 'cuda:N'"
-                ) from exc
+            check_device_name(device)
             update["device"] = device
         return self.model_copy(update={"network": self.network.model_copy(update=update)})

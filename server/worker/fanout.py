@@ -29,7 +29,6 @@ from typing import TYPE_CHECKING, Any
 from pydantic import ValidationError
 
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError, QueueUnavailable
-from jointseg.io import probe_scan
 from jointseg.pipeline import PipelineConfig
 from server.messages import public_message
 from server.state import lifecycle, parts
@@ -57,13 +56,6 @@ class FanOut:
         self.sessions = context.sessions
         self.storage = context.storage
         self.settings = context.settings
-
-    def wants(self, claim: lifecycle.Claim, config: PipelineConfig, upload: Path) -> bool:
-        """Whether the job's scan has more points than ``config.tiles.max_points``."""
-        points = claim.points
-        if points is None:
-            points = probe_scan(upload, max_points=self.settings.max_points).n_points
-        return config.tiles.needs_tiles(points)
 
     # -- the plan: in the job's own task, under its claim ------------------------------------
 

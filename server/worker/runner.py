@@ -18,6 +18,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError
+from jointseg.io import probe_scan
 from jointseg.pipeline import PipelineConfig, segment_file
 from server.messages import public_message
 from server.state import lifecycle
@@ -61,10 +62,13 @@ class JobRunner:
         upload = self.storage.upload_path(claim.job_id, f".{claim.format}")
         try:
             config = PipelineConfig.model_validate(claim.config)
-            if self.fanout.wants(claim, config, upload):
+            points = claim.points  # probed at submission; probed here only for older rows
+            if points is None:
+                points = probe_scan(upload, max_points=self.settings.max_points).n_points
+            if config.tiles.needs_tiles(points):
                 self.fanout.plan(claim, config, upload, token)
                 return
-            points, timings = self._pipeline(claim, config, upload, progress, token)
+            points, timings = self._pipeline(claim, config, upload, points, progress, token)
         except Cancelled:
             self._stopped(claim, token)
             return
@@ -85,6 +89,7 @@ class JobRunner:
         claim: lifecycle.Claim,
         config: PipelineConfig,
         upload: Path,
+        points: int,
         progress: RowProgress,
         token: RowCancelToken,
     ) -> tuple[int, dict[str, float]]:
@@ -99,7 +104,7 @@ class JobRunner:
             max_points=self.settings.max_points,
             load_s=load_s,
             names=(claim.filename, "result.ply"),
-            points=claim.points,
+            points=points,
             progress=progress,
             cancel=token,
         )

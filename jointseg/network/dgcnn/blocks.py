@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: Tolerance (metres) on the column borders, so a point on a border lands in both columns.
 EDGE_EPS = 1e-9
@@ -187,3 +188,14 @@ def block_features(
     centred[..., :2] -= xyz[..., :2].min(axis=1, keepdims=True) + size / 2
     normalised = (xyz if shift is None else xyz - shift) / extent
     return np.concatenate([centred, rgb, normalised], axis=-1).astype(np.float32)
+
+
+def fill_unseen(probs: np.ndarray, seen: np.ndarray, xyz: np.ndarray) -> None:
+    """Give the points no sample held (``~seen``) their nearest covered point's probabilities,
+    in place: columns below ``min_points`` are dropped, so a few points are never predicted."""
+    if seen.all():
+        return
+    covered = np.flatnonzero(seen)
+    missing = np.flatnonzero(~seen)
+    _, nearest = cKDTree(xyz[covered]).query(xyz[missing], k=1, workers=-1)
+    probs[missing] = probs[covered[nearest]]

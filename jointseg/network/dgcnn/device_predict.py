@@ -15,8 +15,9 @@ import time
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
+from jointseg.network.base import synchronize
+from jointseg.network.dgcnn.blocks import fill_unseen
 from jointseg.network.dgcnn.device_blocks import (
     block_features_torch,
     column_blocks_torch,
@@ -32,12 +33,6 @@ from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
 STAGE = "network"
-
-
-def _sync(device: torch.device) -> None:
-    """Wait for the device, so that a stage's time is its own and not the next one's."""
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 def device_sample_features(
@@ -70,17 +65,6 @@ def _to_device(
     return frame, xyz, torch.from_numpy(scan.rgb).to(device).float() / 255.0
 
 
-def _fill_unseen(probs: np.ndarray, seen: np.ndarray, xyz: np.ndarray) -> None:
-    """Give points no sample held their nearest covered point's probabilities (in place), as
-    the CPU path does."""
-    if seen.all():
-        return
-    covered = np.flatnonzero(seen)
-    missing = np.flatnonzero(~seen)
-    _, nearest = cKDTree(xyz[covered]).query(xyz[missing], k=1, workers=-1)
-    probs[missing] = probs[covered[nearest]]
-
-
 def predict_on_device(
     model: DGCNN,
     params: DGCNNParams,
@@ -104,7 +88,7 @@ def predict_on_device(
         xy, size=p.block_size, stride=p.stride, min_points=p.min_block_points
     )
     samples, _ = sample_columns_torch(columns, p.num_points, coverage=p.coverage, rng=rng)
-    _sync(device)
+    synchronize(device)
     timings["blocks"] = time.perf_counter() - t
     t = time.perf_counter()
     num_classes = model.num_classes
@@ -121,12 +105,12 @@ def predict_on_device(
             prob_sum.index_add_(0, flat, probs)
             seen.index_add_(0, flat, torch.ones(len(flat), device=device))
             report(progress, STAGE, 0.95 * (start + len(idx)) / len(samples))
-        _sync(device)
+        synchronize(device)
     timings["blocks_forward"] = time.perf_counter() - t
     t = time.perf_counter()
     probs_np = (prob_sum / seen.clamp(min=1)[:, None]).cpu().numpy()
     seen_np = seen.cpu().numpy() > 0
-    _fill_unseen(probs_np, seen_np, scan.xyz)
+    fill_unseen(probs_np, seen_np, scan.xyz)
     labels = probs_np.argmax(axis=1).astype(np.int32)
     timings["project"] = time.perf_counter() - t
     report(progress, STAGE, 1.0)

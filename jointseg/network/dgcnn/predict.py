@@ -16,13 +16,17 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.backends import Predictor
 from jointseg.network.base import NetworkPredictor
 from jointseg.network.checkpoint import read_torch_file
-from jointseg.network.dgcnn.blocks import block_features, column_blocks, sample_columns
+from jointseg.network.dgcnn.blocks import (
+    block_features,
+    column_blocks,
+    fill_unseen,
+    sample_columns,
+)
 from jointseg.network.dgcnn.device_predict import predict_on_device
 from jointseg.network.dgcnn.model import DGCNN
 from jointseg.network.dgcnn.params import DGCNNParams
@@ -191,11 +195,7 @@ class DGCNNPredictor(NetworkPredictor):
         t = time.perf_counter()
         probs_np = (prob_sum / seen.clamp(min=1)[:, None]).numpy()
         seen_np = seen.numpy() > 0
-        if not seen_np.all():
-            covered = np.flatnonzero(seen_np)
-            missing = np.flatnonzero(~seen_np)
-            _, nearest = cKDTree(scan.xyz[covered]).query(scan.xyz[missing], k=1, workers=-1)
-            probs_np[missing] = probs_np[covered[nearest]]
+        fill_unseen(probs_np, seen_np, scan.xyz)
         labels = probs_np.argmax(axis=1).astype(np.int32)
         timings["project"] = time.perf_counter() - t
         report(progress, STAGE, 1.0)

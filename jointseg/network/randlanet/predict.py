@@ -30,7 +30,7 @@ from jointseg.network.anchored import (
     plan_crops,
 )
 from jointseg.network.backends import Predictor, card_summary
-from jointseg.network.base import NetworkPredictor
+from jointseg.network.base import NetworkPredictor, synchronize
 from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.device_crops import device_plan_crops
@@ -178,11 +178,6 @@ class RandLANetPredictor(NetworkPredictor):
             return device_plan_crops(xyz, self.num_points, self.min_possibility, seed)
         return plan_crops(cloud, self.num_points, self.min_possibility, seed)
 
-    def _sync(self) -> None:
-        """Wait for the device, so that a stage's time is its own."""
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-
     def _predict_on_device(
         self, scan: Scan, progress: ProgressFn | None, cancel: CancelToken | None, seed: int
     ) -> NetworkResult:
@@ -191,19 +186,20 @@ class RandLANetPredictor(NetworkPredictor):
         t = time.perf_counter()
         torch.manual_seed(seed)
         lower = scan.xyz.min(axis=0)
-        cloud = device_anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower, self.device)
+        xyz = torch.as_tensor(scan.xyz, device=self.device)  # uploaded once
+        cloud = device_anchored_cloud([(xyz, scan.rgb)], self.grid_size, lower, self.device)
         plan = device_plan_crops(cloud.xyz, self.num_points, self.min_possibility, seed)
         timings["subsample"] = time.perf_counter() - t
         t = time.perf_counter()
         prob_sum, seen = self._device_crop_sums(
             cloud, plan, np.arange(len(plan)), seed=seed, progress=progress, cancel=cancel
         )
-        self._sync()
+        synchronize(self.device)
         timings["crops"] = time.perf_counter() - t
         t = time.perf_counter()
         sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).to(torch.float32).cpu().numpy()
         sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
-        nearest = cloud.nearest(scan.xyz)
+        nearest = cloud.nearest(xyz)
         probs = torch.as_tensor(sub_probs, device=self.device)[nearest]
         labels = probs.argmax(dim=1).to(torch.int32).cpu().numpy()
         probs_full = probs.cpu().numpy()
@@ -322,12 +318,13 @@ class RandLANetPredictor(NetworkPredictor):
         seed: int,
     ) -> CellSums:
         """:meth:`predict_cells` with every step on the device."""
-        cloud = device_anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower, self.device)
+        xyz = torch.as_tensor(scan.xyz, device=self.device)  # uploaded once
+        cloud = device_anchored_cloud([(xyz, scan.rgb)], self.grid_size, lower, self.device)
         prob_sum, seen = self._device_crop_sums(
             cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
         )
         touched = seen > 0
-        point_cell = cloud.ids[cloud.nearest(scan.xyz)]
+        point_cell = cloud.ids[cloud.nearest(xyz)]
         report(progress, STAGE, 1.0)
         return CellSums(
             ids=cloud.ids[touched].cpu().numpy(),
