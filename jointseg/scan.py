@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -27,6 +28,10 @@ class Scan:
         Named per-point attributes (intensity, segment, network_label, ...).
     source_format : str, optional
         The format the scan was read from (``"ply"``, ``"las"``, ...).
+    meta : dict, optional
+        What the file says about the whole scan rather than its points: ``units`` (the length
+        unit the file declares, e.g. ``"us-ft"``) with ``units_source`` (where it says so), and
+        ``las`` (a LAS/LAZ input's scales, offsets and CRS records, so an output keeps them).
 
     Arrays are converted to the dtypes above and checked for shape once, here; after that every
     stage may rely on them. Inputs are copied only when a conversion is needed.
@@ -42,6 +47,7 @@ class Scan:
     labels: np.ndarray | None = None
     fields: dict[str, np.ndarray] = field(default_factory=dict)
     source_format: str | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         xyz = np.asarray(self.xyz)
@@ -95,10 +101,11 @@ class Scan:
             labels=None if self.labels is None else self.labels[index],
             fields={k: v[index] for k, v in self.fields.items()},
             source_format=self.source_format,
+            meta=self.meta,
         )
 
     def with_fields(self, **fields: np.ndarray) -> Scan:
         """A new scan with ``fields`` added to (or replacing) the extra fields."""
         merged = dict(self.fields)
         merged.update(fields)
-        return Scan(self.xyz, self.rgb, self.labels, merged, self.source_format)
+        return Scan(self.xyz, self.rgb, self.labels, merged, self.source_format, self.meta)

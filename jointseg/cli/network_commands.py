@@ -120,6 +120,11 @@ def train(
         0.1, "--slice", min=0.0, max=1.0, help="Share of crops keeping only a band above floor."
     ),
     tilt: float = typer.Option(3.0, min=0.0, max=15.0, help="Largest tilt in degrees."),
+    colour: bool = typer.Option(
+        True,
+        help="Feed the scans' colour; --no-colour trains a colour-free network (for scans "
+        "without colour, chosen automatically for them).",
+    ),
     workers: int | None = typer.Option(
         None,
         min=0,
@@ -170,6 +175,7 @@ def _run_train(
     partial: float,
     slices: float,
     tilt: float,
+    colour: bool,
     workers: int | None,
     prefetch: bool,
     threads: int | None,
@@ -210,6 +216,7 @@ def _run_train(
         augment=AugmentParams(density=density, partial=partial, slice=slices, tilt_degrees=tilt),
         workers=default_workers() if workers is None else workers,
         prefetch=prefetch,
+        colour=colour,
         device=device,
         command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )

@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import laspy
 import numpy as np
@@ -287,7 +288,45 @@ def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     log_facts(header, facts, path)
     scan = points_to_scan(points, header, facts, path)
     report(progress, "read", 1.0)
-    return scan
+    return replace(scan, meta=las_meta(header))
+
+
+#: The VLR user id of a LAS file's coordinate reference system records.
+PROJECTION_USER_ID = "LASF_Projection"
+_WKT_RECORD, _GEOKEYS_RECORD = 2112, 34735
+
+
+def las_meta(header: laspy.LasHeader) -> dict[str, Any]:
+    """What a LAS header says about the whole scan: its CRS records, scales and offsets (an
+    output keeps them) and the linear unit its CRS names (the frame stage reads it)."""
+    from jointseg.frame.units import unit_from_geokeys, unit_from_wkt
+
+    records = [
+        v
+        for v in [*header.vlrs, *(getattr(header, "evlrs", None) or [])]
+        if getattr(v, "user_id", "") == PROJECTION_USER_ID
+    ]
+    meta: dict[str, Any] = {
+        "las": {
+            "scales": np.asarray(header.scales, dtype=np.float64).copy(),
+            "offsets": np.asarray(header.offsets, dtype=np.float64).copy(),
+            "crs": [(v.record_id, v.description, bytes(v.record_data_bytes())) for v in records],
+        }
+    }
+    for v in records:
+        data = bytes(v.record_data_bytes())
+        if v.record_id == _WKT_RECORD:
+            unit = unit_from_wkt(data.decode("utf-8", "replace").rstrip("\x00"))
+            how = "the file's CRS (OGC WKT)"
+        elif v.record_id == _GEOKEYS_RECORD:
+            unit = unit_from_geokeys(data)
+            how = "the file's CRS (GeoTIFF keys)"
+        else:
+            continue
+        if unit is not None:
+            meta.update(units=unit, units_source=how)
+            break
+    return meta
 
 
 def probe_las(path: Path, *, max_points: int) -> ScanInfo:
@@ -461,6 +500,26 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
         scale *= 10.0
     header.scales = np.full(3, scale)
     header.offsets = lo
+    kept = like.meta.get("las")
+    if (
+        kept is not None
+        and np.ptp(kept["scales"]) == 0
+        and _fits(kept["scales"], kept["offsets"], lo, hi)
+    ):
+        # the input's own grid and origin: coordinates read from it write back unchanged
+        header.scales = kept["scales"]
+        header.offsets = kept["offsets"]
+        scale = float(np.max(kept["scales"]))
+        lo = kept["offsets"]
+    for record_id, description, data in (kept or {}).get("crs", []):
+        header.vlrs.append(
+            laspy.VLR(
+                user_id=PROJECTION_USER_ID,
+                record_id=record_id,
+                description=description,
+                record_data=data,
+            )
+        )
     columns = field_columns(like.fields, path=path)
     values = {col.name: col.take(like.fields) for col in columns}
     intensity = values.get("intensity")
@@ -487,6 +546,12 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
             )
         )
     return LasLayout(header, scale, lo, tuple(columns), std_intensity, std_cls, extras)
+
+
+def _fits(scales: np.ndarray, offsets: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether ``lo``..``hi`` is representable in 32-bit integers on that grid."""
+    span = np.maximum(np.abs(lo - offsets), np.abs(hi - offsets)) / scales
+    return bool(np.all(span < _INT32_SPAN))
 
 
 def las_record(scan: Scan, layout: LasLayout) -> laspy.ScaleAwarePointRecord:

@@ -7,10 +7,11 @@ silently ignored.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
 
+from jointseg.frame.params import FrameParams
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
 from jointseg.network.devices import DEVICE_NAMES, check_device_name
@@ -46,6 +47,12 @@ class NetworkSettings(BaseModel):
         None,
         description="Crops (RandLA-Net) or 4 096-point blocks (DGCNN) per forward pass; default "
         "1 on the CPU (fastest there), 8 on CUDA.",
+    )
+    colour_free: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="The colour-free RandLA-Net (trained with colour withheld): auto takes it for "
+        "a scan without usable colour when the bundled RandLA-Net is chosen; on: always; off: "
+        "never.",
     )
 
     def options(self) -> BaseModel | None:
@@ -94,6 +101,10 @@ class PipelineConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    frame: FrameParams = Field(
+        default_factory=FrameParams,
+        description="Up axis, units, stray points and colour: decided from the scan unless set.",
+    )
     network: NetworkConfig = Field(default_factory=NetworkConfig)
     geometry: GeometryParams = Field(default_factory=GeometryParams)
     fusion: FusionParams = Field(default_factory=FusionParams)

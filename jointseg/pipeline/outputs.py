@@ -20,6 +20,7 @@ OUTPUT_FIELDS: tuple[str, ...] = (
     "segment",
     "fused_label",
     "fused_confidence",
+    "stray",
 )
 
 
@@ -36,7 +37,8 @@ def annotate(scan: Scan, result: PipelineResult) -> Scan:
     -------
     Scan
         With fields ``network_label`` (int32), ``network_confidence`` (float32), ``segment``
-        (int32), ``fused_label`` (int32) and ``fused_confidence`` (float32).
+        (int32), ``fused_label`` (int32), ``fused_confidence`` (float32) and ``stray`` (uint8:
+        1 for a point the frame stage set aside as stray; it still has labels).
     """
     return scan.with_fields(
         network_label=result.network_labels.astype(np.int32),
@@ -44,6 +46,7 @@ def annotate(scan: Scan, result: PipelineResult) -> Scan:
         segment=result.segments.astype(np.int32),
         fused_label=result.fused_labels.astype(np.int32),
         fused_confidence=result.fused_confidence.astype(np.float32),
+        stray=result.stray.astype(np.uint8),
     )
 
 
@@ -85,6 +88,7 @@ def report_body(
             "fusion": result.fusion.timings,
         },
         "params": result.params,
+        "frame": None if result.frame is None else result.frame.report(),
         "metrics": None
         if result.metrics is None
         else {name: m.model_dump() for name, m in result.metrics.items()},

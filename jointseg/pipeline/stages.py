@@ -13,12 +13,13 @@ import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 import numpy as np
 
 from jointseg.exceptions import Cancelled, ConfigError
+from jointseg.frame.decide import Frame, decide_frame, work_scan
 from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
@@ -47,6 +48,9 @@ class PipelineResult:
         any per-segment vote can do); None when the scan has no ground truth.
     params : dict
         The parameters used, adaptive geometry defaults resolved.
+    frame : Frame, optional
+        What the frame stage decided (up, units, stray points, colour); every per-point
+        array above is for the user's points, strays included.
     """
 
     network: NetworkResult
@@ -56,6 +60,14 @@ class PipelineResult:
     params: dict[str, Any]
     timings: dict[str, float] = field(default_factory=dict)
     metrics: dict[str, SegmentationMetrics] | None = None
+    frame: Frame | None = None
+
+    @property
+    def stray(self) -> np.ndarray:
+        """Stray point mask, (N,) bool (all False without a frame stage)."""
+        if self.frame is None:
+            return np.zeros(len(self.fusion.labels), dtype=bool)
+        return self.frame.stray
 
     @property
     def network_labels(self) -> np.ndarray:
@@ -159,13 +171,22 @@ def run(
         timings["load_network"] = time.perf_counter() - started
 
     seed = config.seed
+    t = time.perf_counter()
+    frame = decide_frame(scan, config.frame)
+    work, index = work_scan(scan, frame)
+    predictor = colour_free_if_needed(predictor, config.network, frame)
+    report(progress, "frame", 1.0)
+    timings["frame"] = time.perf_counter() - t
+    chosen = predictor
 
     def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
-        return predictor.predict(scan, progress, cancel, seed=seed)
+        return chosen.predict(work, progress, cancel, seed=seed)
 
-    net, geo = network_and_geometry(scan, config, network, progress, cancel, timings)
+    net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
 
-    fused = _fusion_stage(scan, config, net, geo, progress, cancel, timings)
+    fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
+    if index is not None:
+        net, geo, fused = expand(net, geo, fused, index)
 
     t = time.perf_counter()
     metrics = _metrics(scan, net, geo, fused)
@@ -186,7 +207,55 @@ def run(
         params=_resolved_params(config, predictor, geo),
         timings=timings,
         metrics=metrics,
+        frame=frame,
     )
+
+
+def expand(
+    net: NetworkResult, geo: GeometryResult, fused: FusionResult, index: np.ndarray
+) -> tuple[NetworkResult, GeometryResult, FusionResult]:
+    """Per-point results of the work scan carried to every user point (``index``: each
+    point's stand-in in the work scan; a stray point takes its nearest kept point's)."""
+    return (
+        replace(net, labels=net.labels[index], probs=net.probs[index]),
+        replace(geo, segments=geo.segments[index], plane_id=geo.plane_id[index]),
+        replace(
+            fused,
+            labels=fused.labels[index],
+            confidence=fused.confidence[index],
+            network_labels=fused.network_labels[index],
+        ),
+    )
+
+
+_COLOUR_FREE: dict[tuple[str, str | None, int], Predictor] = {}
+
+
+def colour_free_if_needed(predictor: Predictor, config: NetworkConfig, frame: Frame) -> Predictor:
+    """The colour-free RandLA-Net instead of the colour one for a scan without usable colour
+    (``network.colour_free``: auto), or always (on); loaded once per process."""
+    from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
+
+    mode = config.colour_free
+    if mode == "off" or predictor.card.get("colour") is False:
+        return predictor
+    if mode == "auto" and (frame.colour.usable or config.name != "randlanet"):
+        return predictor
+    if mode == "auto" and config.weights is not None:
+        return predictor  # the user chose these weights
+    device = getattr(predictor, "device", config.device)
+    where = None if device is None else str(device)
+    key = (str(COLOUR_FREE_WEIGHTS), where, config.batch_size or 0)
+    if key not in _COLOUR_FREE:
+        _COLOUR_FREE[key] = load(
+            "randlanet",
+            COLOUR_FREE_WEIGHTS,
+            device=where,
+            batch_size=getattr(predictor, "batch_size", config.batch_size),
+            params=config.options(),
+        )
+    log.info("no usable colour: using the colour-free network %s", COLOUR_FREE_WEIGHTS.name)
+    return _COLOUR_FREE[key]
 
 
 def _fusion_stage(
@@ -319,10 +388,15 @@ def _resolved_params(
     weights = resolve_weights(network.name, network.weights)
     device = getattr(predictor, "device", network.device)  # stand-in predictors may have none
     options = network.options()
+    if predictor.card.get("colour") is False and network.weights is None:
+        from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
+
+        weights = COLOUR_FREE_WEIGHTS
     return {
         "network": {
             "name": network.name,
             "weights": None if weights is None else str(weights),
+            "colour": predictor.card.get("colour", True) is not False,
             "device": None if device is None else str(device),
             "batch_size": getattr(predictor, "batch_size", network.batch_size),
             "trained_on": predictor.card.get("data"),

@@ -9,6 +9,10 @@ from __future__ import annotations
 from jointseg.network.backends import WEIGHTS_DIR, Backend
 from jointseg.network.randlanet.params import RandLANetParams
 
+#: The same network trained with colour withheld: taken automatically for scans without colour
+#: (``network.colour_free``).
+COLOUR_FREE_WEIGHTS = WEIGHTS_DIR / "randlanet_indoor_nocolour.pt"
+
 BACKEND = Backend(
     name="randlanet",
     loader="jointseg.network.randlanet.predict:load_randlanet",

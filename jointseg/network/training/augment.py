@@ -9,10 +9,13 @@ them at random:
   (:func:`density_sample`);
 - partial rooms and slices: a vertical cut drops one side of the region, or only a horizontal
   band near the floor is kept (:func:`cut_region`);
-- geometry: rotation about z, a mirror, anisotropic scale, a tilt of a few degrees, an elastic
-  field, jitter (:func:`augment`);
-- colour: brightness, per-channel gain and offset, contrast, noise; some crops grey, some
-  without colour (:func:`augment_colour`).
+- geometry: rotation about z, a mirror, anisotropic scale, a tilt of a few degrees (what the
+  frame stage leaves after levelling), an elastic field, sensor noise of up to a few mm
+  (:func:`augment`);
+- stray points: a few points far outside the crop (returns through windows, off mirrors), left
+  unlabelled (:func:`add_stray_points`);
+- colour: brightness, exposure (a gamma: dim rooms), per-channel gain and offset (white
+  balance), contrast, noise; some crops grey, some without colour (:func:`augment_colour`).
 """
 
 from __future__ import annotations
@@ -53,6 +56,23 @@ class AugmentParams(BaseModel):
         0.05, ge=0, le=1, description="share of crops without colour (all zero, as a bare scan)"
     )
     grey: float = Field(0.1, ge=0, le=1, description="share of crops turned grey")
+    noise: tuple[float, float] = Field(
+        (0.001, 0.005),
+        description="standard deviation (m) of the per-point jitter, drawn per crop in this "
+        "range: SLAM and low-cost sensors are a few mm noisy",
+    )
+    exposure: float = Field(
+        0.3, ge=0, le=1, description="share of crops given an exposure change (a gamma)"
+    )
+    gamma_range: tuple[float, float] = Field(
+        (0.7, 1.8), description="gammas drawn for the exposure change (above 1: darker)"
+    )
+    stray: float = Field(
+        0.1, ge=0, le=1, description="share of crops given a few stray points far outside"
+    )
+    stray_share: float = Field(
+        0.005, ge=0, le=0.1, description="stray points added, as a share of the crop's points"
+    )
 
 
 def elastic_distortion(
@@ -100,6 +120,8 @@ def augment_colour(rgb: np.ndarray, rng: np.random.Generator, params: AugmentPar
     contrast = rng.uniform(0.8, 1.2)
     rgb = (rgb - mean) * contrast + mean
     rgb = rgb * rng.uniform(0.8, 1.2) * rng.uniform(0.92, 1.08, 3) + rng.uniform(-0.05, 0.05, 3)
+    if rng.random() < params.exposure:
+        rgb = np.clip(rgb, 0, 1) ** rng.uniform(*params.gamma_range)
     rgb = rgb + rng.normal(0, 0.02, rgb.shape)
     if rng.random() < params.grey:
         rgb = np.repeat(rgb.mean(axis=1, keepdims=True), 3, axis=1)
@@ -113,7 +135,7 @@ def augment(
     params: AugmentParams | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rotation about z, a mirror half of the time, scaling 0.9-1.1 per axis, a tilt, an elastic
-    field for a share of the crops, 1 mm jitter, then :func:`augment_colour`."""
+    field for a share of the crops, jitter of a few mm, then :func:`augment_colour`."""
     params = params or AugmentParams()
     theta = rng.uniform(0, 2 * np.pi)
     c, s = np.cos(theta), np.sin(theta)
@@ -127,7 +149,7 @@ def augment(
     xyz = (xyz - centre) @ rot.T * scale.astype(np.float32) + centre
     if params.elastic and rng.random() < params.elastic:
         xyz = elastic_distortion(xyz, rng)
-    xyz = xyz + rng.normal(0, 0.001, xyz.shape).astype(np.float32)
+    xyz = xyz + rng.normal(0, rng.uniform(*params.noise), xyz.shape).astype(np.float32)
     return xyz.astype(np.float32), augment_colour(rgb, rng, params)
 
 
@@ -167,3 +189,31 @@ def density_sample(
     pts = cell_means(xyz.astype(np.float64), inverse, cells).astype(np.float32)
     colour = cell_means(rgb.astype(np.float64), inverse, cells).astype(np.float32)
     return pts, colour, cell_majority(labels, inverse, cells)
+
+
+def add_stray_points(
+    xyz: np.ndarray,
+    rgb: np.ndarray,
+    labels: np.ndarray,
+    rng: np.random.Generator,
+    params: AugmentParams,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For a share of the crops, replace ``stray_share`` of the points by stray returns 0.5-3 m
+    outside the crop's box (unlabelled, -1), so a few wild points do not sway their neighbours'
+    labels. The crop keeps its size."""
+    n = len(xyz)
+    count = int(round(params.stray_share * n))
+    if count == 0 or rng.random() >= params.stray:
+        return xyz, rgb, labels
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    direction = rng.normal(size=(count, 3))
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-9)
+    centre = (lo + hi) / 2
+    reach = np.abs(direction) @ ((hi - lo) / 2)  # distance to the box's face along each ray
+    far = centre + direction * (reach + rng.uniform(0.5, 3.0, count))[:, None]
+    slots = rng.choice(n, size=count, replace=False)
+    xyz, rgb, labels = xyz.copy(), rgb.copy(), labels.copy()
+    xyz[slots] = far.astype(xyz.dtype)
+    rgb[slots] = rng.uniform(0, 1, (count, 3)).astype(rgb.dtype)
+    labels[slots] = -1
+    return xyz, rgb, labels

@@ -27,7 +27,13 @@ from jointseg.network.randlanet.crops import (
     set_search_threads,
 )
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training.augment import AugmentParams, augment, cut_region, density_sample
+from jointseg.network.training.augment import (
+    AugmentParams,
+    add_stray_points,
+    augment,
+    cut_region,
+    density_sample,
+)
 
 #: A crop's region reaches this much beyond the radius its points would span at the network's
 #: grid, so sparser sampling and cut regions still fill a crop.
@@ -110,7 +116,8 @@ def training_crop(
         order = order[rng.random(len(order)) >= rng.uniform(0, 0.1)]
     order = rng.permutation(pad_to(order, min(num_points, max(len(order), MIN_CROP)), rng))
     xyz, rgb = augment(crop.xyz[order], crop.rgb[order], rng, aug)
-    return Crop(xyz, rgb, crop.labels[order].astype(np.int64))
+    xyz, rgb, labels = add_stray_points(xyz, rgb, crop.labels[order].astype(np.int64), rng, aug)
+    return Crop(xyz, rgb, labels)
 
 
 @dataclass

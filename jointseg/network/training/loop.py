@@ -16,7 +16,7 @@ import os
 import platform
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -117,6 +117,11 @@ class TrainConfig(BaseModel):
         default_factory=AugmentParams,
         description="density, partial-room, slice, tilt and colour augmentation",
     )
+    colour: bool = Field(
+        True,
+        description="feed the scans' colour; False trains a colour-free network (colour inputs "
+        "held at zero in every crop, training and validation), for LiDAR-only scans",
+    )
     prefetch: bool = Field(
         True,
         description="without workers: build the next batch in a background thread while the "
@@ -157,8 +162,12 @@ class TrainConfig(BaseModel):
         return specs
 
     def augmentation(self) -> AugmentParams:
-        """The augmentation settings, ``elastic`` included."""
-        return self.augment.model_copy(update={"elastic": self.elastic})
+        """The augmentation settings, ``elastic`` included (no colour at all for a colour-free
+        network)."""
+        update: dict[str, object] = {"elastic": self.elastic}
+        if not self.colour:
+            update["colour_drop"] = 1.0
+        return self.augment.model_copy(update=update)
 
 
 def _model_config(cfg: TrainConfig) -> RandLANetConfig:
@@ -218,6 +227,10 @@ def training_data(cfg: TrainConfig, grid: float) -> TrainingData:
     """Load the sources; class statistics per source: crop centres are balanced within each
     source, and the loss weights follow the class mixture the crops actually have."""
     sources = load_sources(cfg.sources(), source_options(cfg, grid))
+    if not cfg.colour:
+        for src in sources:
+            src.train = [without_colour(c) for c in src.train]
+            src.val = [without_colour(c) for c in src.val]
     clouds: list[GridCloud] = []
     draw: list[float] = []
     centre_p: list[np.ndarray | None] = []
@@ -234,6 +247,12 @@ def training_data(cfg: TrainConfig, grid: float) -> TrainingData:
     text = "; ".join(f"{s.spec.name} ({s.share:.0%} of crops): {s.description}" for s in sources)
     draw_p = np.asarray(draw) / np.sum(draw)
     return TrainingData(sources, clouds, draw_p, centre_p, weights_from_frequency(mixture), text)
+
+
+def without_colour(cloud: GridCloud) -> GridCloud:
+    """The cloud as a colour-free network sees it: colour inputs at zero, as for a scan that
+    has none."""
+    return replace(cloud, rgb=np.zeros_like(cloud.rgb))
 
 
 def validation_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator):
@@ -495,6 +514,7 @@ def _save(cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int) -
         "steps": epochs * cfg.steps_per_epoch,
         "history": run.history,
         "train_config": cfg.model_dump(mode="json"),
+        "colour": cfg.colour,
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         **card_facts(cfg, run.history),
     }

@@ -1,0 +1,148 @@
+"""Up-axis decision of the frame stage: fit its two logistic steps on tuning scans, judge them
+on the others, each scan delivered with every signed axis up and a random tilt and yaw.
+
+    python bench/up_axis.py            # judge the weights in jointseg/frame/gravity.py
+    python bench/up_axis.py --fit      # fit them on the tuning scans first (prints them)
+
+Prints per split: axis right, sign right, both right (of scans x 6 directions x --turns).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from jointseg.frame import gravity
+from jointseg.io import read_scan
+from jointseg.synth import make_room
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+JUDGING = ("area6_office_4", "scene0002", "scene0005", "scene0007")
+
+
+def rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
+    """Rodrigues' rotation about a unit ``axis``."""
+    a = axis / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    t = np.radians(degrees)
+    return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
+
+
+def to_axis(target: str) -> np.ndarray:
+    """A proper rotation taking +z to the signed axis ``target``."""
+    want = gravity.AXES[target]
+    if abs(want[2]) > 0.5:
+        return np.eye(3) if want[2] > 0 else rotation(np.array([1.0, 0, 0]), 180)
+    return rotation(np.cross([0.0, 0.0, 1.0], want), 90)
+
+
+def scans() -> list[tuple[str, np.ndarray, bool]]:
+    """(name, xyz in metres z up, judging?) for every real scan and four synthetic rooms."""
+    out = []
+    for folder in ("s3dis_area6", "scannet"):
+        for path in sorted((SHARED / folder).glob("*.ply")):
+            judge = any(path.stem.startswith(j) for j in JUDGING)
+            out.append((path.stem, read_scan(path).xyz, judge))
+    for seed in (9201, 9202, 9203, 9204):
+        room = make_room(seed, points=200_000)
+        out.append((f"synth{seed}", room.xyz, seed >= 9204))
+    return out
+
+
+def rows(turns: int, seed: int) -> list[dict]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for name, xyz, judge in scans():
+        for target in gravity.AXES:
+            for _ in range(turns):
+                tilt = rotation(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 20))
+                yaw = rotation(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 360))
+                r = to_axis(target) @ tilt @ yaw
+                moved = xyz @ r.T
+                sample = gravity.frame_sample(moved, rng)
+                true_axis = "xyz".index(target[1])
+                d = sample.directions[true_axis]
+                d = d if d[true_axis] >= 0 else -d
+                out.append(
+                    {
+                        "name": name,
+                        "judge": judge,
+                        "target": target,
+                        "axis_f": gravity.axis_features(sample),
+                        "true_axis": true_axis,
+                        "sign_f": gravity.sign_features(sample, d, 1.0),
+                        "plus": target[0] == "+",
+                        "sample": sample,
+                    }
+                )
+    return out
+
+
+def fit(train: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    from sklearn.linear_model import LogisticRegression
+
+    # axis: each scan's three rows against each other -> pairwise differences, true minus other
+    xa, ya = [], []
+    for r in train:
+        f = r["axis_f"]
+        for j in range(3):
+            if j != r["true_axis"]:
+                xa += [f[r["true_axis"]] - f[j], f[j] - f[r["true_axis"]]]
+                ya += [1, 0]
+    axis_model = LogisticRegression(fit_intercept=False, C=10.0).fit(np.array(xa), ya)
+    xs = np.array([r["sign_f"] * (1 if r["plus"] else -1) for r in train])
+    xs = np.concatenate([xs, -xs])
+    ys = np.r_[np.ones(len(train)), np.zeros(len(train))]
+    sign_model = LogisticRegression(fit_intercept=False, C=10.0).fit(xs, ys)
+    return axis_model.coef_[0], sign_model.coef_[0]
+
+
+def judge(items: list[dict]) -> tuple[int, int, int, int]:
+    axis_ok = sign_ok = both = 0
+    for r in items:
+        a, p = gravity.vertical_axis(r["sample"])
+        est = gravity.estimate_up(r["sample"], a, p, 1.0)
+        axis_ok += a == r["true_axis"]
+        sign_ok += (
+            gravity.up_sign(r["sample"], r["true_axis"], 1.0) >= 0.5
+            if r["plus"]
+            else (gravity.up_sign(r["sample"], r["true_axis"], 1.0) < 0.5)
+        )
+        both += est.axis == r["target"]
+    return axis_ok, sign_ok, both, len(items)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--fit", action="store_true", help="fit the weights on the tuning scans")
+    ap.add_argument("--turns", type=int, default=1, help="random tilts per scan and direction")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    t = time.perf_counter()
+    items = rows(args.turns, args.seed)
+    built = time.perf_counter() - t
+    if args.fit:
+        aw, sw = fit([r for r in items if not r["judge"]])
+        gravity.AXIS_WEIGHTS[:] = aw
+        gravity.SIGN_WEIGHTS[:] = sw
+        print("AXIS_WEIGHTS =", np.round(aw, 3).tolist())
+        print("SIGN_WEIGHTS =", np.round(sw, 3).tolist())
+    print(f"| split | cases | axis right | sign right | both right |  ({built:.0f} s to build)")
+    print("|---|---|---|---|---|")
+    for split, judge_flag in (("tuning", False), ("judging", True)):
+        a, s, b, n = judge([r for r in items if r["judge"] == judge_flag])
+        print(f"| {split} | {n} | {a} | {s} | {b} |")
+    wrong = [
+        (r["name"], r["target"])
+        for r in items
+        if gravity.estimate_up(r["sample"], *gravity.vertical_axis(r["sample"]), 1.0).axis
+        != r["target"]
+    ]
+    print("wrong:", wrong[:30])
+
+
+if __name__ == "__main__":
+    main()

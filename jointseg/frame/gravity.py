@@ -1,0 +1,232 @@
+"""Which way is up: the scan's own evidence of gravity.
+
+Indoor scans are built of planes at right angles (floors, ceilings, walls), so the normals of a
+scan cluster around three orthogonal directions (a Manhattan frame), each within a few degrees
+of one of the file's axes for any scan that was delivered with an axis up (tilts of up to
+:data:`MAX_TILT_DEGREES` are searched). Which of the three is up, and its sign, is decided in
+two steps, each a logistic score of a few features fitted on tuning rooms (``bench/up_axis.py``
+fits and judges them):
+
+- the axis: the vertical one is the one whose facing points (floor, ceiling) sit at the two
+  extremes of its extent rather than inside it, and along which the scan is shortest;
+- the sign: furniture stands on the floor, so the bulk of what is inside the room, and the
+  flat tops of seats and desks (0.3-1.1 m up), gather at the floor's end; a ceiling may be
+  missing from a handheld scan, a floor hardly ever.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from jointseg.geometry.alignment import estimate_normals
+from jointseg.voxels import voxel_index
+
+#: Normals within this angle of an axis count as facing along it.
+FACING_DEGREES = 12.0
+#: The largest tilt searched around each of the file's axes.
+MAX_TILT_DEGREES = 25.0
+#: Points and voxels the decision looks at: enough for a room's planes, cheap on a big scan.
+SAMPLE_POINTS = 200_000
+VOXELS_ACROSS = 160
+#: Extreme layers: the lowest and highest share of the extent.
+LAYER = 0.08
+
+#: Logistic weights of the axis step (fshare, finter, logext) and of the sign step (mass, floor,
+#: flat, tops); fitted by ``bench/up_axis.py --fit`` on the tuning rooms, judged on the others.
+AXIS_WEIGHTS = np.array([15.623, -6.839, -6.323])
+SIGN_WEIGHTS = np.array([8.374, 1.772, 4.183, -1.22])
+#: Prior log-odds, added to the fitted scores: scans arrive z up far more often than y up
+#: (glTF, game engines), y up more often than x up, and upside down rarely.
+AXIS_PRIOR = np.array([0.0, 0.5, 1.0])
+SIGN_PRIOR = 1.0
+
+AXES: dict[str, np.ndarray] = {
+    "+x": np.array([1.0, 0.0, 0.0]),
+    "-x": np.array([-1.0, 0.0, 0.0]),
+    "+y": np.array([0.0, 1.0, 0.0]),
+    "-y": np.array([0.0, -1.0, 0.0]),
+    "+z": np.array([0.0, 0.0, 1.0]),
+    "-z": np.array([0.0, 0.0, -1.0]),
+}
+
+
+@dataclass(frozen=True)
+class UpEstimate:
+    """The up direction found, in the file's axes, and how sure each step was.
+
+    Attributes
+    ----------
+    up : ndarray of shape (3,)
+        Unit vector, the scan's up in its own coordinates (tilt included).
+    axis : str
+        The signed file axis nearest to ``up`` ('+z', '-y', ...).
+    tilt_degrees : float
+        Angle between ``up`` and that axis.
+    confidence : float
+        0-1: the probability of the axis step times that of the sign step.
+    scores : dict of str to float
+        Probability of every signed axis.
+    """
+
+    up: np.ndarray
+    axis: str
+    tilt_degrees: float
+    confidence: float
+    scores: dict[str, float]
+
+
+def refine_axis(normals: np.ndarray, axis: np.ndarray, *, max_degrees: float) -> np.ndarray:
+    """The dominant normal direction within ``max_degrees`` of ``axis`` (sign folded to it).
+
+    A coarse peak of the folded normals near the axis, then the mean of those within
+    :data:`FACING_DEGREES` of the peak, twice: a tilted floor and ceiling pull it to the true
+    up while the walls' normals, far from the axis, take no part.
+    """
+    dots = normals @ axis
+    folded = normals * np.where(dots < 0, -1.0, 1.0)[:, None]
+    near = folded[np.abs(dots) >= np.cos(np.radians(max_degrees))]
+    if len(near) < 10:
+        return axis
+    direction = _peak_direction(near, axis, max_degrees)
+    for _ in range(2):
+        close = near[near @ direction >= np.cos(np.radians(FACING_DEGREES))]
+        if len(close) < 10:
+            break
+        mean = close.sum(axis=0)
+        direction = mean / np.linalg.norm(mean)
+    return direction
+
+
+def _peak_direction(near: np.ndarray, axis: np.ndarray, max_degrees: float) -> np.ndarray:
+    """The densest 2-degree cell of the normals' projection on the plane across ``axis``."""
+    u = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    a = np.degrees(np.arctan2(near @ u, near @ axis))
+    b = np.degrees(np.arctan2(near @ v, near @ axis))
+    bins = int(2 * max_degrees / 2.0)
+    hist, ea, eb = np.histogram2d(a, b, bins=bins, range=[[-max_degrees, max_degrees]] * 2)
+    i, j = np.unravel_index(np.argmax(hist), hist.shape)
+    ta, tb = np.radians((ea[i] + ea[i + 1]) / 2), np.radians((eb[j] + eb[j + 1]) / 2)
+    direction = axis + np.tan(ta) * u + np.tan(tb) * v
+    return direction / np.linalg.norm(direction)
+
+
+@dataclass(frozen=True)
+class FrameSample:
+    """Voxel centroids of (a sample of) the scan with their normals, and the three directions
+    near the file's axes that the normals cluster around."""
+
+    xyz: np.ndarray
+    normals: np.ndarray
+    directions: np.ndarray  # (3, 3): row i is the refined direction near file axis i
+
+    def extent(self, direction: np.ndarray) -> float:
+        h = self.xyz @ direction
+        lo, hi = np.quantile(h, [0.005, 0.995])
+        return float(hi - lo)
+
+
+def frame_sample(xyz: np.ndarray, rng: np.random.Generator | None = None) -> FrameSample:
+    """A scale-free sample for the decisions: voxel centroids at 1/:data:`VOXELS_ACROSS` of the
+    robust extent, normals from 16 neighbours."""
+    rng = rng or np.random.default_rng(0)
+    pts = xyz if len(xyz) <= SAMPLE_POINTS else xyz[rng.choice(len(xyz), SAMPLE_POINTS, False)]
+    lo, hi = np.quantile(pts, [0.005, 0.995], axis=0)
+    voxel = max(float(np.max(hi - lo)) / VOXELS_ACROSS, 1e-9)
+    _, centroids = voxel_index(pts - pts.mean(axis=0), voxel)
+    if len(centroids) < 20:
+        return FrameSample(centroids, np.zeros_like(centroids), np.eye(3))
+    normals = estimate_normals(centroids, k=min(16, len(centroids) - 1))
+    directions = np.stack(
+        [refine_axis(normals, np.eye(3)[i], max_degrees=MAX_TILT_DEGREES) for i in range(3)]
+    )
+    return FrameSample(centroids, normals, directions)
+
+
+def axis_features(sample: FrameSample) -> np.ndarray:
+    """(3, 3): per file axis, the share of normals facing along it, the share of those inside
+    the extreme layers, and the log of its extent over the other two's geometric mean."""
+    ext = np.array([max(sample.extent(d), 1e-12) for d in sample.directions])
+    rows = []
+    for i, d in enumerate(sample.directions):
+        facing = np.abs(sample.normals @ d) >= np.cos(np.radians(FACING_DEGREES))
+        t = _normalised(sample.xyz @ d)
+        inside = (t > LAYER) & (t < 1 - LAYER)
+        fshare = float(facing.mean())
+        finter = float((facing & inside).sum() / max(facing.sum(), 1))
+        others = np.delete(ext, i)
+        rows.append([fshare, finter, float(np.log(ext[i] / np.sqrt(others.prod())))])
+    return np.array(rows)
+
+
+def sign_features(sample: FrameSample, up: np.ndarray, metres_per_unit: float) -> np.ndarray:
+    """(4,): evidence that ``up`` (rather than ``-up``) points away from the floor; each
+    feature flips its sign with ``up``."""
+    h = sample.xyz @ up
+    t = _normalised(h)
+    lo, hi = np.quantile(h, [0.005, 0.995])
+    facing = np.abs(sample.normals @ up) >= np.cos(np.radians(FACING_DEGREES))
+    inside = (t > LAYER) & (t < 1 - LAYER)
+    mass = 0.5 - float(np.median(t[inside])) if inside.any() else 0.0
+    low = int(np.count_nonzero(facing & (t <= LAYER)))
+    high = int(np.count_nonzero(facing & (t >= 1 - LAYER)))
+    floor = _balance(low, high)
+    metres_low = (h - lo) * metres_per_unit
+    metres_high = (hi - h) * metres_per_unit
+    band_lo = facing & inside & (metres_low > 0.3) & (metres_low < 1.1)
+    band_hi = facing & inside & (metres_high > 0.3) & (metres_high < 1.1)
+    flat = _balance(int(band_lo.sum()), int(band_hi.sum()))
+    tops = facing & inside
+    tops_balance = _balance(int((tops & (t < 0.5)).sum()), int((tops & (t >= 0.5)).sum()))
+    return np.array([mass, floor, flat, tops_balance])
+
+
+def _balance(a: int, b: int) -> float:
+    return float((a - b) / max(a + b, 1))
+
+
+def _normalised(h: np.ndarray) -> np.ndarray:
+    lo, hi = np.quantile(h, [0.005, 0.995])
+    return (h - lo) / max(hi - lo, 1e-12)
+
+
+def _softmax(z: np.ndarray) -> np.ndarray:
+    e = np.exp(z - z.max())
+    return e / e.sum()
+
+
+def vertical_axis(sample: FrameSample) -> tuple[int, np.ndarray]:
+    """The file axis (0, 1, 2) nearest to the vertical, and the probabilities of the three."""
+    p = _softmax(axis_features(sample) @ AXIS_WEIGHTS + AXIS_PRIOR)
+    return int(np.argmax(p)), p
+
+
+def up_sign(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
+    """Probability that the refined direction near ``axis`` (pointing along +axis) is up."""
+    d = sample.directions[axis]
+    d = d if d[axis] >= 0 else -d
+    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS) + SIGN_PRIOR
+    return float(1.0 / (1.0 + np.exp(-score)))
+
+
+def estimate_up(
+    sample: FrameSample, axis: int, axis_p: np.ndarray, metres_per_unit: float
+) -> UpEstimate:
+    """Combine both steps into the up vector and its confidence."""
+    p_plus = up_sign(sample, axis, metres_per_unit)
+    d = sample.directions[axis]
+    d = d if d[axis] >= 0 else -d
+    positive = p_plus >= 0.5
+    up = d if positive else -d
+    name = ("+" if positive else "-") + "xyz"[axis]
+    tilt = float(np.degrees(np.arccos(np.clip(abs(up[axis]), -1.0, 1.0))))
+    scores = {}
+    for i, letter in enumerate("xyz"):
+        pp = p_plus if i == axis else 0.5
+        scores["+" + letter] = float(axis_p[i] * pp)
+        scores["-" + letter] = float(axis_p[i] * (1 - pp))
+    confidence = float(axis_p[axis] * max(p_plus, 1 - p_plus))
+    return UpEstimate(up, name, tilt, confidence, scores)

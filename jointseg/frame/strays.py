@@ -1,0 +1,89 @@
+"""Stray points: returns through windows and off mirrors, metres outside the room.
+
+A handful of them moves every normalisation that looks at extremes (the network's height above
+the lowest point, the geometry's bounding-box faces). Two rules, in the levelled metric frame:
+points separated from the scan's bulk along an axis by an empty gap, and points with almost no
+neighbours. Both are cheap: a histogram per axis and a voxel hash.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jointseg.voxels import voxel_index
+
+#: Histogram bins (m) and the empty gap (m) that cuts a stretch of points off the bulk.
+BIN_M = 0.1
+GAP_M = 1.0
+#: Isolation: a point whose 3x3x3 block of cells of this size (m) holds fewer points than this
+#: is stray.
+CELL_M = 0.3
+MIN_NEIGHBOURS = 3
+#: More than this share of the scan is never called stray: that is structure, not noise.
+MAX_SHARE = 0.05
+
+
+def bulk_mask(values: np.ndarray) -> np.ndarray:
+    """Points within the stretch of ``values`` that holds the median, where no gap of
+    :data:`GAP_M` with no points interrupts it."""
+    lo, hi = float(values.min()), float(values.max())
+    if hi - lo <= GAP_M:
+        return np.ones(len(values), dtype=bool)
+    bins = int(np.ceil((hi - lo) / BIN_M)) + 1
+    idx = ((values - lo) / BIN_M).astype(np.int64)
+    counts = np.bincount(idx, minlength=bins)
+    occupied = counts > 0
+    start = stop = int((np.median(values) - lo) / BIN_M)
+    gap = int(np.ceil(GAP_M / BIN_M))
+    # extend both ways while an occupied bin lies within the gap
+    occ = np.flatnonzero(occupied)
+    left = occ[occ <= start]
+    right = occ[occ >= stop]
+    if len(left):
+        jumps = np.flatnonzero(np.diff(left[::-1]) < -gap)
+        start = int(left[::-1][jumps[0]] if len(jumps) else left[0])
+    if len(right):
+        jumps = np.flatnonzero(np.diff(right) > gap)
+        stop = int(right[jumps[0]] if len(jumps) else right[-1])
+    return (idx >= start) & (idx <= stop)
+
+
+def isolated_mask(xyz: np.ndarray) -> np.ndarray:
+    """Points with fewer than :data:`MIN_NEIGHBOURS` points in their 27 surrounding cells."""
+    inverse, _ = voxel_index(xyz, CELL_M)
+    cells = np.floor((xyz - xyz.min(axis=0)) / CELL_M).astype(np.int64)
+    first = np.unique(inverse, return_index=True)[1]
+    keys_xyz = cells[first]
+    counts = np.bincount(inverse)
+    dims = keys_xyz.max(axis=0) + 3
+    key = _key(keys_xyz + 1, dims)
+    order = np.argsort(key)
+    key_sorted, counts_sorted = key[order], counts[order]
+    total = np.zeros(len(keys_xyz), dtype=np.int64)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            for dz in (-1, 0, 1):
+                k = _key(keys_xyz + 1 + np.array([dx, dy, dz]), dims)
+                pos = np.clip(np.searchsorted(key_sorted, k), 0, len(key_sorted) - 1)
+                hit = key_sorted[pos] == k
+                total += np.where(hit, counts_sorted[pos], 0)
+    return (total < MIN_NEIGHBOURS)[inverse]
+
+
+def _key(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    return (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+
+
+def find_strays(xyz: np.ndarray) -> np.ndarray:
+    """(N,) bool: the stray points of a levelled scan in metres."""
+    stray = np.zeros(len(xyz), dtype=bool)
+    if len(xyz) < 100:
+        return stray
+    for axis in range(3):
+        stray |= ~bulk_mask(xyz[:, axis])
+    if stray.mean() > MAX_SHARE:
+        stray[:] = False
+    lonely = isolated_mask(xyz)
+    if lonely.mean() <= MAX_SHARE:
+        stray |= lonely
+    return stray
