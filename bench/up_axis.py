@@ -1,8 +1,11 @@
 """Up-axis decision of the frame stage: fit its two logistic steps on tuning scans, judge them
 on the others, each scan delivered with every signed axis up and a random tilt and yaw.
 
-    python bench/up_axis.py            # judge the weights in jointseg/frame/gravity.py
-    python bench/up_axis.py --fit      # fit them on the tuning scans first (prints them)
+    python bench/up_axis.py            # judge the weights in jointseg/frame/up_model.json
+    python bench/up_axis.py --fit      # fit them on the tuning scans first and write them
+
+Judged with the delivery prior of jointseg/frame/gravity.py (DELIVERY) and without it
+(--no-prior), since the uniform mix of directions here is not how scans arrive.
 
 Prints per split: axis right, sign right, both right (of scans x 6 directions x --turns).
 """
@@ -10,6 +13,7 @@ Prints per split: axis right, sign right, both right (of scans x 6 directions x 
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -46,9 +50,9 @@ def scans() -> list[tuple[str, np.ndarray, bool]]:
         for path in sorted((SHARED / folder).glob("*.ply")):
             judge = any(path.stem.startswith(j) for j in JUDGING)
             out.append((path.stem, read_scan(path).xyz, judge))
-    for seed in (9201, 9202, 9203, 9204):
-        room = make_room(seed, points=200_000)
-        out.append((f"synth{seed}", room.xyz, seed >= 9204))
+    for seed in range(9201, 9213):
+        room = make_room(seed, points=200_000, shape="L" if seed % 3 == 0 else "box")
+        out.append((f"synth{seed}", room.xyz, seed >= 9210))
     return out
 
 
@@ -92,11 +96,12 @@ def fit(train: list[dict]) -> tuple[np.ndarray, np.ndarray]:
             if j != r["true_axis"]:
                 xa += [f[r["true_axis"]] - f[j], f[j] - f[r["true_axis"]]]
                 ya += [1, 0]
-    axis_model = LogisticRegression(fit_intercept=False, C=10.0).fit(np.array(xa), ya)
+    axis_model = LogisticRegression(fit_intercept=False, C=3.0, max_iter=5000)
+    axis_model.fit(np.array(xa), ya)
     xs = np.array([r["sign_f"] * (1 if r["plus"] else -1) for r in train])
     xs = np.concatenate([xs, -xs])
     ys = np.r_[np.ones(len(train)), np.zeros(len(train))]
-    sign_model = LogisticRegression(fit_intercept=False, C=10.0).fit(xs, ys)
+    sign_model = LogisticRegression(fit_intercept=False, C=3.0, max_iter=5000).fit(xs, ys)
     return axis_model.coef_[0], sign_model.coef_[0]
 
 
@@ -118,7 +123,11 @@ def judge(items: list[dict]) -> tuple[int, int, int, int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--fit", action="store_true", help="fit the weights on the tuning scans")
-    ap.add_argument("--turns", type=int, default=1, help="random tilts per scan and direction")
+    ap.add_argument("--turns", type=int, default=2, help="random tilts per scan and direction")
+    ap.add_argument("--no-prior", action="store_true", help="judge without the delivery prior")
+    ap.add_argument(
+        "--prior-scale", type=float, default=gravity.PRIOR_SCALE, help="judge with the prior x this"
+    )
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     t = time.perf_counter()
@@ -128,20 +137,45 @@ def main() -> None:
         aw, sw = fit([r for r in items if not r["judge"]])
         gravity.AXIS_WEIGHTS[:] = aw
         gravity.SIGN_WEIGHTS[:] = sw
-        print("AXIS_WEIGHTS =", np.round(aw, 3).tolist())
-        print("SIGN_WEIGHTS =", np.round(sw, 3).tolist())
-    print(f"| split | cases | axis right | sign right | both right |  ({built:.0f} s to build)")
-    print("|---|---|---|---|---|")
+        gravity.MODEL_FILE.write_text(
+            json.dumps(
+                {
+                    "axis_weights": np.round(aw, 5).tolist(),
+                    "sign_weights": np.round(sw, 5).tolist(),
+                    "fitted_on": sorted({r["name"] for r in items if not r["judge"]}),
+                    "command": "python bench/up_axis.py --fit",
+                },
+                indent=1,
+            )
+            + "\n"
+        )
+        print(f"wrote {gravity.MODEL_FILE}")
+    scale = 0.0 if args.no_prior else args.prior_scale
+    gravity.AXIS_PRIOR[:] = gravity.AXIS_PRIOR * scale / gravity.PRIOR_SCALE
+    gravity.SIGN_PRIOR[:] = gravity.SIGN_PRIOR * scale / gravity.PRIOR_SCALE
+    targets = list(gravity.AXES)
+    print(f"({built:.0f} s to build the cases)")
+    print(
+        "| split | cases | axis right | sign right | both right | "
+        + " | ".join(targets)
+        + " | weighted by delivery |"
+    )
+    print("|---|---|---|---|---|" + "---|" * (len(targets) + 1))
     for split, judge_flag in (("tuning", False), ("judging", True)):
-        a, s, b, n = judge([r for r in items if r["judge"] == judge_flag])
-        print(f"| {split} | {n} | {a} | {s} | {b} |")
+        part = [r for r in items if r["judge"] == judge_flag]
+        a, s, b, n = judge(part)
+        per = {t: judge([r for r in part if r["target"] == t]) for t in targets}
+        shares = {t: per[t][2] / max(per[t][3], 1) for t in targets}
+        weighted = sum(gravity.DELIVERY[t] * shares[t] for t in targets)
+        cells = " | ".join(f"{shares[t]:.2f}" for t in targets)
+        print(f"| {split} | {n} | {a} | {s} | {b} | {cells} | {weighted:.3f} |")
     wrong = [
         (r["name"], r["target"])
         for r in items
         if gravity.estimate_up(r["sample"], *gravity.vertical_axis(r["sample"]), 1.0).axis
         != r["target"]
     ]
-    print("wrong:", wrong[:30])
+    print("wrong:", wrong[:40])
 
 
 if __name__ == "__main__":

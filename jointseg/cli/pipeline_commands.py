@@ -56,6 +56,30 @@ def _config(
     return cfg
 
 
+def with_frame(
+    cfg: PipelineConfig, up: str | None, units: str | None, colour_free: str | None
+) -> PipelineConfig:
+    """The config with the command line's frame and colour-free overrides, validated like a
+    config file's (a bad value is refused before any work)."""
+    from pydantic import ValidationError
+
+    from jointseg.pipeline.config import PipelineConfig
+
+    body = cfg.model_dump(mode="json")
+    if up is not None:
+        body["frame"]["up"] = up
+    if units is not None:
+        body["frame"]["units"] = units
+    if colour_free is not None:
+        body["network"]["colour_free"] = colour_free
+    try:
+        return PipelineConfig.model_validate(body)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ConfigError(f"{where}: {first['msg']}") from None
+
+
 def _check_writable(path: Path, what: str) -> None:
     if not path.parent.is_dir():
         raise ConfigError(f"{what} {path}: folder {path.parent} does not exist")
@@ -92,6 +116,17 @@ def segment_scan(
         help="Folder for a tiled run's spilled scan and tile results (about 60 bytes a point; "
         "default: a temporary folder beside the output, removed at the end).",
     ),
+    up: str | None = typer.Option(
+        None, "--up", help="auto, +z, -z, +y, -y, +x or -x: the file axis that points up."
+    ),
+    units: str | None = typer.Option(
+        None, "--units", help="auto, m, cm, mm, ft, us-ft or in: the coordinates' unit."
+    ),
+    colour_free: str | None = typer.Option(
+        None,
+        "--colour-free",
+        help="auto, on or off: the colour-free network (auto: for scans without colour).",
+    ),
 ) -> None:
     """Segment a scan semantically: network labels refined by geometric segments (the paper).
 
@@ -100,7 +135,7 @@ def segment_scan(
     """
     from jointseg.pipeline import load_predictor, segment_file
 
-    cfg = _config(config, network, weights, device)
+    cfg = with_frame(_config(config, network, weights, device), up, units, colour_free)
     if tile_points is not None:
         cfg = cfg.model_copy(
             update={"tiles": cfg.tiles.model_copy(update={"max_points": tile_points})}
@@ -141,6 +176,11 @@ def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:
     body = done.report
     if report is not None:
         _write_text(report, json.dumps(body, indent=2))
+    frame = body.get("frame")
+    if frame is not None:
+        typer.echo(frame_line(frame), err=True)
+        for warning in frame["warnings"]:
+            typer.echo(f"warning: {warning}", err=True)
     where = "" if done.tiles is None else f" in {done.tiles} tiles"
     line = (
         f"{body['points']:,} points{where} -> {body['segments']:,} segments, "
@@ -153,6 +193,18 @@ def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:
         )
         line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)
+
+
+def frame_line(frame: dict) -> str:
+    """The report's frame section in one line."""
+    up, units = frame["up"], frame["units"]
+    tilt = f", levelled {up['tilt_degrees']:.1f} deg" if up["levelled"] else ""
+    colour = frame["colour"]["kind"]
+    return (
+        f"frame: up {up['axis']} ({up['how']}, {up['confidence']:.2f}{tilt}); units "
+        f"{units['unit']} ({units['how']}); {frame['stray_points']:,} stray points; colour "
+        f"{colour}{' corrected' if frame['colour']['gains'] else ''}"
+    )
 
 
 def _scan_paths(paths: list[Path]) -> list[Path]:

@@ -16,7 +16,9 @@ fits and judges them):
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -33,14 +35,23 @@ VOXELS_ACROSS = 160
 #: Extreme layers: the lowest and highest share of the extent.
 LAYER = 0.08
 
-#: Logistic weights of the axis step (fshare, finter, logext) and of the sign step (mass, floor,
-#: flat, tops); fitted by ``bench/up_axis.py --fit`` on the tuning rooms, judged on the others.
-AXIS_WEIGHTS = np.array([15.623, -6.839, -6.323])
-SIGN_WEIGHTS = np.array([8.374, 1.772, 4.183, -1.22])
-#: Prior log-odds, added to the fitted scores: scans arrive z up far more often than y up
-#: (glTF, game engines), y up more often than x up, and upside down rarely.
-AXIS_PRIOR = np.array([0.0, 0.5, 1.0])
-SIGN_PRIOR = 1.0
+#: Height profiles: bins across the extent along a direction.
+PROFILE_BINS = 10
+#: Logistic weights of the axis step and of the sign step (see :func:`axis_features` and
+#: :func:`sign_features`), fitted by ``bench/up_axis.py --fit`` on the tuning rooms.
+MODEL_FILE = Path(__file__).with_name("up_model.json")
+_MODEL = json.loads(MODEL_FILE.read_text()) if MODEL_FILE.is_file() else {}
+AXIS_WEIGHTS = np.array(_MODEL.get("axis_weights", np.zeros(3 * PROFILE_BINS + 3)))
+SIGN_WEIGHTS = np.array(_MODEL.get("sign_weights", np.zeros(3 * PROFILE_BINS + 4)))
+#: How scans arrive, as prior log-odds added to the fitted scores: z up most (scanners, LAS,
+#: E57, S3DIS), y up often (glTF, game engines, many phone exports), x up rarely; upside down
+#: rarely. P(+z, -z, +y, -y, +x, -x) = 0.60, 0.04, 0.25, 0.05, 0.03, 0.03.
+DELIVERY = {"+z": 0.60, "-z": 0.04, "+y": 0.25, "-y": 0.05, "+x": 0.03, "-x": 0.03}
+#: The prior's weight against the fitted evidence (chosen on the tuning rooms by the
+#: delivery-weighted accuracy of ``bench/up_axis.py --prior-scale``).
+PRIOR_SCALE = 0.5
+AXIS_PRIOR = PRIOR_SCALE * np.log([DELIVERY[f"+{a}"] + DELIVERY[f"-{a}"] for a in "xyz"])
+SIGN_PRIOR = PRIOR_SCALE * np.log([DELIVERY[f"+{a}"] / DELIVERY[f"-{a}"] for a in "xyz"])
 
 AXES: dict[str, np.ndarray] = {
     "+x": np.array([1.0, 0.0, 0.0]),
@@ -146,25 +157,52 @@ def frame_sample(xyz: np.ndarray, rng: np.random.Generator | None = None) -> Fra
     return FrameSample(centroids, normals, directions)
 
 
+def profile(sample: FrameSample, direction: np.ndarray) -> np.ndarray:
+    """(3 * PROFILE_BINS,): the share of points in each height bin along ``direction``, for
+    points facing along it, across it (walls, when it is up) and the rest."""
+    t = np.clip(_normalised(sample.xyz @ direction), 0.0, 1.0 - 1e-9)
+    bins = (t * PROFILE_BINS).astype(np.int64)
+    c = np.abs(sample.normals @ direction)
+    along = c >= np.cos(np.radians(FACING_DEGREES))
+    across = c <= np.sin(np.radians(FACING_DEGREES))
+    n = max(len(t), 1)
+    return np.concatenate(
+        [
+            np.bincount(bins[g], minlength=PROFILE_BINS) / n
+            for g in (along, across, ~(along | across))
+        ]
+    )
+
+
+def _flip(profile_: np.ndarray) -> np.ndarray:
+    return profile_.reshape(3, PROFILE_BINS)[:, ::-1].ravel()
+
+
 def axis_features(sample: FrameSample) -> np.ndarray:
-    """(3, 3): per file axis, the share of normals facing along it, the share of those inside
-    the extreme layers, and the log of its extent over the other two's geometric mean."""
+    """(3, 3 * PROFILE_BINS + 3): per file axis, its height profile folded (so the sign does
+    not matter), the share of normals facing along it, the share of those inside the extreme
+    layers, and the log of its extent over the other two's geometric mean."""
     ext = np.array([max(sample.extent(d), 1e-12) for d in sample.directions])
     rows = []
     for i, d in enumerate(sample.directions):
+        prof = profile(sample, d)
         facing = np.abs(sample.normals @ d) >= np.cos(np.radians(FACING_DEGREES))
         t = _normalised(sample.xyz @ d)
         inside = (t > LAYER) & (t < 1 - LAYER)
         fshare = float(facing.mean())
         finter = float((facing & inside).sum() / max(facing.sum(), 1))
         others = np.delete(ext, i)
-        rows.append([fshare, finter, float(np.log(ext[i] / np.sqrt(others.prod())))])
+        rows.append(
+            [*(prof + _flip(prof)), fshare, finter, float(np.log(ext[i] / np.sqrt(others.prod())))]
+        )
     return np.array(rows)
 
 
 def sign_features(sample: FrameSample, up: np.ndarray, metres_per_unit: float) -> np.ndarray:
-    """(4,): evidence that ``up`` (rather than ``-up``) points away from the floor; each
-    feature flips its sign with ``up``."""
+    """(3 * PROFILE_BINS + 4,): evidence that ``up`` (rather than ``-up``) points away from
+    the floor: the height profile less its mirror image, where the bulk of the room sits, the
+    floor layer against the ceiling layer, flat tops 0.3-1.1 m from each end; each feature
+    flips its sign with ``up``."""
     h = sample.xyz @ up
     t = _normalised(h)
     lo, hi = np.quantile(h, [0.005, 0.995])
@@ -181,7 +219,8 @@ def sign_features(sample: FrameSample, up: np.ndarray, metres_per_unit: float) -
     flat = _balance(int(band_lo.sum()), int(band_hi.sum()))
     tops = facing & inside
     tops_balance = _balance(int((tops & (t < 0.5)).sum()), int((tops & (t >= 0.5)).sum()))
-    return np.array([mass, floor, flat, tops_balance])
+    prof = profile(sample, up)
+    return np.array([*(prof - _flip(prof)), mass, floor, flat, tops_balance])
 
 
 def _balance(a: int, b: int) -> float:
@@ -208,7 +247,7 @@ def up_sign(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
     """Probability that the refined direction near ``axis`` (pointing along +axis) is up."""
     d = sample.directions[axis]
     d = d if d[axis] >= 0 else -d
-    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS) + SIGN_PRIOR
+    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS) + SIGN_PRIOR[axis]
     return float(1.0 / (1.0 + np.exp(-score)))
 
 

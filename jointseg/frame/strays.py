@@ -15,6 +15,8 @@ from jointseg.voxels import voxel_index
 #: Histogram bins (m) and the empty gap (m) that cuts a stretch of points off the bulk.
 BIN_M = 0.1
 GAP_M = 1.0
+#: A histogram bin with fewer than this share of the points counts as empty.
+OCCUPIED_SHARE = 1e-4
 #: Isolation: a point whose 3x3x3 block of cells of this size (m) holds fewer points than this
 #: is stray.
 CELL_M = 0.3
@@ -25,14 +27,15 @@ MAX_SHARE = 0.05
 
 def bulk_mask(values: np.ndarray) -> np.ndarray:
     """Points within the stretch of ``values`` that holds the median, where no gap of
-    :data:`GAP_M` with no points interrupts it."""
+    :data:`GAP_M` without a share of the points interrupts it."""
     lo, hi = float(values.min()), float(values.max())
     if hi - lo <= GAP_M:
         return np.ones(len(values), dtype=bool)
     bins = int(np.ceil((hi - lo) / BIN_M)) + 1
     idx = ((values - lo) / BIN_M).astype(np.int64)
     counts = np.bincount(idx, minlength=bins)
-    occupied = counts > 0
+    # a bin holding a few scattered strays is as good as empty: it takes a share of the scan
+    occupied = counts >= max(2.0, OCCUPIED_SHARE * len(values))
     start = stop = int((np.median(values) - lo) / BIN_M)
     gap = int(np.ceil(GAP_M / BIN_M))
     # extend both ways while an occupied bin lies within the gap

@@ -100,7 +100,9 @@ def units_from_scale(up_extent: float) -> UnitsDecision:
         return UnitsDecision(
             "m", 1.0, f"scale: {in_m:.2f} m from floor to top", float(0.5 + 0.5 * margin)
         )
-    best = min(UNITS, key=lambda u: abs(np.log(up_extent * UNITS[u] / STOREY_M)))
+    # US survey feet differ from feet by 2 ppm: only a file's CRS can tell them apart
+    guesses = [u for u in UNITS if u != "us-ft"]
+    best = min(guesses, key=lambda u: abs(np.log(up_extent * UNITS[u] / STOREY_M)))
     height = up_extent * UNITS[best]
     off = abs(np.log(height / STOREY_M))
     confidence = float(np.clip(1.0 - off / np.log(hi / STOREY_M), 0.0, 1.0))

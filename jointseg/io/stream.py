@@ -35,6 +35,7 @@ import time
 import weakref
 from collections.abc import Generator, Iterator
 from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
 from typing import BinaryIO
@@ -57,6 +58,7 @@ from jointseg.io.las import (
     check_layout_fits,
     las_facts,
     las_layout,
+    las_meta,
     las_record,
     laz_backend,
     log_facts,
@@ -237,9 +239,11 @@ class _LasChunks(_FileChunks):
     def _read(self, size: int) -> Generator[Scan, None, None]:
         self._check_unchanged()
         start = 0
+        meta = las_meta(self._header)
         with open_reader(self.path) as reader:
             for points in _las_points(reader, self._header, self.path, size):
-                yield points_to_scan(points, self._header, self._facts, self.path, start=start)
+                scan = points_to_scan(points, self._header, self._facts, self.path, start=start)
+                yield replace(scan, meta=meta)
                 start += len(points)
 
 
@@ -408,6 +412,7 @@ def _rows(scan: Scan, start: int, stop: int) -> Scan:
         labels=None if scan.labels is None else scan.labels[rows],
         fields={k: v[rows] for k, v in scan.fields.items()},
         source_format=scan.source_format,
+        meta=scan.meta,
     )
 
 

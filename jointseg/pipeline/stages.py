@@ -174,7 +174,7 @@ def run(
     t = time.perf_counter()
     frame = decide_frame(scan, config.frame)
     work, index = work_scan(scan, frame)
-    predictor = colour_free_if_needed(predictor, config.network, frame)
+    predictor = colour_free_if_needed(predictor, config.network, frame.colour.usable)
     report(progress, "frame", 1.0)
     timings["frame"] = time.perf_counter() - t
     chosen = predictor
@@ -231,7 +231,9 @@ def expand(
 _COLOUR_FREE: dict[tuple[str, str | None, int], Predictor] = {}
 
 
-def colour_free_if_needed(predictor: Predictor, config: NetworkConfig, frame: Frame) -> Predictor:
+def colour_free_if_needed(
+    predictor: Predictor, config: NetworkConfig, usable_colour: bool
+) -> Predictor:
     """The colour-free RandLA-Net instead of the colour one for a scan without usable colour
     (``network.colour_free``: auto), or always (on); loaded once per process."""
     from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
@@ -239,7 +241,7 @@ def colour_free_if_needed(predictor: Predictor, config: NetworkConfig, frame: Fr
     mode = config.colour_free
     if mode == "off" or predictor.card.get("colour") is False:
         return predictor
-    if mode == "auto" and (frame.colour.usable or config.name != "randlanet"):
+    if mode == "auto" and (usable_colour or config.name != "randlanet"):
         return predictor
     if mode == "auto" and config.weights is not None:
         return predictor  # the user chose these weights

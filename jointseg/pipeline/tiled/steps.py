@@ -10,6 +10,7 @@ plus the per-point outputs (13 bytes a point), never the whole scan's probabilit
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -22,11 +23,15 @@ from jointseg.exceptions import ConfigError
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.network.backends import Predictor
 from jointseg.pipeline.config import PipelineConfig
+from jointseg.pipeline.stages import colour_free_if_needed
+from jointseg.pipeline.tiled import frame
 from jointseg.pipeline.tiled.merge import MergedScan, merge
 from jointseg.pipeline.tiled.run import tile_done
 from jointseg.pipeline.tiled.store import CHUNK_POINTS, TilePlan, prepare, read_plan
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -37,6 +42,7 @@ class TiledRun:
     merged: MergedScan
     plan: TilePlan
     timings: dict[str, float]
+    strays: int = 0
 
     def report(self, config: PipelineConfig, timings: dict[str, float]) -> dict[str, Any]:
         """The run's report with ``timings`` (the caller's, whole-run), with the same keys as
@@ -65,6 +71,9 @@ class TiledRun:
                 "tile_segments": merged.tile_segments,
                 "joins": merged.joins,
             },
+            "frame": None
+            if plan.frame is None
+            else {**plan.frame["report"], "stray_points": self.strays},
             "metrics": None
             if merged.metrics is None
             else {name: m.model_dump() for name, m in merged.metrics.items()},
@@ -105,9 +114,14 @@ def plan(
     ------
     ScanFormatError, ConfigError, Cancelled
     """
+    decided, bulk = frame.decide(source, config.frame, max_points)
+    log.info("%s", decided["summary"])
+    stream = frame.StreamFrame(decided, bulk)
+    predictor = colour_free_if_needed(predictor, config.network, stream.colour_usable)
     with open_chunks(source, max_points=max_points) as chunks:
+        tracked = frame.Tracked(iter(chunks.chunks(CHUNK_POINTS)), stream)
         return prepare(
-            chunks.chunks(CHUNK_POINTS),
+            iter(tracked),
             chunks.count,
             workdir,
             source=name,
@@ -117,6 +131,7 @@ def plan(
             predictor=predictor,
             progress=progress,
             cancel=cancel,
+            frame=tracked.entry,
         )
 
 
@@ -152,22 +167,28 @@ def finish(
     timings = dict(merged.timings)
     t = time.perf_counter()
     with open_chunks(source, max_points=max_points) as chunks:
-        _write_merged(chunks, merged, plan, output, progress=progress)
+        strays = _write_merged(chunks, merged, plan, output, progress=progress)
     timings["write"] = time.perf_counter() - t
-    return TiledRun(merged, plan, timings)
+    return TiledRun(merged, plan, timings, strays)
 
 
-def _annotated_chunks(chunks: Iterator[Scan], merged: MergedScan) -> Iterator[Scan]:
-    """The input's chunks with the pipeline's fields, as :func:`annotate` gives them."""
+def _annotated_chunks(
+    chunks: Iterator[Scan], merged: MergedScan, stream: frame.StreamFrame | None, counts: list[int]
+) -> Iterator[Scan]:
+    """The input's chunks with the pipeline's fields, as :func:`annotate` gives them
+    (``counts`` gets the stray points found)."""
     start = 0
     for chunk in chunks:
         stop = start + len(chunk)
+        stray = np.zeros(len(chunk), dtype=bool) if stream is None else stream.stray(chunk.xyz)
+        counts.append(int(stray.sum()))
         yield chunk.with_fields(
             network_label=merged.network_label[start:stop].astype(np.int32),
             network_confidence=merged.network_confidence[start:stop],
             segment=merged.segment[start:stop],
             fused_label=merged.fused_label[start:stop].astype(np.int32),
             fused_confidence=merged.fused_confidence[start:stop],
+            stray=stray.astype(np.uint8),
         )
         start = stop
 
@@ -179,10 +200,16 @@ def _write_merged(
     output: Path,
     *,
     progress: ProgressFn | None = None,
-) -> None:
-    """Stream the input again, chunk by chunk, into ``output`` with the pipeline's fields."""
+) -> int:
+    """Stream the input again, chunk by chunk, into ``output`` with the pipeline's fields;
+    the number of stray points."""
     bounds = (np.array(plan.lower), np.array(plan.upper))
-    stream = _annotated_chunks(chunks.chunks(CHUNK_POINTS), merged)
+    decided = None
+    if plan.frame is not None:
+        decided = frame.StreamFrame(plan.frame)
+        bounds = (np.array(plan.frame["file_lower"]), np.array(plan.frame["file_upper"]))
+    counts: list[int] = []
+    stream = _annotated_chunks(chunks.chunks(CHUNK_POINTS), merged, decided, counts)
     first = next(stream)
     written = 0
     with open_writer(output, count=plan.points, like=first, bounds=bounds) as writer:
@@ -190,6 +217,7 @@ def _write_merged(
             writer.write(chunk)
             written += len(chunk)
             report(progress, "write", written / plan.points)
+    return sum(counts)
 
 
 def _prepend(first: Scan, rest: Iterator[Scan]) -> Iterator[Scan]:

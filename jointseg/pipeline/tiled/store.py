@@ -21,9 +21,9 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -91,6 +91,7 @@ class TilePlan(BaseModel):
     geometry: ResolvedGeometryParams
     params: TileParams
     anchoring: Anchoring | None = None
+    frame: dict[str, Any] | None = None
 
 
 class _Columns:
@@ -140,6 +141,7 @@ def prepare(
     predictor: object | None = None,
     progress: ProgressFn | None = None,
     cancel: CancelToken | None = None,
+    frame: Callable[[], dict[str, Any]] | None = None,
 ) -> TilePlan:
     """Spill a scan into ``workdir``, plan its tiles and list each tile's points.
 
@@ -162,6 +164,9 @@ def prepare(
         plan is made here, so the tiles together give the labels of an untiled run.
     progress, cancel
         ``progress("read", fraction)`` while spilling, ``("plan", fraction)`` while listing.
+    frame : callable, optional
+        Called once the chunks are spilled: the frame stage's entry for the plan (the chunks
+        were already put into the working frame).
 
     Returns
     -------
@@ -203,6 +208,7 @@ def prepare(
         geometry=resolved,
         params=tiles,
         anchoring=anchoring,
+        frame=None if frame is None else frame(),
     )
     _write_plan(workdir, plan)
     log.info("tiles: %d points in %d tiles (%s)", count, len(boxes), source)
