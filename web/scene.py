@@ -258,13 +258,15 @@ def load_scene(
     if max_points < 1:
         raise ValueError(f"max_points must be at least 1, got {max_points}")
     sample = read_sample(result_path, CANDIDATES_PER_POINT * max_points)
-    kept, voxel = voxel_downsample(sample.xyz, max_points)
+    report = read_report(report_path)
+    levelled = levelled_xyz(sample.xyz, report)
+    kept, voxel = voxel_downsample(levelled, max_points)
     index = None if voxel is None and sample.rows.size == sample.total else kept  # None: all
 
     def pick(a: np.ndarray) -> np.ndarray:
         return a if index is None else a[index]
 
-    xyz = pick(sample.xyz)
+    xyz = pick(levelled)
     lo, hi = axis_bounds(xyz)
     centre = (lo + hi) / 2.0
     rgb = pick(sample.rgb) if sample.rgb is not None else np.full((xyz.shape[0], 3), 160, np.uint8)
@@ -284,7 +286,7 @@ def load_scene(
         voxel=voxel,
         spacing=estimate_spacing(shown),
         counts=sample.counts,
-        report=read_report(report_path),
+        report=report,
     )
     log.info(
         "loaded %s: %d of %d points shown (voxel %s)",
@@ -304,6 +306,21 @@ def axis_bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lo = np.array([xyz[:, a].min() for a in range(xyz.shape[1])], dtype=np.float64)
     hi = np.array([xyz[:, a].max() for a in range(xyz.shape[1])], dtype=np.float64)
     return lo, hi
+
+
+def levelled_xyz(xyz: np.ndarray, report: dict[str, Any] | None) -> np.ndarray:
+    """The points as the pipeline saw them (z up, metres: the report's ``frame.to_work``), so
+    a y-up or millimetre scan is shown standing, at the size the viewer's spacing expects."""
+    frame = (report or {}).get("frame")
+    if not isinstance(frame, dict) or frame.get("identity", True) or "to_work" not in frame:
+        return xyz
+    try:
+        matrix = np.asarray(frame["to_work"], dtype=np.float64)
+    except (TypeError, ValueError):
+        return xyz
+    if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
+        return xyz
+    return xyz @ matrix[:3, :3].T + matrix[:3, 3]
 
 
 def read_report(path: str | os.PathLike[str] | None) -> dict[str, Any] | None:

@@ -21,7 +21,14 @@ from server.state.db import SessionFactory
 log = logging.getLogger(__name__)
 
 #: Share of the overall progress each stage stands for (network and geometry run together).
-STAGE_WEIGHTS = {"read": 0.1, "network": 0.5, "geometry": 0.25, "fusion": 0.05, "write": 0.1}
+STAGE_WEIGHTS = {
+    "read": 0.08,
+    "frame": 0.02,
+    "network": 0.5,
+    "geometry": 0.25,
+    "fusion": 0.05,
+    "write": 0.1,
+}
 #: The same for the parts of a tiled job: the plan (as a share of the whole job), one tile
 #: (network and geometry run together), the merge.
 PLAN_WEIGHTS = {"read": 0.7 * parts.PLAN_SHARE, "plan": 0.3 * parts.PLAN_SHARE}

@@ -154,6 +154,9 @@ def test_bad_scan_gets_4xx_with_the_readers_message(locked, bad_files, case) -> 
             "config.tiles.max_points: 50,000,000 is above this service's limit",
         ),
         (json.dumps({"tiles": {"overlap": -1}}), "config.tiles.overlap"),
+        (json.dumps({"frame": {"up": "sideways"}}), "config.frame.up"),
+        (json.dumps({"frame": {"units": "furlong"}}), "config.frame.units"),
+        (json.dumps({"network": {"colour_free": "maybe"}}), "config.network.colour_free"),
     ],
 )
 def test_bad_config_names_the_field(locked, scans, config, needle) -> None:

@@ -86,6 +86,7 @@ def test_result_formats_report_and_links(service, scans, job_config, tmp_path) -
     assert {"network", "geometry", "fusion", "read", "write", "total"} <= set(report["timings_s"])
     assert report["metrics"]["fused"]["miou"] is not None  # the synthetic room is labelled
     assert report["params"]["network"]["weights"] == job_config["network"]["weights"]
+    assert report["frame"]["up"]["axis"] == "+z" and report["frame"]["units"]["unit"] == "m"
     # cached conversions next to the PLY the worker wrote
     files = sorted(p.name for p in (service.data_dir / "jobs" / body["id"]).iterdir())
     assert files == ["input.ply", "report.json", "result.las", "result.laz", "result.ply"]
@@ -106,3 +107,32 @@ def test_twenty_concurrent_uploads_all_succeed(service, scans, job_config) -> No
         jobs = [client.wait(job_id, poll_s=0.2, timeout_s=180) for job_id in ids]
     assert all(job.status == "succeeded" and job.points == 2000 for job in jobs)
     assert time.monotonic() - started < 180
+
+
+def test_a_job_takes_the_frame_overrides(service, scans, job_config, tmp_path) -> None:
+    """A y-up scan in millimetres, with up and units given in the job's config: the report says
+    so and the result keeps the file's own coordinates."""
+    from jointseg.io import write_scan
+    from jointseg.scan import Scan
+
+    room = read_scan(scan_file(scans, ".ply", seed=3))
+    source = tmp_path / "yup_mm.ply"
+    write_scan(Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb), source)
+    config = {**job_config, "frame": {"up": "+y", "units": "mm"}}
+    with service.http() as http:
+        created = post_scan(http, source, config)
+        assert created.status_code == 201, created.text
+        links = created.json()["links"]
+        job = wait_for(http, created.json()["id"])
+        assert job["status"] == "succeeded", job
+        report = http.get(links["report"]).json()
+        result = http.get(links["result"])
+    assert report["frame"]["up"] == {
+        **report["frame"]["up"],
+        "axis": "+y",
+        "how": "set by the user",
+    }
+    assert report["frame"]["units"]["unit"] == "mm"
+    out = tmp_path / "result.ply"
+    out.write_bytes(result.content)
+    assert np.array_equal(read_scan(out).xyz, read_scan(source).xyz)

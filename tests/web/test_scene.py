@@ -155,3 +155,27 @@ def test_scene_cache_is_bounded_and_reloads_changed_files(results: Path, tmp_pat
     first = cache.load(copy)
     write_scan(read_scan(results / "unlabelled.ply"), copy)
     assert cache.load(copy) is not first
+
+
+def test_a_y_up_millimetre_result_is_shown_levelled_in_metres(tmp_path: Path) -> None:
+    from jointseg.pipeline import PipelineConfig, segment_file
+    from jointseg.pipeline.stages import load_predictor
+    from jointseg.synth import make_room
+
+    room = make_room(11, points=20_000)
+    yup = Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb)
+    source, out, report = tmp_path / "yup.ply", tmp_path / "out.ply", tmp_path / "out.json"
+    write_scan(yup, source)
+    config = PipelineConfig.model_validate({"frame": {"up": "+y", "units": "mm"}})
+    done = segment_file(
+        source, out, config, predictor=load_predictor(config.network), max_points=10**6
+    )
+    report.write_text(__import__("json").dumps(done.report))
+    shown = load_scene(out, report)
+    # z up and metres again: the room's height along z, its footprint across x and y
+    extent = shown.extent
+    height = room.xyz[:, 2].max() - room.xyz[:, 2].min()
+    assert abs(extent[2] - height) < 0.01
+    assert np.all(extent < 20)
+    # without the report the file's own frame is shown (y up, millimetres)
+    assert load_scene(out).extent[1] > 1000

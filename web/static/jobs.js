@@ -66,7 +66,10 @@ function setupUpload() {
     if (!file) return;
     const form = new FormData();
     form.append("file", file, file.name);
-    form.append("config", JSON.stringify({ network: { name: $("network").value } }));
+    form.append("config", JSON.stringify({
+      network: { name: $("network").value },
+      frame: { up: $("up").value, units: $("units").value },
+    }));
     const request = new XMLHttpRequest(); // XHR, not fetch: it reports upload progress
     request.open("POST", "/v1/jobs");
     for (const [name, value] of Object.entries(authHeaders())) request.setRequestHeader(name, value);
