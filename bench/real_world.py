@@ -222,6 +222,12 @@ def frame_text(frame: Any) -> str:
     """The report's frame section as ``up=+y units=mm tilt=0.3 strays=12`` ('-' if none)."""
     if not isinstance(frame, dict) or not frame:
         return "-"
+    up, units = frame.get("up"), frame.get("units")
+    if isinstance(up, dict) and isinstance(units, dict):  # the frame stage's own report
+        text = f"up={up.get('axis')} ({up.get('confidence', 0):.2f}) units={units.get('unit')}"
+        if up.get("levelled"):
+            text += f" tilt={up.get('tilt_degrees', 0):.0f}"
+        return text + f" strays={frame.get('stray_points', 0)}"
     parts = [f"{short}={compact(frame[key])}" for key, short in FRAME_KEYS if key in frame]
     return " ".join(parts) if parts else json.dumps(frame, separators=(",", ":"))[:40]
 

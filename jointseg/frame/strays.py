@@ -21,6 +21,8 @@ OCCUPIED_SHARE = 1e-4
 #: is stray.
 CELL_M = 0.3
 MIN_NEIGHBOURS = 3
+#: A lonely point this far (m) outside the box of the other points is stray.
+BOX_TOLERANCE_M = 0.1
 #: More than this share of the scan is never called stray: that is structure, not noise.
 MAX_SHARE = 0.05
 
@@ -48,7 +50,8 @@ def bulk_mask(values: np.ndarray) -> np.ndarray:
     if len(right):
         jumps = np.flatnonzero(np.diff(right) > gap)
         stop = int(right[jumps[0]] if len(jumps) else right[-1])
-    return (idx >= start) & (idx <= stop)
+    # sparse points within a gap of the bulk's ends belong to it (a wall's last few returns)
+    return (idx > start - gap) & (idx < stop + gap)
 
 
 def isolated_mask(xyz: np.ndarray) -> np.ndarray:
@@ -78,7 +81,9 @@ def _key(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
 
 
 def find_strays(xyz: np.ndarray) -> np.ndarray:
-    """(N,) bool: the stray points of a levelled scan in metres."""
+    """(N,) bool: the stray points of a levelled scan in metres: cut off from the bulk by an
+    empty gap along an axis, or lonely and outside the box of the rest (where they would move
+    the extent every normalisation reads)."""
     stray = np.zeros(len(xyz), dtype=bool)
     if len(xyz) < 100:
         return stray
@@ -87,6 +92,9 @@ def find_strays(xyz: np.ndarray) -> np.ndarray:
     if stray.mean() > MAX_SHARE:
         stray[:] = False
     lonely = isolated_mask(xyz)
-    if lonely.mean() <= MAX_SHARE:
-        stray |= lonely
+    if lonely.mean() <= MAX_SHARE and (~(stray | lonely)).any():
+        # a lonely point inside the box of the rest moves no normalisation: leave it be
+        rest = xyz[~(stray | lonely)]
+        lo, hi = rest.min(axis=0) - BOX_TOLERANCE_M, rest.max(axis=0) + BOX_TOLERANCE_M
+        stray |= lonely & np.any((xyz < lo) | (xyz > hi), axis=1)
     return stray
