@@ -67,6 +67,12 @@ def predict(
     )
 
 
+COLOUR_HELP = (
+    "Feed the scans' colour; --no-colour trains a colour-free network (for scans without "
+    "colour, chosen automatically for them)."
+)
+
+
 def train(
     data: list[str] = typer.Option(
         ["synth"],
@@ -120,11 +126,7 @@ def train(
         0.1, "--slice", min=0.0, max=1.0, help="Share of crops keeping only a band above floor."
     ),
     tilt: float = typer.Option(3.0, min=0.0, max=15.0, help="Largest tilt in degrees."),
-    colour: bool = typer.Option(
-        True,
-        help="Feed the scans' colour; --no-colour trains a colour-free network (for scans "
-        "without colour, chosen automatically for them).",
-    ),
+    colour: bool = typer.Option(True, help=COLOUR_HELP),
     workers: int | None = typer.Option(
         None,
         min=0,

@@ -27,6 +27,9 @@ log = logging.getLogger(__name__)
 
 #: Tilts below this (degrees) are left alone: levelling a level scan would only move its labels.
 MIN_TILT_DEGREES = 1.0
+#: A scan less tall than this (m) along the up found is a slice or fragment, not a room: its
+#: up is the file's own +z.
+MIN_ROOM_HEIGHT_M = 1.5
 #: Decisions less sure than this are reported as warnings.
 UNSURE = 0.6
 
@@ -133,14 +136,16 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
     else:
         axis, axis_p = "xyz".index(params.up[1]), np.eye(3)["xyz".index(params.up[1])]
     units = _units(scan, params, sample, axis)
-    if params.up == "auto":
+    height = sample.extent(sample.directions[axis]) * units.metres
+    if params.up == "auto" and height >= MIN_ROOM_HEIGHT_M:
         up = gravity.estimate_up(sample, axis, axis_p, units.metres)
         how = "scan geometry"
+    elif params.up == "auto":
+        # a slice or a fragment, not a room: floor, ceiling and furniture heights say nothing
+        up = _given(sample, "+z", params.level, confidence=0.5)
+        how = f"the file's own (a partial scan, {height:.2f} m tall: too little to tell)"
     else:
-        direction = sample.directions[axis] if params.level else np.eye(3)[axis]
-        direction = direction * np.sign(direction[axis]) * (1 if params.up[0] == "+" else -1)
-        tilt = float(np.degrees(np.arccos(np.clip(abs(direction[axis]), -1, 1))))
-        up = gravity.UpEstimate(direction, params.up, tilt, 1.0, {params.up: 1.0})
+        up = _given(sample, params.up, params.level, confidence=1.0)
         how = "set by the user"
     vector = (
         up.up if (params.level and up.tilt_degrees >= MIN_TILT_DEGREES) else gravity.AXES[up.axis]
@@ -176,6 +181,17 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
         log.warning("%s", w)
     log.info("%s", frame.summary())
     return frame
+
+
+def _given(
+    sample: gravity.FrameSample, axis_name: str, level: bool, *, confidence: float
+) -> gravity.UpEstimate:
+    """Up along the signed file axis ``axis_name``, levelled by the floor's normals."""
+    axis = "xyz".index(axis_name[1])
+    direction = sample.directions[axis] if level else np.eye(3)[axis]
+    direction = direction * np.sign(direction[axis]) * (1 if axis_name[0] == "+" else -1)
+    tilt = float(np.degrees(np.arccos(np.clip(abs(direction[axis]), -1, 1))))
+    return gravity.UpEstimate(direction, axis_name, tilt, confidence, {axis_name: confidence})
 
 
 def _units(

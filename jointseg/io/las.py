@@ -500,26 +500,7 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
         scale *= 10.0
     header.scales = np.full(3, scale)
     header.offsets = lo
-    kept = like.meta.get("las")
-    if (
-        kept is not None
-        and np.ptp(kept["scales"]) == 0
-        and _fits(kept["scales"], kept["offsets"], lo, hi)
-    ):
-        # the input's own grid and origin: coordinates read from it write back unchanged
-        header.scales = kept["scales"]
-        header.offsets = kept["offsets"]
-        scale = float(np.max(kept["scales"]))
-        lo = kept["offsets"]
-    for record_id, description, data in (kept or {}).get("crs", []):
-        header.vlrs.append(
-            laspy.VLR(
-                user_id=PROJECTION_USER_ID,
-                record_id=record_id,
-                description=description,
-                record_data=data,
-            )
-        )
+    scale, lo = _keep_input_grid(header, like.meta.get("las"), scale, lo, hi)
     columns = field_columns(like.fields, path=path)
     values = {col.name: col.take(like.fields) for col in columns}
     intensity = values.get("intensity")
@@ -546,6 +527,33 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
             )
         )
     return LasLayout(header, scale, lo, tuple(columns), std_intensity, std_cls, extras)
+
+
+def _keep_input_grid(
+    header: laspy.LasHeader,
+    kept: dict[str, Any] | None,
+    scale: float,
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> tuple[float, np.ndarray]:
+    """Give ``header`` a LAS input's own grid and origin (coordinates read from it write back
+    unchanged) when the points fit them, and its CRS records; the scale and offsets used."""
+    if kept is None:
+        return scale, lo
+    if np.ptp(kept["scales"]) == 0 and _fits(kept["scales"], kept["offsets"], lo, hi):
+        header.scales = kept["scales"]
+        header.offsets = kept["offsets"]
+        scale, lo = float(np.max(kept["scales"])), kept["offsets"]
+    for record_id, description, data in kept.get("crs", []):
+        header.vlrs.append(
+            laspy.VLR(
+                user_id=PROJECTION_USER_ID,
+                record_id=record_id,
+                description=description,
+                record_data=data,
+            )
+        )
+    return scale, lo
 
 
 def _fits(scales: np.ndarray, offsets: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:

@@ -136,8 +136,8 @@ def run(
     Parameters
     ----------
     scan : Scan
-        Points in metres, z up; colour used when present; ``labels`` (ground truth) only for
-        the metrics.
+        Points in any axes and unit (the frame stage decides); colour used when present;
+        ``labels`` (ground truth) only for the metrics.
     config : PipelineConfig, optional
     progress : callable, optional
         ``progress(stage, fraction)`` for the stages ``network``, ``geometry`` and ``fusion``;
@@ -171,13 +171,7 @@ def run(
         timings["load_network"] = time.perf_counter() - started
 
     seed = config.seed
-    t = time.perf_counter()
-    frame = decide_frame(scan, config.frame)
-    work, index = work_scan(scan, frame)
-    predictor = colour_free_if_needed(predictor, config.network, frame.colour.usable)
-    report(progress, "frame", 1.0)
-    timings["frame"] = time.perf_counter() - t
-    chosen = predictor
+    frame, work, index, chosen = _frame_stage(scan, config, predictor, progress, timings)
 
     def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
         return chosen.predict(work, progress, cancel, seed=seed)
@@ -192,23 +186,38 @@ def run(
     metrics = _metrics(scan, net, geo, fused)
     timings["metrics"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - started
+    changed = int(np.count_nonzero(fused.changed))
     log.info(
-        "pipeline: %d points, %d segments, %d labels changed, %.1f s",
-        len(scan),
-        geo.n_segments,
-        int(np.count_nonzero(fused.changed)),
-        timings["total"],
+        "pipeline: %d points, %d segments, %d labels changed", len(scan), geo.n_segments, changed
     )
     return PipelineResult(
         network=net,
         geometry=geo,
         fusion=fused,
         config=config,
-        params=_resolved_params(config, predictor, geo),
+        params=_resolved_params(config, chosen, geo),
         timings=timings,
         metrics=metrics,
         frame=frame,
     )
+
+
+def _frame_stage(
+    scan: Scan,
+    config: PipelineConfig,
+    predictor: Predictor,
+    progress: ProgressFn | None,
+    timings: dict[str, float],
+) -> tuple[Frame, Scan, np.ndarray | None, Predictor]:
+    """Decide the frame, make the work scan (and the map back to the user's points), pick the
+    colour-free network for a scan without colour; timed as ``frame``."""
+    t = time.perf_counter()
+    frame = decide_frame(scan, config.frame)
+    work, index = work_scan(scan, frame)
+    chosen = colour_free_if_needed(predictor, config.network, frame.colour.usable)
+    report(progress, "frame", 1.0)
+    timings["frame"] = time.perf_counter() - t
+    return frame, work, index, chosen
 
 
 def expand(

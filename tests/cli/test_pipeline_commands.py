@@ -18,7 +18,14 @@ from jointseg.metrics import evaluate
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
-FIELDS = {"network_label", "network_confidence", "segment", "fused_label", "fused_confidence"}
+FIELDS = {
+    "network_label",
+    "network_confidence",
+    "segment",
+    "fused_label",
+    "fused_confidence",
+    "stray",
+}
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
@@ -137,6 +144,9 @@ def test_bad_config_exits_2_and_writes_nothing(rooms: Path, tmp_path, content, m
         (["--weights", "missing.pt"], "jointseg train"),
         (["--network", "pointnet"], "unknown network 'pointnet'"),
         (["-o", "out.txt"], "cannot store the output fields"),
+        (["--up", "sideways"], "frame.up"),
+        (["--units", "furlong"], "frame.units"),
+        (["--colour-free", "maybe"], "network.colour_free"),
     ],
 )
 def test_bad_options_exit_2_and_write_nothing(rooms: Path, tmp_path, extra, message) -> None:
@@ -188,3 +198,19 @@ def test_eval_refuses_unlabelled_scans_before_any_work(
     assert result.returncode == 2
     assert "plain.ply" in result.stderr and "no ground-truth labels" in result.stderr
     assert "Traceback" not in result.stderr and not out.exists()
+
+
+def test_segment_prints_the_frame_and_takes_up_and_units(random_weights, tmp_path) -> None:
+    room = make_room(23, points=20_000)
+    source = tmp_path / "yup_mm.ply"
+    write_scan(Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb), source)
+    out, report = tmp_path / "out.ply", tmp_path / "report.json"
+    result = run_cli(
+        "segment", str(source), "-o", str(out), "--report", str(report),
+        "--weights", str(random_weights), "--up", "+y", "--units", "mm",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "frame: up +y (set by the user" in result.stderr and "units mm" in result.stderr
+    frame = json.loads(report.read_text())["frame"]
+    assert frame["up"]["axis"] == "+y" and frame["units"]["metres_per_unit"] == 0.001
+    assert np.array_equal(read_scan(out).xyz, read_scan(source).xyz)

@@ -306,3 +306,11 @@ def test_a_tiled_run_takes_the_same_frame(room, predictor, tmp_path: Path) -> No
     assert agree >= 0.9, agree
     assert whole.metrics is not None and cut.metrics is not None
     assert abs(whole.metrics["fused"].miou - cut.metrics["fused"].miou) < 0.03
+
+
+def test_a_slice_of_a_room_keeps_the_files_up(room) -> None:
+    # the bottom metre of a room (like the S3DIS fragment): no ceiling, no storey to read
+    low = room.subset(room.xyz[:, 2] < room.xyz[:, 2].min() + 1.0)
+    frame = decide_frame(low)
+    assert frame.up.axis == "+z" and "partial" in frame.up_how
+    assert any("up axis unsure" in w for w in frame.warnings)

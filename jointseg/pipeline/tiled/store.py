@@ -156,17 +156,16 @@ def prepare(
     source : str
         The scan's name, for the plan and messages.
     tiles : TileParams
+        Where the cuts go.
     geometry : GeometryParams
         The thresholds to resolve once for every tile (from a contiguous patch of the scan).
     seed : int
     predictor : Predictor, optional
         When it is a :class:`~jointseg.network.backends.TilePredictor`, the whole scan's crop
         plan is made here, so the tiles together give the labels of an untiled run.
-    progress, cancel
-        ``progress("read", fraction)`` while spilling, ``("plan", fraction)`` while listing.
-    frame : callable, optional
-        Called once the chunks are spilled: the frame stage's entry for the plan (the chunks
-        were already put into the working frame).
+    progress, cancel, frame
+        ``progress("read", fraction)`` while spilling, ``("plan", fraction)`` while listing;
+        ``frame()``, after the spill, gives the plan's frame entry (the chunks came levelled).
 
     Returns
     -------
@@ -185,8 +184,7 @@ def prepare(
     sample, lower, upper, has_rgb, has_labels = _spill(
         chunks, count, columns, source=source, progress=progress, cancel=cancel
     )
-    # the bounds' corners make the plan's extent the scan's, not only the sample's
-    corners = np.array([lower[:2], upper[:2]])
+    corners = np.array([lower[:2], upper[:2]])  # the plan's extent is the scan's, not the sample's
     planned = plan_tiles(np.concatenate([sample, corners]), count, tiles)
     patch = _patch_box(planned, sample, count)
     boxes, patch_scan = _list_tiles(
@@ -198,18 +196,10 @@ def prepare(
     resolved = scan_params(patch_scan, geometry, n_points=count, seed=seed)
     anchoring = _anchor(workdir, count, lower, planned, has_rgb, predictor, seed)
     plan = TilePlan(
-        source=source,
-        points=count,
-        lower=_triple(lower),
-        upper=_triple(upper),
-        has_rgb=has_rgb,
-        has_labels=has_labels,
-        tiles=boxes,
-        geometry=resolved,
-        params=tiles,
-        anchoring=anchoring,
-        frame=None if frame is None else frame(),
-    )
+        source=source, points=count, lower=_triple(lower), upper=_triple(upper),
+        has_rgb=has_rgb, has_labels=has_labels, tiles=boxes, geometry=resolved, params=tiles,
+        anchoring=anchoring, frame=None if frame is None else frame(),
+    )  # fmt: skip
     _write_plan(workdir, plan)
     log.info("tiles: %d points in %d tiles (%s)", count, len(boxes), source)
     return plan
