@@ -1,9 +1,9 @@
 """Colour as the network was trained on it, and scans that have none.
 
-The training rooms (S3DIS, ScanNet) span mean brightness of about 85-170 (of 255) and a warm
-white balance (red/green about 1.0-1.15, blue/green about 0.85-0.9). A scan far outside that is
-brought back inside by a gain per channel; one within it is left untouched, so a well-exposed
-scan's labels do not change. A scan whose colour is one value everywhere (an exporter's
+The training rooms (S3DIS, ScanNet) span mean brightness of about 85-170 (of 255) and white
+balances from red/green 0.92 and blue/green 1.07 (a cold ScanNet room) to 1.24 and 0.71 (warm
+ones). A scan outside that is brought back to the edge of it by a gain per channel; one within
+it is left untouched, so a well-exposed scan's labels do not change. A scan whose colour is one value everywhere (an exporter's
 default) carries no colour at all.
 """
 
@@ -16,9 +16,9 @@ import numpy as np
 #: Mean brightness outside (LOW, HIGH) is scaled to the near target.
 LOW, HIGH = 80.0, 180.0
 TARGET_LOW, TARGET_HIGH = 115.0, 150.0
-#: Channel ratios to green outside these ranges are brought to the middle value.
-RED_RANGE, RED_TARGET = (0.95, 1.2), 1.05
-BLUE_RANGE, BLUE_TARGET = (0.78, 1.0), 0.9
+#: Channel ratios to green outside these ranges are brought to the nearer end.
+RED_RANGE = (0.85, 1.3)
+BLUE_RANGE = (0.65, 1.1)
 #: Spread (0-255) under which colour is taken as constant.
 CONSTANT_STD = 1.0
 
@@ -47,10 +47,8 @@ def decide_colour(rgb: np.ndarray | None, correct: bool = True) -> ColourDecisio
     mean = sample.mean(axis=0) + 1e-6
     gains = np.ones(3)
     red, blue = mean[0] / mean[1], mean[2] / mean[1]
-    if not RED_RANGE[0] <= red <= RED_RANGE[1]:
-        gains[0] = RED_TARGET / red
-    if not BLUE_RANGE[0] <= blue <= BLUE_RANGE[1]:
-        gains[2] = BLUE_TARGET / blue
+    gains[0] = float(np.clip(red, *RED_RANGE)) / red
+    gains[2] = float(np.clip(blue, *BLUE_RANGE)) / blue
     light = float((mean * gains).mean())
     if light < LOW:
         gains *= TARGET_LOW / light

@@ -30,6 +30,8 @@ MIN_TILT_DEGREES = 1.0
 #: A scan less tall than this (m) along the up found is a slice or fragment, not a room: its
 #: up is the file's own +z.
 MIN_ROOM_HEIGHT_M = 1.5
+#: Heights (m) along up outside this range are no building's: the units must be wrong.
+MIN_PLAUSIBLE_M, MAX_PLAUSIBLE_M = 0.05, 200.0
 #: Decisions less sure than this are reported as warnings.
 UNSURE = 0.6
 
@@ -161,7 +163,11 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
             f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
             "or set it with --up"
         )
-    if units.confidence < UNSURE:
+    if not MIN_PLAUSIBLE_M <= height <= MAX_PLAUSIBLE_M:
+        warnings.append(
+            f"the scan is {height:.3g} m tall in {units.unit}: no indoor scan is; check --units"
+        )
+    elif units.confidence < UNSURE:
         warnings.append(
             f"units unsure ({units.unit}, confidence {units.confidence:.2f}): set them with --units"
         )

@@ -264,6 +264,8 @@ def further_planes(
                         plane_distance=plane_distance,
                         margin=cell,
                     )
+                    if len(pts) < 3:  # the seeds' own plane holds none of the free points
+                        continue
                     taken[pts] = True
                     plane = Plane(*fit_plane(xyz[pts]), kind, f"{kind}_{len(found)}")
                     found.append((plane, pts))
