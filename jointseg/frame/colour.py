@@ -3,8 +3,8 @@
 The training rooms (S3DIS, ScanNet) span mean brightness of about 85-170 (of 255) and white
 balances from red/green 0.92 and blue/green 1.07 (a cold ScanNet room) to 1.24 and 0.71 (warm
 ones). A scan outside that is brought back to the edge of it by a gain per channel; one within
-it is left untouched, so a well-exposed scan's labels do not change. A scan whose colour is one value everywhere (an exporter's
-default) carries no colour at all.
+it is left untouched, so a well-exposed scan's labels do not change. A scan whose colour is
+one value everywhere (an exporter's default) carries no colour at all.
 """
 
 from __future__ import annotations
