@@ -135,8 +135,8 @@ def main() -> None:
     built = time.perf_counter() - t
     if args.fit:
         aw, sw = fit([r for r in items if not r["judge"]])
-        gravity.AXIS_WEIGHTS[:] = aw
-        gravity.SIGN_WEIGHTS[:] = sw
+        gravity.AXIS_WEIGHTS = aw
+        gravity.SIGN_WEIGHTS = sw
         gravity.MODEL_FILE.write_text(
             json.dumps(
                 {

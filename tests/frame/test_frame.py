@@ -314,3 +314,12 @@ def test_a_slice_of_a_room_keeps_the_files_up(room) -> None:
     frame = decide_frame(low)
     assert frame.up.axis == "+z" and "partial" in frame.up_how
     assert any("up axis unsure" in w for w in frame.warnings)
+
+
+def test_millimetres_forced_as_metres_give_labels_and_a_warning(room, predictor) -> None:
+    scan = moved(room, np.eye(3), 1000.0)
+    config = PipelineConfig.model_validate({"frame": {"units": "m"}})
+    result = run(scan, config, predictor=predictor)  # no IndexError from the plane fits
+    assert len(result.fused_labels) == len(scan)
+    assert result.frame is not None
+    assert any("no indoor scan is" in w for w in result.frame.warnings)
