@@ -7,6 +7,7 @@ import sys
 import time
 from enum import StrEnum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import typer
@@ -14,6 +15,7 @@ from rich.console import Console
 from rich.table import Column, Table
 
 from jointseg.cli.progress_bar import progress_bar
+from jointseg.exceptions import ConfigError
 from jointseg.io import DEFAULT_MAX_POINTS, read_scan, write_scan
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND
 
@@ -45,26 +47,76 @@ def predict(
     ),
     seed: int = typer.Option(0, help="Sampling randomness; the same seed gives the same labels."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
+    up: str = typer.Option("auto", help="auto, +z, -z, +y, -y, +x or -x: the axis that points up."),
+    units: str = typer.Option("auto", help="auto, m, cm, mm, ft, us-ft or in."),
 ) -> None:
-    """Label every point with the network; writes network_label and network_confidence."""
+    """Label every point with the network; writes network_label, network_confidence and
+    stray (the scan is levelled and put in metres first, as `jointseg segment` does)."""
     from jointseg.network import load
 
+    frame_params = _frame_params(up, units)
     predictor = load(network.value, weights, device=device, batch_size=batch_size)
     started = time.perf_counter()
     with progress_bar() as progress:
         scan = read_scan(source, max_points=max_points, progress=progress)
-        result = predictor.predict(scan, progress=progress, seed=seed)
+        labels, confidence, stray, crops = _predict_in_frame(
+            scan, predictor, frame_params, network.value, weights, seed, progress
+        )
         out = scan.with_fields(
-            network_label=result.labels.astype(np.int32),
-            network_confidence=result.confidence.astype(np.float32),
+            network_label=labels.astype(np.int32),
+            network_confidence=confidence.astype(np.float32),
+            stray=stray.astype(np.uint8),
         )
         write_scan(out, output, progress=progress)
     seconds = time.perf_counter() - started
     typer.echo(
         f"{len(scan):,} points labelled with {network.value} in {seconds:.1f} s "
-        f"({result.crops} crops) -> {output}",
+        f"({crops} crops) -> {output}",
         err=True,
     )
+
+
+def _frame_params(up: str, units: str) -> Any:
+    """The frame options, validated before any work (a bad value is one line, exit 2)."""
+    from pydantic import ValidationError
+
+    from jointseg.frame.params import FrameParams
+
+    try:
+        return FrameParams.model_validate({"up": up, "units": units})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise ConfigError(f"--{first['loc'][0]}: {first['msg']}") from None
+
+
+def _predict_in_frame(
+    scan: Any,
+    predictor: Any,
+    params: Any,
+    name: str,
+    weights: Path | None,
+    seed: int,
+    progress: Any,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The network's labels and confidence for every point of ``scan``, run in the levelled
+    metric frame (strays set aside, then given their nearest kept point's), and the stray mask."""
+    from jointseg.cli.pipeline_commands import frame_line
+    from jointseg.frame.decide import decide_frame, work_scan
+    from jointseg.pipeline.config import NetworkConfig
+    from jointseg.pipeline.stages import colour_free_if_needed
+
+    frame = decide_frame(scan, params)
+    typer.echo(frame_line(frame.report()), err=True)
+    for warning in frame.warnings:
+        typer.echo(f"warning: {warning}", err=True)
+    work, index = work_scan(scan, frame)
+    config = NetworkConfig(name=name, weights=weights)
+    chosen = colour_free_if_needed(predictor, config, frame.colour.usable)
+    result = chosen.predict(work, progress=progress, seed=seed)
+    labels, confidence = result.labels, result.confidence
+    if index is not None:
+        labels, confidence = labels[index], confidence[index]
+    return labels, confidence, frame.stray, result.crops
 
 
 COLOUR_HELP = (

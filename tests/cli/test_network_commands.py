@@ -96,3 +96,26 @@ def test_train_with_bad_sources_is_a_one_line_error(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert "add up to 1.4" in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "m.pt").exists()
+
+
+def test_predict_levels_a_y_up_millimetre_scan_like_segment(tmp_path: Path) -> None:
+    from jointseg.scan import Scan
+
+    room = make_room(2, points=20_000)
+    level, yup = tmp_path / "level.ply", tmp_path / "yup_mm.ply"
+    write_scan(room, level)
+    write_scan(Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb), yup)
+    outs = []
+    for name, source in (("level", level), ("yup", yup)):
+        out = tmp_path / f"{name}_pred.ply"
+        result = run_cli(
+            "predict", str(source), "-o", str(out), "--up", "+y" if name == "yup" else "auto"
+        )
+        assert result.returncode == 0, result.stderr
+        outs.append(read_scan(out))
+    assert "frame: up +y (set by the user" in result.stderr and "units mm" in result.stderr
+    agree = np.mean(outs[0].fields["network_label"] == outs[1].fields["network_label"])
+    assert agree >= 0.9, agree
+    assert np.array_equal(outs[1].xyz, read_scan(yup).xyz)
+    bad = run_cli("predict", str(yup), "-o", str(tmp_path / "x.ply"), "--units", "furlong")
+    assert bad.returncode == 2 and "--units" in bad.stderr and "Traceback" not in bad.stderr
