@@ -47,7 +47,9 @@ def geometry(
     seed: int = typer.Option(0, help="RANSAC seed."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
 ) -> None:
-    """Segment a scan geometrically (planes, Euclidean clusters, colour regions)."""
+    """Segment a scan geometrically (planes, Euclidean clusters, colour regions), levelled and in
+    metres first as `jointseg segment` does (main planes are reported in that frame)."""
+    from jointseg.frame.decide import decide_frame, work_scan
     from jointseg.geometry import GeometryParams, segment
     from jointseg.metrics import segment_purity
 
@@ -56,22 +58,30 @@ def geometry(
     with progress_bar() as progress:
         scan = read_scan(source, max_points=max_points, progress=progress)
         read_s = time.perf_counter() - started
-        result = segment(scan, geometry_params, progress=progress, seed=seed)
+        frame = decide_frame(scan)
+        work, index = work_scan(scan, frame)
+        result = segment(work, geometry_params, progress=progress, seed=seed)
+        segments, main_plane = result.segments, result.main_plane
+        if index is not None:  # strays take their nearest kept point's segment
+            segments, main_plane = segments[index], main_plane[index]
         out = scan.with_fields(
-            segment=result.segments, main_plane=result.main_plane.astype(np.uint8)
+            segment=segments,
+            main_plane=main_plane.astype(np.uint8),
+            stray=frame.stray.astype(np.uint8),
         )
         write_scan(out, output, progress=progress)
     body = {
         "input": str(source),
         "points": len(scan),
         "segments": result.n_segments,
-        "main_planes": [vars(p) for p in result.planes],
-        "main_plane_points": int(result.main_plane.sum()),
+        "main_planes": [vars(p) for p in result.planes],  # in the frame's work coordinates
+        "main_plane_points": int(main_plane.sum()),
         "timings_s": {"read": read_s, **result.timings, "total": time.perf_counter() - started},
         "params": result.params.model_dump(),
         "segment_purity": None
         if scan.labels is None or not (scan.labels >= 0).any()
-        else segment_purity(scan.labels, result.segments),
+        else segment_purity(scan.labels, segments),
+        "frame": frame.report(),
     }
     if report is not None:
         with atomic_open(report) as fh:

@@ -85,3 +85,26 @@ def test_bad_params_file_exits_2_and_writes_nothing(
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert not out.exists()
+
+
+def test_geometry_levels_a_y_up_millimetre_scan_first(tmp_path: Path) -> None:
+    from jointseg.scan import Scan
+
+    room = make_room(4, points=30_000)
+    yup = tmp_path / "yup_mm.ply"
+    write_scan(
+        Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb, room.labels),
+        yup,
+    )
+    level = tmp_path / "level.ply"
+    write_scan(room, level)
+    purities = []
+    for source in (level, yup):
+        out, report = tmp_path / f"{source.stem}_seg.ply", tmp_path / f"{source.stem}.json"
+        result = run_cli("geometry", str(source), "-o", str(out), "--report", str(report))
+        assert result.returncode == 0, result.stderr
+        body = json.loads(report.read_text())
+        purities.append(body["segment_purity"])
+    assert body["frame"]["up"]["axis"] == "+y" and body["frame"]["units"]["unit"] == "mm"
+    assert purities[1] >= purities[0] - 0.02, purities  # as pure as the level scan's segments
+    assert np.array_equal(read_scan(out).xyz, read_scan(yup).xyz)
