@@ -6,7 +6,7 @@ import json
 import time
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
@@ -64,10 +64,31 @@ def info(
     from jointseg.summary import summarise
 
     summary = summarise(scan)
+    frame = _frame_of(scan)
     if as_json:
-        typer.echo(json.dumps(summary.model_dump(), indent=2))
+        typer.echo(json.dumps({**summary.model_dump(), "frame": frame}, indent=2))
         return
-    _print_summary(path, summary)
+    metres = 1.0 if frame is None else float(frame["units"]["metres_per_unit"])
+    _print_summary(path, summary, metres)
+    if frame is not None:
+        from jointseg.cli.pipeline_commands import frame_line
+
+        stdout_console.print(frame_line(frame), markup=False, highlight=False)
+        for warning in frame["warnings"]:
+            stdout_console.print(f"warning: {warning}", markup=False, highlight=False)
+
+
+def _frame_of(scan: Any) -> dict[str, Any] | None:
+    """What the frame stage would decide for the scan (None for one too small to place)."""
+    from jointseg.exceptions import ConfigError
+    from jointseg.frame.decide import decide_frame
+
+    if len(scan) < 20:
+        return None
+    try:
+        return decide_frame(scan).report()
+    except ConfigError:
+        return None
 
 
 def convert(
@@ -82,16 +103,18 @@ def convert(
     typer.echo(f"wrote {len(scan):,} points to {target}", err=True)
 
 
-def _print_summary(path: Path, s: ScanSummary) -> None:
+def _print_summary(path: Path, s: ScanSummary, metres: float = 1.0) -> None:
+    """The summary as text; ``metres`` per file unit (the frame stage's decision) for the
+    spacing, which users read in millimetres."""
     out = stdout_console
     out.print(f"[bold]{path}[/bold] ({s.source_format})")
     out.print(f"points   {s.points:,}")
     lo = ", ".join(f"{v:.3f}" for v in s.bounds_min)
     hi = ", ".join(f"{v:.3f}" for v in s.bounds_max)
     ext = " x ".join(f"{v:.2f}" for v in s.extent)
-    out.print(f"bounds   ({lo}) .. ({hi}) m")
-    out.print(f"extent   {ext} m")
-    out.print(f"spacing  {s.spacing * 1000:.1f} mm (median nearest-neighbour distance)")
+    out.print(f"bounds   ({lo}) .. ({hi}) (file units)")
+    out.print(f"extent   {ext} (file units)")
+    out.print(f"spacing  {s.spacing * metres * 1000:.1f} mm (median nearest-neighbour distance)")
     out.print(f"colour   {'yes' if s.has_rgb else 'no'}")
     if s.fields:
         table = Table("field", "dtype", "width", "min", "max", title="fields")

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jointseg.io import read_scan
+from jointseg.io import read_scan, write_scan
+from jointseg.synth import make_room
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -104,3 +105,15 @@ def test_bad_input_exits_2_with_one_clear_line(
     assert message in result.stderr
     assert not (tmp_path / "out.xyzzy").exists()
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_info_tells_the_up_axis_and_units_it_finds(tmp_path: Path) -> None:
+    from jointseg.scan import Scan
+
+    room = make_room(8, points=20_000)
+    path = tmp_path / "yup_mm.ply"
+    write_scan(Scan(room.xyz[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0]) * 1000.0, room.rgb), path)
+    body = json.loads(run_cli("info", str(path), "--json").stdout)
+    assert body["frame"]["up"]["axis"] == "+y" and body["frame"]["units"]["unit"] == "mm"
+    text = run_cli("info", str(path)).stdout
+    assert "units mm" in text and "up +y" in text
