@@ -144,7 +144,7 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
         how = "scan geometry"
     elif params.up == "auto":
         # a slice or a fragment, not a room: floor, ceiling and furniture heights say nothing
-        up = _given(sample, "+z", params.level, confidence=0.5)
+        up = _given(sample, "+z", False, confidence=0.5)  # nor levelled: too little to level by
         how = f"the file's own (a partial scan, {height:.2f} m tall: too little to tell)"
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
