@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from jointseg.frame import gravity
+from jointseg.frame.decide import rotation_about
 from jointseg.io import read_scan
 from jointseg.synth import make_room
 
@@ -27,20 +28,12 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 JUDGING = ("area6_office_4", "scene0002", "scene0005", "scene0007")
 
 
-def rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
-    """Rodrigues' rotation about a unit ``axis``."""
-    a = axis / np.linalg.norm(axis)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    t = np.radians(degrees)
-    return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
-
-
 def to_axis(target: str) -> np.ndarray:
     """A proper rotation taking +z to the signed axis ``target``."""
     want = gravity.AXES[target]
     if abs(want[2]) > 0.5:
-        return np.eye(3) if want[2] > 0 else rotation(np.array([1.0, 0, 0]), 180)
-    return rotation(np.cross([0.0, 0.0, 1.0], want), 90)
+        return np.eye(3) if want[2] > 0 else rotation_about(np.array([1.0, 0, 0]), 180)
+    return rotation_about(np.cross([0.0, 0.0, 1.0], want), 90)
 
 
 def scans() -> list[tuple[str, np.ndarray, bool]]:
@@ -62,8 +55,8 @@ def rows(turns: int, seed: int) -> list[dict]:
     for name, xyz, judge in scans():
         for target in gravity.AXES:
             for _ in range(turns):
-                tilt = rotation(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 20))
-                yaw = rotation(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 360))
+                tilt = rotation_about(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 20))
+                yaw = rotation_about(np.array([0.0, 0.0, 1.0]), rng.uniform(0, 360))
                 r = to_axis(target) @ tilt @ yaw
                 moved = xyz @ r.T
                 sample = gravity.frame_sample(moved, rng)

@@ -29,12 +29,14 @@ import laspy
 import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
+from jointseg.frame.decide import rotation_about
+from jointseg.frame.units import UNITS
 from jointseg.io import write_scan
 from jointseg.scan import Scan
 
 #: US survey feet per metre (1 ftUS = 1200/3937 m) and international feet per metre.
-FT_US_PER_M = 3937.0 / 1200.0
-FT_PER_M = 1.0 / 0.3048
+FT_US_PER_M = 1.0 / UNITS["us-ft"]
+FT_PER_M = 1.0 / UNITS["ft"]
 
 #: EPSG:2227, NAD83 / California zone 3 (ftUS), as OGC WKT 1 (what pyproj would write; pyproj
 #: is not installed, so the record is written as text). Its linear unit is the US survey foot.
@@ -121,15 +123,6 @@ def rotated(
 y_up: Maker = functools.partial(rotated, matrix=Y_UP, name="y up")
 z_down: Maker = functools.partial(rotated, matrix=Z_DOWN, name="z down")
 x_up: Maker = functools.partial(rotated, matrix=X_UP, name="x up")
-
-
-def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:
-    """The rotation matrix by ``degrees`` about unit vector ``axis`` (Rodrigues)."""
-    k = np.asarray(axis, dtype=np.float64)
-    k = k / np.linalg.norm(k)
-    a = np.radians(degrees)
-    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(a) * cross + (1.0 - np.cos(a)) * cross @ cross
 
 
 def tilted(

@@ -100,13 +100,12 @@ def _predict_in_frame(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """The network's labels and confidence for every point of ``scan``, run in the levelled
     metric frame (strays set aside, then given their nearest kept point's), and the stray mask."""
-    from jointseg.cli.pipeline_commands import frame_line
     from jointseg.frame.decide import decide_frame, work_scan
     from jointseg.pipeline.config import NetworkConfig
     from jointseg.pipeline.stages import colour_free_if_needed
 
     frame = decide_frame(scan, params)
-    typer.echo(frame_line(frame.report()), err=True)
+    typer.echo(frame.summary(), err=True)
     for warning in frame.warnings:
         typer.echo(f"warning: {warning}", err=True)
     work, index = work_scan(scan, frame)

@@ -178,7 +178,9 @@ def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:
         _write_text(report, json.dumps(body, indent=2))
     frame = body.get("frame")
     if frame is not None:
-        typer.echo(frame_line(frame), err=True)
+        from jointseg.frame.decide import summary_line
+
+        typer.echo(summary_line(frame), err=True)
         for warning in frame["warnings"]:
             typer.echo(f"warning: {warning}", err=True)
     where = "" if done.tiles is None else f" in {done.tiles} tiles"
@@ -193,18 +195,6 @@ def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:
         )
         line += f"\nmIoU network {network} -> fused {fused} (oracle {oracle})"
     typer.echo(line, err=True)
-
-
-def frame_line(frame: dict) -> str:
-    """The report's frame section in one line."""
-    up, units = frame["up"], frame["units"]
-    tilt = f", levelled {up['tilt_degrees']:.1f} deg" if up["levelled"] else ""
-    colour = frame["colour"]["kind"]
-    return (
-        f"frame: up {up['axis']} ({up['how']}, {up['confidence']:.2f}{tilt}); units "
-        f"{units['unit']} ({units['how']}); {frame['stray_points']:,} stray points; colour "
-        f"{colour}{' corrected' if frame['colour']['gains'] else ''}"
-    )
 
 
 def _scan_paths(paths: list[Path]) -> list[Path]:

@@ -71,9 +71,9 @@ def info(
     metres = 1.0 if frame is None else float(frame["units"]["metres_per_unit"])
     _print_summary(path, summary, metres)
     if frame is not None:
-        from jointseg.cli.pipeline_commands import frame_line
+        from jointseg.frame.decide import summary_line
 
-        stdout_console.print(frame_line(frame), markup=False, highlight=False)
+        stdout_console.print(summary_line(frame), markup=False, highlight=False)
         for warning in frame["warnings"]:
             stdout_console.print(f"warning: {warning}", markup=False, highlight=False)
 

@@ -52,6 +52,7 @@ class Frame:
     up: gravity.UpEstimate
     up_how: str
     units: UnitsDecision
+    levelled: bool
     identity: bool
     warnings: list[str] = field(default_factory=list)
 
@@ -74,7 +75,7 @@ class Frame:
             "up": {
                 "axis": self.up.axis,
                 "tilt_degrees": round(self.up.tilt_degrees, 2),
-                "levelled": bool(not self.identity and self.up.tilt_degrees >= MIN_TILT_DEGREES),
+                "levelled": self.levelled,
                 "how": self.up_how,
                 "confidence": round(self.up.confidence, 3),
             },
@@ -97,16 +98,29 @@ class Frame:
         }
 
     def summary(self) -> str:
-        """One line for the command line."""
-        up = self.up
-        tilt = f", tilt {up.tilt_degrees:.1f} deg" if up.tilt_degrees >= MIN_TILT_DEGREES else ""
-        colour = {"rgb": "colour", "none": "no colour", "constant": "constant colour (ignored)"}
-        gains = " (exposure corrected)" if self.colour.gains is not None else ""
-        return (
-            f"frame: up {up.axis} ({self.up_how}{tilt}), units {self.units.unit} "
-            f"({self.units.how}), {int(self.stray.sum())} stray points, "
-            f"{colour[self.colour.kind]}{gains}"
-        )
+        """One line for the command line and the log."""
+        return summary_line(self.report())
+
+
+def summary_line(frame: dict[str, Any]) -> str:
+    """A report's frame section in one line (the CLI prints it, the log keeps it)."""
+    up, units = frame["up"], frame["units"]
+    tilt = f", levelled {up['tilt_degrees']:.1f} deg" if up["levelled"] else ""
+    colour = frame["colour"]["kind"]
+    return (
+        f"frame: up {up['axis']} ({up['how']}, {up['confidence']:.2f}{tilt}); units "
+        f"{units['unit']} ({units['how']}); {frame['stray_points']:,} stray points; colour "
+        f"{colour}{' corrected' if frame['colour']['gains'] else ''}"
+    )
+
+
+def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:
+    """The rotation by ``degrees`` about ``axis`` (Rodrigues' formula)."""
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    a = np.radians(degrees)
+    cross = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(a) * cross + (1.0 - np.cos(a)) * cross @ cross
 
 
 def rotation_to_z(up: np.ndarray) -> np.ndarray:
@@ -149,15 +163,12 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
         how = "set by the user"
-    vector = (
-        up.up if (params.level and up.tilt_degrees >= MIN_TILT_DEGREES) else gravity.AXES[up.axis]
-    )
-    rotation = rotation_to_z(vector)
+    levelled = params.level and up.tilt_degrees >= MIN_TILT_DEGREES
+    rotation = rotation_to_z(up.up if levelled else gravity.AXES[up.axis])
     colour = decide_colour(scan.rgb, params.colour)
-    level = up.axis == "+z" and (not params.level or up.tilt_degrees < MIN_TILT_DEGREES)
     work = ((scan.xyz - centre) @ rotation.T) * units.metres
     stray = find_strays(work) if params.strays else np.zeros(len(scan), dtype=bool)
-    identity = bool(level and units.metres == 1.0)
+    identity = bool(up.axis == "+z" and not levelled and units.metres == 1.0)
     if up.confidence < UNSURE:
         warnings.append(
             f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
@@ -180,6 +191,7 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
         up=up,
         up_how=how,
         units=units,
+        levelled=levelled,
         identity=identity,
         warnings=warnings,
     )

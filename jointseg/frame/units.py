@@ -56,7 +56,6 @@ def unit_named(factor: float) -> str | None:
 def unit_from_wkt(text: str) -> str | None:
     """The horizontal linear unit of an OGC WKT CRS (WKT1 or WKT2): its first length unit
     (angular units are skipped; a compound CRS names the horizontal part first)."""
-    found = None
     text = _ELLIPSOID.sub("", text)  # WKT2 gives the ellipsoid's axes a length unit of its own
     for name, factor in _WKT_UNIT.findall(text):
         try:
@@ -66,9 +65,9 @@ def unit_from_wkt(text: str) -> str | None:
         if "degree" in name.lower() or "radian" in name.lower() or "grad" in name.lower():
             continue
         unit = unit_named(value)
-        if unit is not None and found is None:
-            found = unit  # the first length unit is the horizontal CRS's, before any VERT_CS
-    return found
+        if unit is not None:
+            return unit  # the first length unit is the horizontal CRS's, before any VERT_CS
+    return None
 
 
 def unit_from_geokeys(data: bytes) -> str | None:

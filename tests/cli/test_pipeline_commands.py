@@ -15,17 +15,11 @@ import pytest
 from jointseg.classes import CLASS_NAMES
 from jointseg.io import read_scan, write_scan
 from jointseg.metrics import evaluate
+from jointseg.pipeline import OUTPUT_FIELDS
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
-FIELDS = {
-    "network_label",
-    "network_confidence",
-    "segment",
-    "fused_label",
-    "fused_confidence",
-    "stray",
-}
+FIELDS = set(OUTPUT_FIELDS)
 
 
 def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:

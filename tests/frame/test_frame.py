@@ -12,7 +12,7 @@ import pytest
 
 from jointseg.exceptions import ConfigError
 from jointseg.frame import gravity
-from jointseg.frame.decide import decide_frame, rotation_to_z
+from jointseg.frame.decide import decide_frame, rotation_about, rotation_to_z
 from jointseg.frame.params import FrameParams
 from jointseg.frame.strays import find_strays
 from jointseg.frame.units import UNITS, unit_from_geokeys, unit_from_wkt, units_from_scale
@@ -34,13 +34,6 @@ US_FT_WKT = (
     'UNIT["degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic_2SP"],'
     'UNIT["US survey foot",0.3048006096012192],AXIS["Easting",EAST],AXIS["Northing",NORTH]]'
 )
-
-
-def rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
-    a = axis / np.linalg.norm(axis)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    t = np.radians(degrees)
-    return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k
 
 
 def delivered(up: str) -> np.ndarray:
@@ -73,7 +66,7 @@ def test_the_up_direction_of_synthetic_rooms_is_found_from_any_axis_and_tilt() -
     for seed in (3201, 3202, 3203, 3204):
         scan = make_room(seed, points=40_000, shape="L" if seed % 2 else "box")
         for up in gravity.AXES:
-            tilt = rotation(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 15))
+            tilt = rotation_about(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 15))
             r = delivered(up) @ tilt
             frame = decide_frame(moved(scan, r), FrameParams(strays=False))
             cases += 1
@@ -96,7 +89,7 @@ def test_another_up_axis_gives_the_level_labels(room, predictor, level, up) -> N
 
 @needs_weights
 def test_a_15_degree_tilt_is_levelled_and_gives_the_level_labels(room, predictor, level) -> None:
-    r = rotation(np.array([1.0, 0.4, 0.0]), 15.0)
+    r = rotation_about(np.array([1.0, 0.4, 0.0]), 15.0)
     result = run(moved(room, r), PipelineConfig(), predictor=predictor)
     assert result.frame is not None
     assert abs(result.frame.up.tilt_degrees - 15.0) < 1.5

@@ -39,7 +39,7 @@ def sample_scan(source: Any, max_points: int) -> tuple[Scan, int]:
         stride = max(1, count // SAMPLE_POINTS)
         xyz, rgb, seen = [], [], 0
         meta: dict[str, Any] = {}
-        fmt = chunks.format if hasattr(chunks, "format") else None
+        fmt = chunks.format
         for chunk in chunks.chunks(1_000_000):
             first = (-seen) % stride
             xyz.append(chunk.xyz[first::stride])
