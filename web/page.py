@@ -18,7 +18,7 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel, Field
 
-from jointseg.network.registry import BACKENDS
+from jointseg.network.registry import installed_backends
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +35,10 @@ class PageConfig(BaseModel):
     """What the job page needs to know besides the API."""
 
     viewer_port: int = Field(description="Port of the viewer, on the same host as the page.")
-    networks: list[str] = Field(description="Network backends a job can choose.")
+    networks: list[str] = Field(
+        description="Network backends a job can choose: those with weights on this service "
+        "(the API refuses a job for any other)."
+    )
 
 
 def _static(name: str) -> bytes:
@@ -62,9 +65,10 @@ def job_page_router() -> APIRouter:
 
     @router.get("/web/config.json", response_model=PageConfig, include_in_schema=False)
     def config(request: Request) -> PageConfig:
-        """Where the viewer is and which networks can be chosen."""
+        """Where the viewer is and which networks can be chosen (asked on every load, so a
+        network whose weights were pulled since shows up without a restart)."""
         settings = request.app.state.services.settings
-        return PageConfig(viewer_port=viewer_port(settings), networks=list(BACKENDS))
+        return PageConfig(viewer_port=viewer_port(settings), networks=list(installed_backends()))
 
     @router.get("/web/{name}", include_in_schema=False)
     def asset(name: str) -> Response:

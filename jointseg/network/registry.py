@@ -34,6 +34,8 @@ __all__ = [
     "BackendInfo",
     "available_backends",
     "backend",
+    "has_weights",
+    "installed_backends",
     "load",
     "resolve_weights",
 ]
@@ -116,6 +118,27 @@ def resolve_weights(name: str, weights: str | os.PathLike[str] | None = None) ->
     if record.published is not None:
         return published.pulled_path(record.published)
     return record.bundled
+
+
+def has_weights(name: str) -> bool:
+    """Whether backend ``name`` has the weights it would use by default on this machine.
+
+    Only the file's presence is checked (no torch, no read), so the job service can refuse a
+    job it cannot run at submission and the job page can offer only the networks that run.
+    """
+    if name not in REGISTRY:
+        return False
+    try:
+        path = resolve_weights(name)
+    except ConfigError:  # its variable names published weights not pulled yet
+        return False
+    return path is not None and path.is_file()
+
+
+def installed_backends() -> tuple[str, ...]:
+    """The backends with weights on this machine (:func:`has_weights`), in :data:`BACKENDS`
+    order."""
+    return tuple(name for name in BACKENDS if has_weights(name))
 
 
 def _named_or_path(weights: str) -> Path:

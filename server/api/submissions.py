@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
 from jointseg.io import ScanInfo, probe_scan, read_scan
 from jointseg.network import published
-from jointseg.network.registry import BACKENDS
+from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
 from server.api.uploads import ReceivedUpload
@@ -39,18 +39,10 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
     ------
     ConfigError
         For invalid JSON or values, naming the field (``config.fusion.ratio_threshold``), an
-        unknown network, or weights that do not exist or lie outside ``settings.weights_dirs``.
+        unknown network, a network without weights on this service (the job would only fail
+        in the worker), or weights that do not exist or lie outside ``settings.weights_dirs``.
     """
-    if text is None or not text.strip():
-        return PipelineConfig()
-    try:
-        config = PipelineConfig.model_validate_json(text)
-    except ValidationError as exc:
-        first = exc.errors()[0]
-        if first["type"] == "json_invalid":
-            raise ConfigError(f"config: not valid JSON: {first['msg']}") from exc
-        problems = "; ".join(f"config.{_location(e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
-        raise ConfigError(problems) from exc
+    config = _validated(text)
     network = config.network
     if network.name not in BACKENDS:
         raise ConfigError(
@@ -59,6 +51,8 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
         )
     if network.weights is not None:
         _check_weights(network.weights, settings)
+    elif not has_weights(network.name):
+        raise ConfigError(_no_weights(network.name))
     if config.tiles.max_points > settings.max_tile_points:
         raise ConfigError(
             f"config.tiles.max_points: {config.tiles.max_points:,} is above this service's "
@@ -66,6 +60,33 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
             f"is sized for)"
         )
     return config
+
+
+def _validated(text: str | None) -> PipelineConfig:
+    """The config as the client wrote it (empty: defaults), each error naming its field."""
+    if text is None or not text.strip():
+        return PipelineConfig()
+    try:
+        return PipelineConfig.model_validate_json(text)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        if first["type"] == "json_invalid":
+            raise ConfigError(f"config: not valid JSON: {first['msg']}") from exc
+        problems = "; ".join(f"config.{_location(e['loc'])}: {e['msg']}" for e in exc.errors()[:5])
+        raise ConfigError(problems) from exc
+
+
+def _no_weights(name: str) -> str:
+    """Why a job for network ``name`` cannot run here, and the command that fixes it."""
+    record = backend(name)
+    if record.published is not None:
+        fix = f"`jointseg models pull {record.published}` on its machines installs them"
+    else:
+        fix = record.where_to_get
+    return (
+        f"config.network.name: network {name!r} has no weights installed on this service; "
+        f"{fix} (or name weights in config.network.weights)"
+    )
 
 
 def _check_weights(weights: Path, settings: Settings) -> None:

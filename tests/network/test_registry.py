@@ -21,6 +21,8 @@ from jointseg.network.registry import (
     REGISTRY,
     _declared,
     backend_for_suffix,
+    has_weights,
+    installed_backends,
 )
 
 
@@ -40,7 +42,9 @@ def test_the_registry_and_the_backend_records_import_no_torch() -> None:
         "import jointseg.network.registry\n"
         "from jointseg.network import published\n"
         "from jointseg.network.registry import BACKENDS, REGISTRY, resolve_weights\n"
-        "REGISTRY['dgcnn'].options({'stride': 1.0}); resolve_weights('randlanet')"
+        "from jointseg.network.registry import installed_backends\n"
+        "REGISTRY['dgcnn'].options({'stride': 1.0}); resolve_weights('randlanet')\n"
+        "installed_backends()"
     )
     # the pipeline's configuration module itself (its package __init__ is not under test here)
     assert not _imports_torch(
@@ -52,6 +56,28 @@ def test_the_registry_and_the_backend_records_import_no_torch() -> None:
         "PipelineConfig.model_validate({'network': {'name': 'dgcnn', 'dgcnn': {'stride': 1}}})"
     )
     assert _imports_torch("from jointseg.network import load, DGCNN")
+
+
+def test_a_backend_is_installed_when_the_weights_it_would_use_are_there(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, dgcnn_random_weights: Path
+) -> None:
+    """What the job service refuses jobs by and the job page offers: RandLA-Net's weights are
+    bundled; DGCNN's are there once pulled or configured, not when its variable names weights
+    that are missing or not pulled yet."""
+    monkeypatch.setenv("JOINTSEG_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("JOINTSEG_DGCNN_WEIGHTS", raising=False)
+    assert installed_backends() == ("randlanet",)
+    assert not has_weights("dgcnn") and not has_weights("pointnet")
+    for missing in ("dgcnn-s3dis-2", str(tmp_path / "model_1.t7")):
+        monkeypatch.setenv("JOINTSEG_DGCNN_WEIGHTS", missing)
+        assert not has_weights("dgcnn")
+    monkeypatch.setenv("JOINTSEG_DGCNN_WEIGHTS", str(dgcnn_random_weights))
+    assert installed_backends() == ("randlanet", "dgcnn")
+    monkeypatch.delenv("JOINTSEG_DGCNN_WEIGHTS")
+    pulled = tmp_path / "cache" / "weights" / "dgcnn-s3dis-5.t7"  # where `models pull` puts it
+    pulled.parent.mkdir(parents=True)
+    pulled.write_bytes(dgcnn_random_weights.read_bytes())
+    assert has_weights("dgcnn")
 
 
 def test_the_records_say_what_each_backend_reads() -> None:

@@ -60,9 +60,23 @@ def test_config_gives_the_viewer_port_recorded_by_the_viewer(
     client: TestClient, tmp_path: Path
 ) -> None:
     body = client.get("/web/config.json").json()
-    assert body == {"viewer_port": 8123, "networks": ["randlanet", "dgcnn"]}
+    assert body["viewer_port"] == 8123
     (tmp_path / VIEWER_FILE).write_text(json.dumps({"port": 8125, "pid": 1}))
     assert client.get("/web/config.json").json()["viewer_port"] == 8125
+
+
+def test_config_offers_only_the_networks_with_weights_here(
+    client: TestClient,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    dgcnn_random_weights: Path,
+) -> None:
+    """DGCNN has no bundled weights: offered once they are configured, at the next load."""
+    monkeypatch.setenv("JOINTSEG_CACHE", str(tmp_path / "empty-cache"))
+    monkeypatch.delenv("JOINTSEG_DGCNN_WEIGHTS", raising=False)
+    assert client.get("/web/config.json").json()["networks"] == ["randlanet"]
+    monkeypatch.setenv("JOINTSEG_DGCNN_WEIGHTS", str(dgcnn_random_weights))
+    assert client.get("/web/config.json").json()["networks"] == ["randlanet", "dgcnn"]
 
 
 def test_service_parts_give_the_page_router_and_the_viewer_process() -> None:

@@ -1,5 +1,8 @@
 """The whole product in a real browser: `jointseg serve` (API, worker, viewer) with API keys on,
-a scan uploaded through the job page, the job followed to `succeeded`, its viewer link opened.
+a scan uploaded through the job page, the job followed to `succeeded`, its viewer link opened;
+and the job page's own behaviour on a real service: only networks with weights offered (the
+service's weights cache is empty, so DGCNN has none), a failed job's long error, the empty list,
+the key in the viewer link.
 
 The screenshots land in the test artefacts (tests/artifacts or $PYTEST_ARTIFACTS); the
 README's viewer screenshot is ``service_viewer.png`` from this test.
@@ -7,6 +10,7 @@ README's viewer screenshot is ``service_viewer.png`` from this test.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -17,6 +21,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import parse_qs, quote, urlsplit
 
 import httpx
 import numpy as np
@@ -25,10 +30,14 @@ from shots import HIDE_TOASTS, palette_pixels, panel_spans, settled
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan, write_scan
+from jointseg.network import published
 from jointseg.synth import make_room
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 API_KEY = "viewer-test-key"
+#: A second accepted key with the characters a URL must escape.
+SPECIAL_KEY = "job+page/key=1&x"
+FINAL = ("succeeded", "failed", "cancelled")
 
 
 def free_port() -> int:
@@ -51,13 +60,16 @@ class Running:
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
-    """`jointseg serve` with one worker, the viewer on its own port and an API key."""
+    """`jointseg serve` with one worker, the viewer on its own port, API keys, and an empty
+    weights cache (DGCNN has no weights there; RandLA-Net's are bundled)."""
     data = tmp_path_factory.mktemp("service")
+    cache = tmp_path_factory.mktemp("empty-cache")
     port, viewer_port = free_port(), free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
     env.update(
         JOINTSEG_DATA_DIR=str(data),
-        JOINTSEG_API_KEYS=API_KEY,
+        JOINTSEG_CACHE=str(cache),
+        JOINTSEG_API_KEYS=f"{API_KEY},{SPECIAL_KEY}",
         JOINTSEG_TORCH_THREADS="1",
         JOINTSEG_QUEUE_POLL_S="0.2",
     )
@@ -106,10 +118,12 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         page.set_input_files("#scan-file", str(scan))
         page.select_option("#network", "randlanet")
         page.click("#upload")
-        page.get_by_text("queued").first.wait_for(timeout=30_000)
-        row = page.locator("tr[data-job-id]").first
-        row.locator("progress").wait_for(timeout=10_000)
+        # accepted: its row appears ("job ... queued" may be gone already, once a worker took it)
+        row = page.locator("tr[data-job-id]", has_text="office.ply").first
+        row.locator("progress").wait_for(timeout=30_000)
         page.wait_for_selector("tr[data-status=succeeded]", timeout=180_000)
+        # "job ... queued" no longer holds: the line is cleared, the row tells the status
+        assert page.locator("#upload-status").inner_text() == ""
         (artifacts / "service_job_page.png").write_bytes(page.screenshot())
         assert row.locator("[data-col=status]").inner_text() == "succeeded"
         assert row.locator("[data-col=file]").inner_text() == "office.ply"
@@ -161,5 +175,185 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         assert palette_pixels(image, spans[1])[off] == 0
         assert palette_pixels(image, spans[2])[off] == 0
         viewer.close()
+    finally:
+        page.close()
+
+
+def _submit(http: httpx.Client, scan: Path, config: dict[str, Any] | None = None) -> httpx.Response:
+    """POST /v1/jobs with ``scan`` and an optional job config."""
+    data = {"config": json.dumps(config)} if config is not None else None
+    with open(scan, "rb") as fh:
+        return http.post("/v1/jobs", files={"file": (scan.name, fh)}, data=data)
+
+
+def _finished(http: httpx.Client, job_id: str, timeout: float = 120.0) -> dict[str, Any]:
+    """The job once it is succeeded, failed or cancelled."""
+    deadline = time.monotonic() + timeout
+    while True:
+        job: dict[str, Any] = http.get(f"/v1/jobs/{job_id}").json()
+        if job["status"] in FINAL:
+            return job
+        assert time.monotonic() < deadline, job
+        time.sleep(0.2)
+
+
+def _jobs(http: httpx.Client, tmp_path: Path, random_weights: Path) -> dict[str, dict[str, Any]]:
+    """A job that succeeds (the small random network) and one that fails in the worker with a
+    long error (a weights file that exists, so the API accepts it, but is no checkpoint)."""
+    scan = write_scan(make_room(4, points=3000), tmp_path / "small room.ply")
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a checkpoint")
+    configs = {
+        "succeeded": {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0},
+        "failed": {"network": {"weights": str(garbage), "device": "cpu"}},
+    }
+    ids = {}
+    for expected, config in configs.items():
+        response = _submit(http, scan, config)
+        assert response.status_code == 201, response.text
+        ids[expected] = response.json()["id"]
+    jobs = {expected: _finished(http, job_id) for expected, job_id in ids.items()}
+    assert {k: job["status"] for k, job in jobs.items()} == {k: k for k in jobs}
+    return jobs
+
+
+def _open_page(browser: Any, service: Running, key: str = API_KEY) -> Any:
+    """The job page with ``key`` saved, its job list loaded."""
+    page = browser.new_page(viewport={"width": 1400, "height": 700})
+    page.goto(service.url + "/")
+    page.fill("#api-key", key)
+    page.click("#save-key")
+    page.wait_for_function("document.querySelector('#job-count').textContent !== ''")
+    return page
+
+
+def test_an_empty_job_list_says_so(service: Running, browser: Any, tmp_path: Path) -> None:
+    with service.client() as http:
+        for job in http.get("/v1/jobs", params={"limit": 200}).json()["items"]:
+            _finished(http, job["id"])
+            assert http.delete(f"/v1/jobs/{job['id']}").status_code == 204
+        page = _open_page(browser, service)
+        try:
+            message = page.locator("#no-jobs")
+            message.wait_for(timeout=15_000)
+            assert message.inner_text() == "No jobs yet: upload a scan above."
+            scan = write_scan(make_room(5, points=2000), tmp_path / "first.ply")
+            job = _submit(http, scan).json()
+            page.locator(f'tr[data-job-id="{job["id"]}"]').wait_for(timeout=15_000)
+            assert not message.is_visible()  # gone with the first job
+        finally:
+            page.close()
+        _finished(http, job["id"])
+
+
+def test_dgcnn_without_weights_is_not_offered_and_refused_at_submission(
+    service: Running, browser: Any, tmp_path: Path
+) -> None:
+    scan = write_scan(make_room(7, points=2000), tmp_path / "refused.ply")
+    page = _open_page(browser, service)
+    try:
+        page.wait_for_function("document.querySelector('#network').options.length > 0")
+        offered = page.eval_on_selector_all("#network option", "els => els.map(e => e.value)")
+        assert offered == ["randlanet"]  # dgcnn has no weights on this service
+
+        # a page loaded before the weights went away still offers dgcnn: the API refuses it
+        page.evaluate("""() => {
+            const option = document.createElement("option");
+            option.value = option.textContent = "dgcnn";
+            document.querySelector("#network").appendChild(option);
+        }""")
+        page.set_input_files("#scan-file", str(scan))
+        page.select_option("#network", "dgcnn")
+        page.click("#upload")
+        status = page.locator("#upload-status.error")
+        status.wait_for(timeout=30_000)
+        pull = f"jointseg models pull {published.DEFAULT_DGCNN}"
+        assert "upload refused (422)" in status.inner_text() and pull in status.inner_text()
+        # picking another file clears the refusal: it is not about that file
+        other = write_scan(make_room(8, points=1000), tmp_path / "other.ply")
+        page.set_input_files("#scan-file", str(other))
+        assert page.locator("#upload-status").inner_text() == ""
+    finally:
+        page.close()
+
+    with service.client() as http:
+        before = http.get("/v1/jobs").json()["total"]
+        response = _submit(http, scan, {"network": {"name": "dgcnn"}})
+        assert response.status_code == 422, response.text
+        assert response.headers["content-type"] == "application/json"
+        assert pull in response.json()["detail"]
+        listing = http.get("/v1/jobs", params={"limit": 200}).json()
+        assert listing["total"] == before
+        assert [j for j in listing["items"] if j["network"] == "dgcnn"] == []
+
+
+def _boxes(row: Any) -> list[dict[str, float]]:
+    """The bounding boxes of a row's action links and buttons."""
+    actions = row.locator("[data-col=actions] > *")
+    return [actions.nth(i).bounding_box() for i in range(actions.count())]
+
+
+def test_a_long_job_error_keeps_every_rows_links_on_one_line(
+    service: Running, browser: Any, artifacts: Path, tmp_path: Path, random_weights: Path
+) -> None:
+    with service.client() as http:
+        jobs = _jobs(http, tmp_path, random_weights)
+    error = jobs["failed"]["error"]
+    assert len(error) > 300 and "not a readable PyTorch checkpoint" in error
+    page = _open_page(browser, service)
+    try:
+        failed = page.locator(f'tr[data-job-id="{jobs["failed"]["id"]}"]')
+        done = page.locator(f'tr[data-job-id="{jobs["succeeded"]["id"]}"]')
+        page.wait_for_selector(f'tr[data-job-id="{jobs["failed"]["id"]}"][data-status=failed]')
+        done.locator("a.view-link").wait_for(timeout=15_000)
+        (artifacts / "service_job_page_failed.png").write_bytes(page.screenshot())
+        for row, count in ((done, 4), (failed, 1)):  # view, result, report, delete / delete
+            boxes = _boxes(row)
+            assert len(boxes) == count
+            assert max(b["y"] for b in boxes) - min(b["y"] for b in boxes) < 2, boxes
+            xs = [b["x"] for b in boxes]
+            assert xs == sorted(xs), boxes  # side by side, left to right
+        # the failed row is one line high, like the others; its error whole in the tooltip
+        done_height = done.bounding_box()["height"]
+        assert failed.bounding_box()["height"] < 1.5 * done_height
+        label = failed.locator("[data-col=progress] .job-error")
+        assert label.get_attribute("title") == error
+        assert label.evaluate("el => el.scrollWidth > el.clientWidth")  # cut, not wrapped
+        # a click unfolds the whole error; the links stay on one line
+        label.click()
+        assert failed.bounding_box()["height"] > 2 * done_height
+        boxes = _boxes(done)
+        assert max(b["y"] for b in boxes) - min(b["y"] for b in boxes) < 2, boxes
+    finally:
+        page.close()
+
+
+def test_the_viewer_link_carries_the_saved_key(
+    service: Running, browser: Any, tmp_path: Path, random_weights: Path
+) -> None:
+    with service.client() as http:
+        scan = write_scan(make_room(8, points=2000), tmp_path / "keyed.ply")
+        config = {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0}
+        job = _finished(http, _submit(http, scan, config).json()["id"])
+        assert job["status"] == "succeeded"
+    page = _open_page(browser, service, key=SPECIAL_KEY)
+    try:
+        link = page.locator(f'tr[data-job-id="{job["id"]}"] a.view-link')
+        link.wait_for(timeout=15_000)
+        href = link.get_attribute("href")
+        parts = urlsplit(href)
+        assert (parts.scheme, parts.port) == ("http", service.viewer_port)
+        assert f"websocket={quote('ws://', safe='')}" in parts.query  # the ws URL stays encoded
+        (websocket,) = parse_qs(parts.query)["websocket"]
+        wanted = f"/job/{job['id']}?key={quote(SPECIAL_KEY, safe='')}"
+        assert websocket == f"ws://127.0.0.1:{service.viewer_port}{wanted}"
+        # a key saved later is in the links from then on
+        page.fill("#api-key", API_KEY)
+        page.click("#save-key")
+        page.wait_for_function(
+            "id => document.querySelector(`tr[data-job-id='${id}'] a.view-link`)"
+            ".href.includes('key%3D" + API_KEY + "')",
+            arg=job["id"],
+        )
     finally:
         page.close()

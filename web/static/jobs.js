@@ -1,6 +1,12 @@
 // The job page: upload a scan, watch the jobs, open results in the viewer. Plain JavaScript,
 // no build step. Every call goes to the /v1 API with the saved API key (if any) as a Bearer
 // token; user-supplied text (file names, errors) is only ever set as textContent.
+//
+// Each status line says one thing and is cleared when that stops being true: #list-status is the
+// job list's (cleared by the next successful refresh), #action-status a download's or delete's
+// (replaced by the next action), #upload-status the last upload's (cleared once its job has
+// left the queue, or when another file is picked), #key-status the key's (its 401 note cleared
+// once the list loads).
 "use strict";
 
 const KEY_STORAGE = "jointseg.apiKey";
@@ -8,6 +14,12 @@ const POLL_MS = 1500;
 const $ = (id) => document.getElementById(id);
 const rows = new Map(); // job id -> <tr>
 let viewerPort = 8080;
+let queuedJob = null; // the job #upload-status says is queued, until it leaves the queue
+
+function note(id, text, isError = false) {
+  $(id).textContent = text;
+  $(id).className = isError ? "note error" : "note";
+}
 
 function apiKey() {
   return localStorage.getItem(KEY_STORAGE) || "";
@@ -24,8 +36,7 @@ async function api(path, options = {}) {
     headers: { ...authHeaders(), ...(options.headers || {}) },
   });
   if (response.status === 401) {
-    $("key-status").textContent = apiKey() ? "this API key was refused" : "this service needs an API key";
-    $("key-status").className = "note error";
+    note("key-status", apiKey() ? "this API key was refused" : "this service needs an API key", true);
   }
   return response;
 }
@@ -39,9 +50,14 @@ async function errorText(response) {
   }
 }
 
+// The viewer's address for one job: its websocket URL names the job and, when a key is saved,
+// carries it as ?key=... (the viewer asks for the API's keys too); the whole websocket URL is
+// itself percent-encoded in the page URL's `websocket` parameter.
 function viewerLink(jobId) {
   const base = `${location.protocol}//${location.hostname}:${viewerPort}`;
-  const ws = base.replace(/^http/, "ws") + "/job/" + encodeURIComponent(jobId);
+  const key = apiKey();
+  const query = key ? `?key=${encodeURIComponent(key)}` : "";
+  const ws = base.replace(/^http/, "ws") + "/job/" + encodeURIComponent(jobId) + query;
   return `${base}/?websocket=${encodeURIComponent(ws)}`;
 }
 
@@ -52,14 +68,18 @@ function setupKey() {
     const key = $("api-key").value.trim();
     if (key) localStorage.setItem(KEY_STORAGE, key);
     else localStorage.removeItem(KEY_STORAGE);
-    $("key-status").textContent = key ? "saved in this browser" : "no key";
-    $("key-status").className = "note";
+    note("key-status", key ? "saved in this browser" : "no key");
+    for (const row of rows.values()) delete row.dataset.actionsFor; // viewer links carry the key
     poll();
   });
 }
 
 // ------------------------------------------------------------------- upload
 function setupUpload() {
+  $("scan-file").addEventListener("change", () => {
+    queuedJob = null;
+    note("upload-status", ""); // the last upload's outcome is not about this file
+  });
   $("upload-form").addEventListener("submit", (event) => {
     event.preventDefault();
     const file = $("scan-file").files[0];
@@ -77,26 +97,31 @@ function setupUpload() {
     bar.hidden = false;
     bar.value = 0;
     $("upload").disabled = true;
-    $("upload-status").className = "note";
-    $("upload-status").textContent = `uploading ${file.name}...`;
+    queuedJob = null;
+    note("upload-status", `uploading ${file.name}...`);
     request.upload.onprogress = (e) => {
       if (e.lengthComputable) bar.value = e.loaded / e.total;
     };
     request.onloadend = () => {
       bar.hidden = true;
-      $("upload").disabled = false;
+      $("upload").disabled = $("network").options.length === 0;
       let body = {};
       try {
         body = JSON.parse(request.responseText);
       } catch (_) {}
       if (request.status === 201) {
-        $("upload-status").textContent = `job ${body.id} queued`;
+        queuedJob = body.id;
+        note("upload-status", `job ${body.id} queued`);
+        const network = $("network").value;
         $("upload-form").reset();
+        $("network").value = network; // the next scan most likely wants the same network
         poll();
       } else {
-        $("upload-status").className = "note error";
-        $("upload-status").textContent =
-          `upload refused (${request.status || "no answer"}): ${body.detail || request.statusText}`;
+        note(
+          "upload-status",
+          `upload refused (${request.status || "no answer"}): ${body.detail || request.statusText}`,
+          true,
+        );
       }
     };
     request.send(form);
@@ -105,10 +130,10 @@ function setupUpload() {
 
 // ---------------------------------------------------------------- downloads
 async function download(path, filename) {
+  note("action-status", `downloading ${filename}...`);
   const response = await api(path);
   if (!response.ok) {
-    $("list-status").className = "note error";
-    $("list-status").textContent = `download failed: ${await errorText(response)}`;
+    note("action-status", `download of ${filename} failed: ${await errorText(response)}`, true);
     return;
   }
   const url = URL.createObjectURL(await response.blob());
@@ -119,16 +144,15 @@ async function download(path, filename) {
   a.click();
   a.remove();
   setTimeout(() => URL.revokeObjectURL(url), 60000);
+  note("action-status", "");
 }
 
 async function removeJob(job) {
   const finished = ["succeeded", "failed", "cancelled"].includes(job.status);
   if (finished && !confirm(`Delete job ${job.filename} and its files?`)) return;
   const response = await api(`/v1/jobs/${job.id}`, { method: "DELETE" });
-  if (!response.ok) {
-    $("list-status").className = "note error";
-    $("list-status").textContent = await errorText(response);
-  }
+  if (response.ok) note("action-status", "");
+  else note("action-status", `${finished ? "delete" : "cancel"} failed: ${await errorText(response)}`, true);
   poll();
 }
 
@@ -151,6 +175,9 @@ function newRow(job) {
   bar.max = 1;
   const label = document.createElement("span");
   label.className = "note";
+  label.addEventListener("click", () => {
+    if (label.classList.contains("job-error")) label.classList.toggle("unfolded");
+  });
   const tiles = document.createElement("span");
   tiles.className = "note tiles";
   tiles.hidden = true;
@@ -217,11 +244,18 @@ function renderJob(job) {
   status.title = job.error || "";
   const [bar, , label, , tilesNote] = cell(row, "progress").childNodes;
   bar.value = job.progress;
+  bar.hidden = job.status === "failed"; // its error takes the cell: the bar means nothing there
   const tiles = tilesText(job);
   // the tiles' own note replaces a stage that only repeats their count ("tiles 3/8")
   const repeats = tiles !== null && /^tiles\b/.test(job.stage || "");
   const stage = job.status === "running" && job.stage && !repeats ? `${job.stage} ` : "";
-  label.textContent = job.status === "failed" ? job.error || "" : `${stage}${Math.round(job.progress * 100)}%`;
+  // a failed job's error, however long, stays on one line (cut with an ellipsis, whole in the
+  // tooltip, unfolded by a click) so it never squeezes the row's links into a column
+  const failed = job.status === "failed";
+  label.textContent = failed ? job.error || "" : `${stage}${Math.round(job.progress * 100)}%`;
+  label.title = failed ? job.error || "" : "";
+  label.classList.toggle("job-error", failed);
+  if (!failed) label.classList.remove("unfolded");
   tilesNote.textContent = tiles || "";
   tilesNote.hidden = tiles === null;
   renderActions(row, job);
@@ -250,15 +284,21 @@ async function poll() {
         }
       }
       $("job-count").textContent = `(${page.items.length} of ${page.total})`;
-      $("list-status").textContent = "";
-      $("list-status").className = "note";
+      $("no-jobs").hidden = page.total > 0;
+      note("list-status", "");
+      if ($("key-status").classList.contains("error")) note("key-status", "");
+      const queued = page.items.find((job) => job.id === queuedJob);
+      if (queuedJob && (!queued || queued.status !== "queued")) {
+        queuedJob = null; // the row now tells where the job is
+        note("upload-status", "");
+      }
     } else {
-      $("list-status").className = "note error";
-      $("list-status").textContent = `job list unavailable: ${await errorText(response)}`;
+      $("no-jobs").hidden = true;
+      note("list-status", `job list unavailable: ${await errorText(response)}`, true);
     }
   } catch (error) {
-    $("list-status").className = "note error";
-    $("list-status").textContent = `service unreachable: ${error}`;
+    $("no-jobs").hidden = true;
+    note("list-status", `service unreachable: ${error}`, true);
   }
   polling = setTimeout(poll, document.hidden ? POLL_MS * 4 : POLL_MS);
 }
@@ -272,8 +312,12 @@ async function loadConfig() {
       option.value = option.textContent = name;
       $("network").appendChild(option);
     }
+    if (config.networks.length === 0) {
+      $("upload").disabled = true;
+      note("upload-status", "no network has weights on this service: ask its operator", true);
+    }
   } catch (error) {
-    $("list-status").textContent = `page configuration unavailable: ${error}`;
+    note("upload-status", `page configuration unavailable: ${error}`, true);
   }
 }
 
