@@ -5,10 +5,18 @@ Each connected client has its own :class:`ClientView`, built from ``client.scene
 per panel, split into one node per (class, changed by fusion) group: hiding a class, showing only
 the changed points or resizing points are property updates, not new uploads. Switching jobs
 removes the old nodes first, so neither the server nor the browser grows with the jobs viewed.
+
+Every job is drawn below a scene path of its own (``/jointseg/<n>``): a node removed and added
+again under the same name in one update can keep its old position in the browser, which laid
+a three-panel job over a four-panel job's slots.
+
+The browser's address follows the view (:mod:`web.view_state`): a copied link opens the same
+job with the same camera, classes and toggles.
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import threading
 import time
@@ -19,24 +27,59 @@ from typing import Any
 import numpy as np
 import viser
 
-from jointseg.classes import NUM_CLASSES, UNLABELLED
+from jointseg.classes import NUM_CLASSES, PALETTE, UNLABELLED, UNLABELLED_COLOUR
 from jointseg.exceptions import JointsegError
-from web.layout import CameraPose, overview_camera, panel_offsets, title_position
-from web.legend import class_title, iou_html, legend_html, present_classes
+from web.layout import (
+    VIEW_DIRECTIONS,
+    CameraPose,
+    overview_camera,
+    panel_offsets,
+    title_position,
+    view_camera,
+)
+from web.legend import class_title, confusion_html, iou_html, legend_html, present_classes
 from web.memory import release_soon
-from web.scene import NETWORK, SEGMENTS, TRUTH, Panel, SceneCache, SceneData, group_points
+from web.picking import pick
+from web.scene import (
+    CONFIDENCE,
+    ERRORS,
+    FUSED,
+    NETWORK,
+    SEGMENTS,
+    TRUTH,
+    Panel,
+    SceneCache,
+    SceneData,
+    group_points,
+    voxel_downsample,
+)
 from web.sources import JobEntry, JobSource
+from web.tools import MODES, ClickTools, Picked
+from web.view_state import ViewState, address_html, state_path
 
 log = logging.getLogger(__name__)
 
 ROOT = "/jointseg"
 PLACEHOLDER: str = "(choose a finished job)"
+NO_JOBS: str = "(no finished jobs yet)"
 #: Classes hidden when a viewer opens: from above, the ceiling covers the room.
 HIDDEN_BY_DEFAULT = frozenset({0})
 #: Default point size as a multiple of the shown points' spacing.
 POINT_SIZE = 2.0
 #: Seconds the browser has to report back a camera pose the viewer set.
 ECHO_WAIT_S = 3.0
+#: Least seconds between two address updates while the camera moves.
+ADDRESS_EVERY_S = 0.4
+#: The scene's background: light blue-grey, so near-white clutter and the yellow ceiling show.
+BACKGROUND = (205, 212, 220)
+#: A hidden class's button.
+HIDDEN_CLASS = (222, 226, 230)
+#: Optional panels and the label of the checkbox that shows each.
+OPTIONAL = {TRUTH: "Ground truth panel", SEGMENTS: "Segments panel",
+            CONFIDENCE: "Confidence panel", ERRORS: "Error map panel"}  # fmt: skip
+ROW, SINGLE = "Row of panels", "One large panel"
+#: Which label set hides a panel's points with their class.
+LABEL_KEY = {NETWORK.key: "network", CONFIDENCE.key: "network", TRUTH.key: "truth"}
 
 
 class ClientView:
@@ -49,72 +92,160 @@ class ClientView:
         Finished jobs and their files.
     cache : SceneCache
         Loaded results shared by every client of one viewer (bounded).
+    state : ViewState, optional
+        The view a link asked for (classes, toggles, camera; its job is shown by the caller).
+    key_in_address : bool
+        Whether the API key stays in the address the view writes (only when it came in one).
     """
 
-    def __init__(self, client: viser.ClientHandle, source: JobSource, cache: SceneCache) -> None:
+    def __init__(
+        self,
+        client: viser.ClientHandle,
+        source: JobSource,
+        cache: SceneCache,
+        state: ViewState | None = None,
+        *,
+        key_in_address: bool = False,
+    ) -> None:
         self.client = client
         self.source = source
         self.cache = cache
+        self.asked = state or ViewState()
+        self.key_in_address = key_in_address
         self.job_id: str | None = None
         self.data: SceneData | None = None
-        self.hidden = set(HIDDEN_BY_DEFAULT)
+        self.hidden = set(HIDDEN_BY_DEFAULT if self.asked.hidden is None else self.asked.hidden)
         self.frames: dict[str, viser.FrameHandle] = {}
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
+        self.shown: np.ndarray | None = None  # rows of the scene data sent (point budget)
         self._groups: dict[str, dict[tuple[int, bool], np.ndarray]] = {}
         self._root: viser.FrameHandle | None = None
+        self._root_path = ROOT
+        self._generation = 0
         self._labels: dict[str, str] = {}
         self._entries: dict[str, JobEntry] = {}
         self._lock = threading.RLock()
+        self._quiet = False  # set while the view changes controls itself
+        self._count = 0
         self._camera_hooked = False
         self._camera_auto = False
         self._camera_pose: CameraPose | None = None
         self._camera_aspect = 0.0
-        self._camera_count = 1
         self._camera_echoed = False
         self._camera_sent = 0.0
+        self._address_serial = 0
+        self._address_due: threading.Timer | None = None
+        self._address_last = 0.0
+        client.scene.set_background_image(
+            np.broadcast_to(np.array(BACKGROUND, np.uint8), (4, 4, 3)).copy(), format="png"
+        )
+        self.tools = ClickTools(client.scene, ROOT)
         self._build_gui()
+        client.scene.on_click()(self._clicked)
 
     # ----------------------------------------------------------------- controls
     def _build_gui(self) -> None:
+        self._build_job_and_display()
+        self._build_tools_and_tables()
+        self._wire()
+        self.refresh_jobs()
+
+    def _build_job_and_display(self) -> None:
         gui = self.client.gui
+        asked = self.asked
         with gui.add_folder("Job"):
-            options: tuple[str, ...] = (PLACEHOLDER,)
-            self.picker: viser.GuiDropdownHandle[str] = gui.add_dropdown("Job", options)
+            self.picker: viser.GuiDropdownHandle[str] = gui.add_dropdown("Job", (PLACEHOLDER,))
             self.refresh = gui.add_button("Refresh list", icon=viser.Icon.REFRESH)
             self.status = gui.add_markdown("No job shown.")
+            self.address = gui.add_html("")
         with gui.add_folder("Display"):
-            self.truth_box = gui.add_checkbox("Ground truth panel", True, disabled=True)
-            self.segments_box = gui.add_checkbox("Segments panel", False)
+            self.layout = gui.add_dropdown(
+                "Layout", (ROW, SINGLE), initial_value=SINGLE if asked.single else ROW
+            )
+            self.single = gui.add_dropdown("Panel", ("Fused labels",), visible=bool(asked.single))
+            wanted = asked.panels if asked.panels is not None else frozenset({"truth"})
+            self.panel_boxes = {
+                panel: gui.add_checkbox(label, panel.key in wanted)
+                for panel, label in OPTIONAL.items()
+            }
+            self._wanted = {panel: panel.key in wanted for panel in OPTIONAL}
+            self.truth_box = self.panel_boxes[TRUTH]
+            self.segments_box = self.panel_boxes[SEGMENTS]
             self.point_size = gui.add_slider(
-                "Point size", 0.25, 8.0, 0.25, POINT_SIZE, hint="multiple of the point spacing"
+                "Point size",
+                0.25,
+                8.0,
+                0.25,
+                asked.point_size or POINT_SIZE,
+                hint="multiple of the point spacing",
             )
             self.only_changed = gui.add_checkbox(
-                "Only points changed by fusion", False, hint="labels the fusion replaced"
+                "Only points changed by fusion",
+                asked.only_changed,
+                hint="labels the fusion replaced",
             )
+            top = max(self.cache.max_points, 1000)
+            self.budget = gui.add_number(
+                "Point budget",
+                int(min(asked.budget or top, top)),
+                min=1000,
+                max=top,
+                step=1000,
+                hint="most points per panel sent to this browser: lower it on a weak computer",
+            )
+
+    def _build_tools_and_tables(self) -> None:
+        gui = self.client.gui
+        with gui.add_folder("View"):
+            self.views = gui.add_button_group("Camera", ("Fit all", *VIEW_DIRECTIONS))
+            self.screenshot = gui.add_button("Screenshot (PNG)", icon=viser.Icon.CAMERA)
+        with gui.add_folder("Click tools"):
+            self.mode = gui.add_dropdown("Click to", MODES)
+            self.answer = gui.add_markdown("Click a point in any panel.")
+            self.clear_marks = gui.add_button("Clear marks", icon=viser.Icon.ERASER)
         # built once and updated per job (no GUI elements are created or removed per job)
         with gui.add_folder("Classes"):
-            self.legend = gui.add_html("")
-            self.class_boxes = {
-                cls: gui.add_checkbox(class_title(cls), cls not in self.hidden, visible=False)
+            # one button per class in its palette colour: the toggle is the legend's swatch
+            self.class_buttons = {
+                cls: gui.add_button(class_title(cls), visible=False, hint="show or hide")
                 for cls in (*range(NUM_CLASSES), UNLABELLED)
             }
+            for cls in self.class_buttons:
+                self._paint_class(cls)
+            self.legend = gui.add_html("")
         with gui.add_folder("Scores (IoU)", visible=False) as self.scores_folder:
             self.scores = gui.add_html("")
+        with gui.add_folder("Confusion", visible=False) as self.confusion_folder:
+            self.confusion = gui.add_html("")
         with gui.add_folder("Downloads"):
             self.download_result = gui.add_button("Result", icon=viser.Icon.DOWNLOAD, disabled=True)
             self.download_report = gui.add_button("Report", icon=viser.Icon.DOWNLOAD, disabled=True)
 
+    def _wire(self) -> None:
         self.picker.on_update(lambda _: self._picked())
         self.refresh.on_click(lambda _: self.refresh_jobs())
-        self.truth_box.on_update(lambda _: self.redraw())
-        self.segments_box.on_update(lambda _: self.redraw())
-        self.point_size.on_update(lambda _: self._resize_points())
-        self.only_changed.on_update(lambda _: self._apply_visibility())
-        for cls, box in self.class_boxes.items():
-            box.on_update(self._class_toggle(cls))
+        self.layout.on_update(lambda _: self._layout_changed())
+        self.single.on_update(lambda _: self._changed(self.redraw))
+        for panel, box in self.panel_boxes.items():
+            box.on_update(self._panel_toggle(panel))
+        self.point_size.on_update(lambda _: self._changed(self._resize_points))
+        self.only_changed.on_update(lambda _: self._changed(self._apply_visibility))
+        self.budget.on_update(lambda _: self._changed(self._rebudget))
+        self.views.on_click(lambda event: self.set_view(str(event.target.value)))
+        self.screenshot.on_click(lambda _: self.send_screenshot())
+        self.mode.on_update(lambda _: self._mode_changed())
+        self.clear_marks.on_click(lambda _: self._clear_marks())
+        for cls, button in self.class_buttons.items():
+            button.on_click(self._class_toggle(cls))
         self.download_result.on_click(lambda _: self._send_download(result=True))
         self.download_report.on_click(lambda _: self._send_download(result=False))
-        self.refresh_jobs()
+
+    def _changed(self, action: Callable[[], None]) -> None:
+        """A control the user changed: act, then write the view into the address."""
+        if self._quiet:
+            return
+        action()
+        self.sync_address()
 
     def refresh_jobs(self) -> None:
         """Reload the job picker's list (finished jobs, newest first); keep the current choice."""
@@ -126,15 +257,21 @@ class ClientView:
         self._labels = {job.label: job.id for job in jobs}
         self._entries = {job.id: job for job in jobs}
         current = self.picker.value
-        self.picker.options = (PLACEHOLDER, *self._labels)
+        self.picker.options = (PLACEHOLDER if jobs else NO_JOBS, *self._labels)
         if current in self._labels:
-            self._set_picker(current)
+            self._set_value(self.picker, current)
 
-    def _set_picker(self, label: str) -> None:
-        # viser declares a method between ``value``'s getter and setter, so mypy sees no setter
-        self.picker.value = label  # type: ignore[misc]
+    def _set_value(self, handle: Any, value: Any) -> None:
+        """Change a control without running its callbacks' effects."""
+        self._quiet, was = True, self._quiet
+        try:
+            handle.value = value
+        finally:
+            self._quiet = was
 
     def _picked(self) -> None:
+        if self._quiet:
+            return
         job_id = self._labels.get(self.picker.value)
         if job_id is not None and job_id != self.job_id:
             self.show_job(job_id)
@@ -145,14 +282,18 @@ class ClientView:
         if label is None:
             self.refresh_jobs()
             label = next((lab for lab, i in self._labels.items() if i == job_id), None)
-        if label is None:
-            self.show_job(job_id)
-        else:
-            self._set_picker(label)  # the picker's callback shows it
+        if label is not None:
+            self._set_value(self.picker, label)
+        self.show_job(job_id, camera=self.asked.camera)
 
     # -------------------------------------------------------------------- jobs
-    def show_job(self, job_id: str) -> bool:
+    def show_job(self, job_id: str, *, camera: tuple[float, ...] | None = None) -> bool:
         """Replace the scene with ``job_id``'s panels.
+
+        Parameters
+        ----------
+        camera : tuple of 6 floats, optional
+            Camera position and look-at to start from (a link's); else the overview.
 
         Returns
         -------
@@ -173,17 +314,18 @@ class ClientView:
             loaded = time.perf_counter()
             self.clear()
             self.job_id, self.data = job_id, data
-            self._groups = {
-                "network": group_points(data.network, data.changed),
-                "fused": group_points(data.fused, data.changed),
-            }
-            if data.truth is not None:
-                self._groups["truth"] = group_points(data.truth, data.changed)
+            self._select_points(data)
             with self.client.atomic():
-                self._root = self.client.scene.add_frame(ROOT, show_axes=False)
+                self._generation += 1
+                self._root_path = f"{ROOT}/{self._generation}"
+                self._root = self.client.scene.add_frame(self._root_path, show_axes=False)
+                self.tools.root = self._root_path
                 self._update_job_gui(data)
-                self.redraw(camera=True)
+                self.redraw(camera=camera is None)
+                if camera is not None:
+                    self._place_camera(camera[:3], camera[3:])
             self.client.flush()
+            self.sync_address()
             release_soon()  # the previous job's clouds and the reading's buffers are freed
             log.info(
                 "client %d shows %s: loaded in %.2f s, sent in %.2f s",
@@ -194,97 +336,188 @@ class ClientView:
             )
             return True
 
+    def _select_points(self, data: SceneData) -> None:
+        """The rows sent to this browser (at most the point budget per panel) and their groups."""
+        budget = int(self.budget.value)
+        self.shown = None if data.xyz.shape[0] <= budget else voxel_downsample(data.xyz, budget)[0]
+
+        def sel(a: np.ndarray) -> np.ndarray:
+            return a if self.shown is None else a[self.shown]
+
+        changed = sel(data.changed)
+        self._groups = {
+            "network": group_points(sel(data.network), changed),
+            "fused": group_points(sel(data.fused), changed),
+        }
+        if data.truth is not None:
+            self._groups["truth"] = group_points(sel(data.truth), changed)
+
+    def _rows(self, positions: np.ndarray) -> np.ndarray:
+        """Rows of the scene data of positions among the points sent."""
+        return positions if self.shown is None else self.shown[positions]
+
     def clear(self) -> None:
         """Remove the shown job's nodes and job-specific controls."""
         with self._lock:
             if self._root is not None:
                 self._root.remove()  # removes every panel node below it
-            self._root, self.job_id, self.data = None, None, None
+            self.tools.forget()
+            self._root, self.job_id, self.data, self.shown = None, None, None, None
             self.frames, self.nodes, self._groups = {}, {}, {}
             self.download_result.disabled = self.download_report.disabled = True
-            self.scores_folder.visible = False
+            self.scores_folder.visible = self.confusion_folder.visible = False
             self.legend.content = ""
-            for box in self.class_boxes.values():
-                box.visible = False
+            for button in self.class_buttons.values():
+                button.visible = False
             self.status.content = "No job shown."
+            self.answer.content = "Click a point in any panel."
 
     def _update_job_gui(self, data: SceneData) -> None:
         self.legend.content = legend_html(data.counts)
         present = present_classes(data.counts)
-        for cls, box in self.class_boxes.items():
-            box.visible = cls in present
+        for cls, button in self.class_buttons.items():
+            button.visible = cls in present
         table = iou_html(data.report)
         self.scores.content = table or ""
         self.scores_folder.visible = table is not None
-        self.truth_box.disabled = data.truth is None
+        matrix = None if data.truth is None else confusion_html(data.truth, data.fused)
+        self.confusion.content = matrix or ""
+        self.confusion_folder.visible = matrix is not None
+        for panel, box in self.panel_boxes.items():
+            available = panel in data.panels
+            box.disabled = not available
+            self._set_value(box, available and self._wanted[panel])
+        titles = [p.title for p in data.panels]
+        self.single.options = tuple(titles)
+        asked = next((p.title for p in data.panels if p.key == self.asked.single), None)
+        self._set_value(self.single, asked or FUSED.title)
         self.download_result.disabled = False
         self.download_report.disabled = self.source.report_path(self.job_id or "") is None
-        shown = data.xyz.shape[0]
-        note = "" if data.voxel is None else f" (voxel {data.voxel * 100:.1f} cm)"
+
+    def _status_line(self) -> None:
+        """How many points the browser draws now, of how many the scan has."""
+        data = self.data
+        if data is None:
+            return
+        panels = self.visible_panels()
+        panel = (
+            panels[0]
+            if len(panels) == 1
+            else next((p for p in panels if p.key == "fused"), panels[0] if panels else None)
+        )
+        drawn = 0 if panel is None else self._drawn(panel)
+        sent = data.xyz.shape[0] if self.shown is None else self.shown.size
+        notes = []
+        if data.voxel is not None:
+            notes.append(f"voxel {data.voxel * 100:.1f} cm")
+        if sent < data.xyz.shape[0]:
+            notes.append(f"budget {sent:,} of {data.xyz.shape[0]:,} loaded")
+        note = f" ({', '.join(notes)})" if notes else ""
+        where = "" if panel is None else f" in {panel.title}"
         entry = self._entries.get(self.job_id or "")
         name = f"{entry.filename} [{entry.id[:8]}]" if entry is not None else self.job_id
-        self.status.content = f"**{name}**: {shown:,} of {data.total_points:,} points shown{note}."
+        self.status.content = (
+            f"**{name}**: {drawn:,} of {data.total_points:,} points shown{where}{note}."
+        )
+
+    def _drawn(self, panel: Panel) -> int:
+        groups = self._groups.get(LABEL_KEY.get(panel.key, "fused"), {})
+        return sum(idx.size for (cls, ch), idx in groups.items() if self._node_visible(cls, ch))
 
     def _class_toggle(self, cls: int) -> Callable[[Any], None]:
-        def toggle(event: Any) -> None:
-            if event.target.value:
-                self.hidden.discard(cls)
-            else:
-                self.hidden.add(cls)
-            self._apply_visibility()
+        def toggle(_: Any) -> None:
+            with self._lock:
+                if cls in self.hidden:
+                    self.hidden.discard(cls)
+                else:
+                    self.hidden.add(cls)
+                self._paint_class(cls)
+                self._apply_visibility()
+            self.sync_address()
 
         return toggle
+
+    def _paint_class(self, cls: int) -> None:
+        """A shown class's button in its palette colour with an open eye; a hidden one grey."""
+        button = self.class_buttons[cls]
+        if cls in self.hidden:
+            button.color, button.icon = HIDDEN_CLASS, viser.Icon.EYE_OFF
+        else:
+            rgb = UNLABELLED_COLOUR if cls < 0 else PALETTE[cls]
+            button.color = (int(rgb[0]), int(rgb[1]), int(rgb[2]))
+            button.icon = viser.Icon.EYE
+
+    def class_shown(self, cls: int) -> bool:
+        """Whether class ``cls`` is drawn (its button shows an open eye)."""
+        return cls not in self.hidden
+
+    def _panel_toggle(self, panel: Panel) -> Callable[[Any], None]:
+        def toggle(event: Any) -> None:
+            if self._quiet:
+                return
+            self._wanted[panel] = bool(event.target.value)
+            self.redraw()
+            self.sync_address()
+
+        return toggle
+
+    def _layout_changed(self) -> None:
+        if self._quiet:
+            return
+        self.single.visible = self.layout.value == SINGLE
+        self.redraw()
+        self.sync_address()
 
     # ------------------------------------------------------------------ scene
     def visible_panels(self) -> tuple[Panel, ...]:
         """The panels shown, left to right."""
         if self.data is None:
             return ()
-        chosen = []
-        for panel in self.data.panels:
-            if panel is TRUTH and not self.truth_box.value:
-                continue
-            if panel is SEGMENTS and not self.segments_box.value:
-                continue
-            chosen.append(panel)
-        return tuple(chosen)
+        if self.layout.value == SINGLE:
+            chosen = [p for p in self.data.panels if p.title == self.single.value]
+            return tuple(chosen[:1] or self.data.panels[2:3])
+        return tuple(p for p in self.data.panels if p not in OPTIONAL or self.panel_boxes[p].value)
 
     def redraw(self, *, camera: bool = False) -> None:
-        """Lay out the visible panels (sending any not sent yet), then apply visibility."""
+        """Lay out the visible panels (sending any not sent yet), then apply visibility; re-fit
+        the camera when the number of panels changed (or when asked)."""
         with self._lock:
             data = self.data
             if data is None:
                 return
             panels = self.visible_panels()
             offsets = panel_offsets(data.extent, len(panels))
-            for panel, offset in zip(panels, offsets, strict=True):
-                if panel.key not in self.frames:
-                    self._send_panel(panel, data)
-                self.frames[panel.key].position = offset
-            for key, frame in self.frames.items():
-                frame.visible = any(p.key == key for p in panels)
-            self._apply_visibility()
-            if camera:
-                self._set_camera(data, len(panels))
+            with self.client.atomic():
+                for panel, offset in zip(panels, offsets, strict=True):
+                    if panel.key not in self.frames:
+                        self._send_panel(panel, data)
+                    self.frames[panel.key].position = offset
+                for key, frame in self.frames.items():
+                    frame.visible = any(p.key == key for p in panels)
+                self._apply_visibility()
+                if camera or len(panels) != self._count:
+                    self._count = len(panels)
+                    self._set_camera(data, len(panels))
 
     def _send_panel(self, panel: Panel, data: SceneData) -> None:
         scene = self.client.scene
-        frame = scene.add_frame(f"{ROOT}/{panel.key}", show_axes=False)
+        path = f"{self._root_path}/{panel.key}"
+        frame = scene.add_frame(path, show_axes=False)
         self.frames[panel.key] = frame
         scene.add_label(
-            f"{ROOT}/{panel.key}/title",
+            f"{path}/title",
             panel.title,
             position=title_position(data.extent),
             anchor="bottom-center",
             font_screen_scale=1.4,
         )
-        colours = data.colours_of(panel)
-        key = panel.key if panel in (NETWORK, TRUTH) else "fused"
+        rows = slice(None) if self.shown is None else self.shown
+        xyz, colours = data.xyz[rows], data.colours_of(panel)[rows]
         size = self._size(data)
-        for (cls, changed), index in self._groups[key].items():
+        for (cls, changed), index in self._groups[LABEL_KEY.get(panel.key, "fused")].items():
             self.nodes[(panel.key, cls, changed)] = scene.add_point_cloud(
-                f"{ROOT}/{panel.key}/{class_title(cls)}_{'changed' if changed else 'kept'}",
-                data.xyz[index],
+                f"{path}/{class_title(cls)}_{'changed' if changed else 'kept'}",
+                xyz[index],
                 colours[index],
                 point_size=size,
                 point_shape="square",
@@ -303,6 +536,7 @@ class ClientView:
         with self._lock, self.client.atomic():
             for (_, cls, changed), node in self.nodes.items():
                 node.visible = self._node_visible(cls, changed)
+            self._status_line()
 
     def _resize_points(self) -> None:
         with self._lock:
@@ -313,20 +547,66 @@ class ClientView:
                 for node in self.nodes.values():
                     node.point_size = size
 
-    def _set_camera(self, data: SceneData, count: int) -> None:
-        """Point the camera at the whole row; re-fit later if the canvas changes shape."""
-        camera = self.client.camera
+    def _rebudget(self) -> None:
+        """Send the job again within the new point budget, keeping the camera."""
+        job_id, camera = self.job_id, self.client.camera
+        if job_id is None:
+            return
+        try:
+            pose = (*camera.position, *camera.look_at)
+        except (AssertionError, AttributeError):
+            pose = None
+        auto = self._camera_auto
+        self.show_job(job_id, camera=None if auto else pose)
+
+    # ----------------------------------------------------------------- camera
+    def _hook_camera(self) -> None:
         if not self._camera_hooked:
             self._camera_hooked = True
-            camera.on_update(lambda _: self._camera_moved())
-        self._camera_count = max(count, 1)
+            self.client.camera.on_update(lambda _: self._camera_moved())
+
+    def _place_camera(self, position: Any, look_at: Any) -> None:
+        """Put the camera where a link or a preset says; the overview no longer follows."""
+        self._hook_camera()
+        camera = self.client.camera
+        camera.up_direction = (0.0, 0.0, 1.0)
+        camera.position = np.asarray(position, dtype=np.float64)[:3]
+        camera.look_at = np.asarray(look_at, dtype=np.float64)[:3]
+        self._camera_auto = False
+
+    def set_view(self, name: str) -> None:
+        """A preset view of the whole row: "Fit all" (the overview), "Top", "Front", "Side"."""
+        with self._lock:
+            data = self.data
+            if data is None:
+                return
+            if name == "Fit all":
+                self._set_camera(data, len(self.visible_panels()))
+            else:
+                aspect = self._aspect()
+                pose = view_camera(data.extent, len(self.visible_panels()), name, aspect=aspect)
+                self.client.camera.fov = pose.fov
+                self._place_camera(pose.position, pose.look_at)
+        self.sync_address()
+
+    def _aspect(self) -> float:
+        try:
+            return float(self.client.camera.aspect)
+        except (AssertionError, ZeroDivisionError):
+            return 16 / 9
+
+    def _set_camera(self, data: SceneData, count: int) -> None:
+        """Point the camera at the whole row; re-fit later if the canvas changes shape."""
+        self._hook_camera()
+        camera = self.client.camera
+        self._count = max(count, 1)
         try:
             aspect = camera.aspect
         except (AssertionError, ZeroDivisionError):
             self._camera_pose = None  # no camera report from the browser yet: place it then
             self._camera_auto = True
             return
-        pose = overview_camera(data.extent, self._camera_count, aspect=aspect)
+        pose = overview_camera(data.extent, self._count, aspect=aspect)
         camera.up_direction = pose.up
         camera.fov = pose.fov
         camera.position = pose.position
@@ -342,13 +622,17 @@ class ClientView:
         """
         with self._lock:
             data, camera = self.data, self.client.camera
-            if data is None or not self._camera_auto:
+            if data is None:
+                return
+            if not self._camera_auto:
+                self._address_soon()
                 return
             pose = self._camera_pose
             if pose is not None:
                 ours = np.allclose(camera.position, pose.position, rtol=1e-3, atol=1e-3)
                 if self._camera_echoed and not ours:
                     self._camera_auto = False  # the user took over
+                    self._address_soon()
                     return
                 if not self._camera_echoed:
                     self._camera_echoed = ours
@@ -357,9 +641,145 @@ class ClientView:
                         return
                 if abs(camera.aspect - self._camera_aspect) < 0.01 * self._camera_aspect:
                     return
-            self._set_camera(data, self._camera_count)
+            self._set_camera(data, self._count)
+
+    # ---------------------------------------------------------------- address
+    def view_state(self) -> ViewState:
+        """The view as a link would restore it."""
+        camera = None
+        if not self._camera_auto and self.data is not None:
+            try:
+                camera = (*self.client.camera.position, *self.client.camera.look_at)
+            except AssertionError:
+                camera = None
+        single = None
+        if self.layout.value == SINGLE and self.data is not None:
+            single = next((p.key for p in self.data.panels if p.title == self.single.value), None)
+        return ViewState(
+            job_id=self.job_id,
+            key=self.asked.key,
+            camera=None if camera is None else tuple(float(v) for v in camera),
+            hidden=frozenset(self.hidden),
+            panels=frozenset(p.key for p, want in self._wanted.items() if want),
+            only_changed=bool(self.only_changed.value),
+            point_size=float(self.point_size.value),
+            single=single,
+            budget=None if self.budget.value >= self.cache.max_points else int(self.budget.value),
+        )
+
+    def sync_address(self) -> None:
+        """Write the current view into the browser's address bar."""
+        with self._lock:
+            if self._address_due is not None:
+                self._address_due.cancel()
+                self._address_due = None
+            self._address_last = time.monotonic()
+            self._address_serial += 1
+            path = state_path(self.view_state(), with_key=self.key_in_address)
+            self.address.content = address_html(path, self._address_serial)
+
+    def _address_soon(self) -> None:
+        """The camera moves: update the address at most every :data:`ADDRESS_EVERY_S`."""
+        if self._address_due is not None:
+            return
+        wait = max(0.0, ADDRESS_EVERY_S - (time.monotonic() - self._address_last))
+        self._address_due = threading.Timer(wait, self.sync_address)
+        self._address_due.daemon = True
+        self._address_due.start()
+
+    # ------------------------------------------------------------ click tools
+    def _mode_changed(self) -> None:
+        self._clear_marks()
+        self.tools.mode = str(self.mode.value)
+        self.answer.content = {
+            MODES[0]: "Click a point in any panel.",
+            MODES[1]: "Click two points.",
+            MODES[2]: "Click the corners of a planar area, in order.",
+        }[self.tools.mode]
+
+    def _clear_marks(self) -> None:
+        with self._lock:
+            self.tools.clear()
+
+    def _clicked(self, event: Any) -> None:
+        """A click in the scene: find the point under it and hand it to the click tools."""
+        with self._lock:
+            data = self.data
+            if data is None:
+                return
+            origin = np.asarray(event.ray_origin, dtype=np.float64)
+            direction = np.asarray(event.ray_direction, dtype=np.float64)
+            hit = self.pick(origin, direction)
+            if hit is None:
+                self.answer.content = "No point under the click."
+                return
+            marker = 1.5 * self._size(data)
+            self.answer.content = self.tools.add(data, hit, marker)
+
+    def pick(self, origin: np.ndarray, direction: np.ndarray) -> Picked | None:
+        """The drawn point a ray (world coordinates) hits first, over every visible panel."""
+        data = self.data
+        if data is None:
+            return None
+        tolerance = self._pick_tolerance(data, origin)
+        best: tuple[float, Picked] | None = None
+        for panel in self.visible_panels():
+            frame = self.frames.get(panel.key)
+            if frame is None:
+                continue
+            groups = self._groups.get(LABEL_KEY.get(panel.key, "fused"), {})
+            drawn = [idx for (cls, ch), idx in groups.items() if self._node_visible(cls, ch)]
+            if not drawn:
+                continue
+            rows = self._rows(np.concatenate(drawn))
+            local_origin = origin - np.asarray(frame.position, dtype=np.float64)
+            found = pick(data.xyz[rows], local_origin, direction, tolerance)
+            if found is None:
+                continue
+            row = int(rows[found])
+            depth = float((data.xyz[row] - local_origin) @ direction)
+            if best is None or depth < best[0]:
+                best = (depth, Picked(panel.key, row, data.xyz[row].astype(np.float64)))
+        return None if best is None else best[1]
+
+    def _pick_tolerance(self, data: SceneData, origin: np.ndarray) -> float:
+        """A hit within a drawn point's size, or four pixels at the camera's focus distance."""
+        size = self._size(data)
+        try:
+            camera = self.client.camera
+            focus = float(np.linalg.norm(np.asarray(camera.look_at) - origin))
+            pixel = 2.0 * focus * np.tan(camera.fov / 2.0) / max(camera.image_height, 1)
+        except (AssertionError, AttributeError, ZeroDivisionError):
+            pixel = 0.0
+        return max(0.75 * size, 4.0 * pixel)
 
     # -------------------------------------------------------------- downloads
+    def send_screenshot(self) -> None:
+        """The canvas as the browser renders it now, as a PNG download."""
+        import imageio.v3 as iio
+
+        job_id = self.job_id
+        camera = self.client.camera
+        try:
+            height, width = int(camera.image_height), int(camera.image_width)
+        except (AssertionError, AttributeError):
+            height, width = 900, 1600
+        height, width = max(min(height, 2160), 16), max(min(width, 3840), 16)
+        try:
+            rgba = self.client.get_render(height, width, transport_format="png", timeout=30.0)
+        except (TimeoutError, RuntimeError) as exc:
+            self.client.add_notification("Screenshot failed", str(exc), color="red")
+            return
+        image = rgba[..., :3].astype(np.float64)
+        if rgba.shape[-1] == 4:  # the background renders transparent: lay it on ours
+            alpha = rgba[..., 3:4].astype(np.float64) / 255.0
+            image = image * alpha + np.array(BACKGROUND, np.float64) * (1.0 - alpha)
+        buffer = io.BytesIO()
+        iio.imwrite(buffer, np.round(image).astype(np.uint8), extension=".png")
+        entry = self._entries.get(job_id or "")
+        stem = Path(entry.filename).stem if entry is not None else (job_id or "view")
+        self.client.send_file_download(f"{stem}_view.png", buffer.getvalue(), save_immediately=True)
+
     def _send_download(self, *, result: bool) -> None:
         job_id = self.job_id
         if job_id is None:

@@ -91,3 +91,50 @@ def overview_camera(
         look_at[2] + distance * math.sin(elevation),
     )
     return CameraPose(position=position, look_at=look_at, fov=vfov)
+
+
+#: Preset views: the direction the camera looks from, towards the row's centre (z up). "Top"
+#: leans a hair towards -y so the orbit controls keep a defined up.
+VIEW_DIRECTIONS: dict[str, tuple[float, float, float]] = {
+    "Top": (0.0, -1e-3, 1.0),
+    "Front": (0.0, -1.0, 0.0),
+    "Side": (1.0, 0.0, 0.0),
+}
+
+
+def view_camera(
+    extent: np.ndarray,
+    count: int,
+    view: str,
+    *,
+    aspect: float = 16 / 9,
+    gap_ratio: float = GAP_RATIO,
+    fov_deg: float = FOV_DEG,
+    margin: float = 1.08,
+) -> CameraPose:
+    """A camera looking from preset ``view`` (a key of :data:`VIEW_DIRECTIONS`) that fits the
+    whole row: the row's bounding box projected on the image plane fits both fields of view.
+    """
+    width = max(float(extent[0]), 1e-3)
+    row = count * width + (count - 1) * gap_ratio * width
+    half = np.array([row, float(extent[1]), float(extent[2])]) / 2.0
+    back = np.asarray(VIEW_DIRECTIONS[view], dtype=np.float64)
+    back /= np.linalg.norm(back)
+    up = np.array([0.0, 0.0, 1.0])
+    right = np.cross(up, back)
+    if np.linalg.norm(right) < 1e-6:
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    screen_up = np.cross(back, right)
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * half
+    vfov = math.radians(fov_deg)
+    hfov = 2.0 * math.atan(math.tan(vfov / 2.0) * aspect)
+    # each corner needs the camera far enough back that it falls inside both fields of view
+    depth = corners @ back
+    need = np.maximum(
+        np.abs(corners @ right) / math.tan(hfov / 2.0),
+        np.abs(corners @ screen_up) / math.tan(vfov / 2.0),
+    )
+    distance = float(np.max(need + depth)) * margin
+    position = tuple(float(v) for v in back * distance)
+    return CameraPose(position=position, look_at=(0.0, 0.0, 0.0), fov=vfov)  # type: ignore[arg-type]

@@ -97,3 +97,39 @@ def iou_html(report: dict[str, Any] | None) -> str | None:
         f"<table {_TABLE}><tr><th {_LEFT}>IoU</th><th {_CELL}>network</th>"
         f"<th {_CELL}>fused</th><th {_CELL}>gain</th></tr>{''.join(rows)}</table>"
     )
+
+
+def confusion_html(truth: np.ndarray, fused: np.ndarray) -> str | None:
+    """Ground truth (rows) against the fused labels (columns) of the points shown, each row in
+    percent of its points; the diagonal is what the fusion got right. None without truth."""
+    from jointseg.metrics import confusion_matrix
+
+    keep = truth >= 0
+    if not keep.any():
+        return None
+    cm = confusion_matrix(truth[keep], fused[keep])
+    rows_present = [c for c in range(NUM_CLASSES) if cm[c].sum() > 0]
+    cols_present = [c for c in range(NUM_CLASSES) if cm[:, c].sum() > 0]
+    if cm[:, NUM_CLASSES].sum() > 0:
+        cols_present.append(NUM_CLASSES)
+    head = "".join(
+        f'<th {_CELL} title="{escape(class_title(c if c < NUM_CLASSES else -1))}">'
+        f"{swatch(c if c < NUM_CLASSES else -1)}</th>"
+        for c in cols_present
+    )
+    body = []
+    for r in rows_present:
+        total = cm[r].sum()
+        cells = []
+        for c in cols_present:
+            share = 100.0 * cm[r, c] / total
+            tint = "rgba(26,152,80,{a:.2f})" if c == r else "rgba(214,39,40,{a:.2f})"
+            colour = tint.format(a=min(share / 100.0, 1.0) * 0.8)
+            text = f"{share:.0f}" if cm[r, c] else ""
+            cells.append(f'<td {_CELL[:-1]};background:{colour}">{text}</td>')
+        body.append(
+            f"<tr><td {_LEFT}>{swatch(r)} {escape(class_title(r))}</td>{''.join(cells)}</tr>"
+        )
+    return (
+        f"<table {_TABLE}><tr><th {_LEFT}>truth \\ fused %</th>{head}</tr>{''.join(body)}</table>"
+    )

@@ -32,6 +32,8 @@ from jointseg.io.ply_blocks import VertexBlock, open_vertex_blocks
 
 #: Result fields the viewer needs (written by jointseg.pipeline.outputs.annotate).
 REQUIRED_FIELDS = ("network_label", "segment", "fused_label")
+#: Read when present: colour by confidence and the picked point's confidence need it.
+CONFIDENCE_FIELD = "network_confidence"
 #: Bytes of file read per block: small enough that counting three columns of a block finds it in
 #: the CPU cache (8 MiB measured fastest on the 2-core reference machine, 32 MiB 2x slower).
 BLOCK_BYTES = 8 << 20
@@ -52,6 +54,8 @@ class ResultSample:
     network, fused, segments : ndarray of shape (M,), int32
     truth : ndarray of shape (M,), int32, or None
         Ground truth, values outside 0..12 as -1.
+    confidence : ndarray of shape (M,), float32, or None
+        The network's confidence in its label, when the file has it.
     counts : dict of str to ndarray of shape (NUM_CLASSES + 1,), int64
         Points per class of every row for ``network``, ``fused`` and ``truth`` (when present);
         the last entry counts unlabelled points.
@@ -66,6 +70,7 @@ class ResultSample:
     segments: np.ndarray
     truth: np.ndarray | None
     counts: dict[str, np.ndarray]
+    confidence: np.ndarray | None = None
 
 
 def class_counts(labels: np.ndarray) -> np.ndarray:
@@ -157,6 +162,10 @@ def _read_ply_blocks(path: Path, budget: int) -> ResultSample | None:
     targets.update(ints)
     if truth is not None and label is not None:
         targets[label] = truth
+    confidence = None
+    if CONFIDENCE_FIELD in names and record[CONFIDENCE_FIELD].kind == "f":
+        confidence = np.empty(rows.size, dtype=np.float32)
+        targets[CONFIDENCE_FIELD] = confidence
     counts = _gather(blocks, rows, targets, counted)
     _check_finite(path, xyz, rows)
     return ResultSample(
@@ -169,6 +178,7 @@ def _read_ply_blocks(path: Path, budget: int) -> ResultSample | None:
         segments=ints["segment"],
         truth=None if truth is None else _as_classes(truth),
         counts=counts,
+        confidence=confidence,
     )
 
 
@@ -219,6 +229,7 @@ def _read_whole(path: Path, budget: int) -> ResultSample:
     if scan.labels is not None:
         counts["truth"] = class_counts(scan.labels)
     rows = sample_rows(len(scan), budget)
+    confidence = scan.fields.get(CONFIDENCE_FIELD)
     return ResultSample(
         total=len(scan),
         rows=rows,
@@ -229,4 +240,5 @@ def _read_whole(path: Path, budget: int) -> ResultSample:
         segments=np.asarray(scan.fields["segment"])[rows].astype(np.int32),
         truth=None if scan.labels is None else _as_classes(scan.labels[rows]),
         counts=counts,
+        confidence=None if confidence is None else np.asarray(confidence)[rows].astype(np.float32),
     )

@@ -45,8 +45,16 @@ NETWORK = Panel("network", "Network labels")
 FUSED = Panel("fused", "Fused labels")
 TRUTH = Panel("truth", "Ground truth")
 SEGMENTS = Panel("segments", "Segments")
+CONFIDENCE = Panel("confidence", "Confidence")
+ERRORS = Panel("errors", "Errors")
 #: Left-to-right order of the panels in the scene.
-PANELS: tuple[Panel, ...] = (RAW, NETWORK, FUSED, TRUTH, SEGMENTS)
+PANELS: tuple[Panel, ...] = (RAW, NETWORK, FUSED, TRUTH, SEGMENTS, CONFIDENCE, ERRORS)
+#: Error map colours: fused label right, wrong, and no ground truth at the point.
+RIGHT_COLOUR = (150, 150, 150)
+WRONG_COLOUR = (214, 39, 40)
+NO_TRUTH_COLOUR = (225, 225, 225)
+#: Confidence ramp from 0 to 1: red, yellow, green (ColorBrewer RdYlGn ends and middle).
+CONFIDENCE_RAMP = np.array([[215, 48, 39], [254, 224, 139], [26, 152, 80]], dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,6 +90,11 @@ class SceneData:
         entry counts unlabelled points.
     report : dict or None
         The job's report.json.
+    confidence : ndarray of shape (M,), float32, optional
+        The network's confidence in its label, when the result has it.
+    to_work : ndarray of shape (4, 4), optional
+        The frame stage's transform from the file's coordinates to the levelled metric frame
+        the points are shown in (None: shown as stored); picking maps back through it.
     """
 
     xyz: np.ndarray
@@ -98,11 +111,29 @@ class SceneData:
     spacing: float
     counts: dict[str, np.ndarray]
     report: dict[str, Any] | None
+    confidence: np.ndarray | None = None
+    to_work: np.ndarray | None = None
 
     @property
     def panels(self) -> tuple[Panel, ...]:
-        """The panels this result can show (ground truth only when it has one)."""
-        return tuple(p for p in PANELS if p is not TRUTH or self.truth is not None)
+        """The panels this result can show (ground truth and the error map only when it has a
+        ground truth, confidence only when it has the network's confidence)."""
+        out = []
+        for p in PANELS:
+            if p in (TRUTH, ERRORS) and self.truth is None:
+                continue
+            if p is CONFIDENCE and self.confidence is None:
+                continue
+            out.append(p)
+        return tuple(out)
+
+    def file_xyz(self, shown: np.ndarray) -> np.ndarray:
+        """Shown positions (scene coordinates, (..., 3)) back in the file's own coordinates."""
+        work = np.asarray(shown, dtype=np.float64) + self.centre
+        if self.to_work is None:
+            return work
+        m = self.to_work
+        return np.linalg.solve(m[:3, :3], (work - m[:3, 3]).T).T
 
     @property
     def nbytes(self) -> int:
@@ -118,7 +149,7 @@ class SceneData:
         Label panels use their own labels; the raw and segment panels follow the fused labels,
         the result.
         """
-        if panel is NETWORK:
+        if panel in (NETWORK, CONFIDENCE):
             return self.network
         if panel is TRUTH and self.truth is not None:
             return self.truth
@@ -131,7 +162,30 @@ class SceneData:
             return self.rgb
         if panel is SEGMENTS:
             return segment_colours(self.segments)
+        if panel is CONFIDENCE and self.confidence is not None:
+            return confidence_colours(self.confidence)
+        if panel is ERRORS and self.truth is not None:
+            return error_colours(self.fused, self.truth)
         return colourise(self.labels_of(panel))
+
+
+def confidence_colours(confidence: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8 along :data:`CONFIDENCE_RAMP`: red at 0, yellow at 0.5, green at 1."""
+    t = np.clip(np.nan_to_num(confidence.astype(np.float64)), 0.0, 1.0) * 2.0
+    low = np.minimum(t.astype(np.int64), 1)
+    frac = (t - low)[:, None]
+    rgb = CONFIDENCE_RAMP[low] * (1.0 - frac) + CONFIDENCE_RAMP[low + 1] * frac
+    return np.round(rgb).astype(np.uint8)
+
+
+def error_colours(fused: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """(N, 3) uint8: grey where the fused label equals the ground truth, red where it does not,
+    pale where the point has no ground truth."""
+    out = np.empty((fused.shape[0], 3), dtype=np.uint8)
+    out[:] = RIGHT_COLOUR
+    out[fused != truth] = WRONG_COLOUR
+    out[truth < 0] = NO_TRUTH_COLOUR
+    return out
 
 
 def voxel_downsample(xyz: np.ndarray, max_points: int) -> tuple[np.ndarray, float | None]:
@@ -259,7 +313,8 @@ def load_scene(
         raise ValueError(f"max_points must be at least 1, got {max_points}")
     sample = read_sample(result_path, CANDIDATES_PER_POINT * max_points)
     report = read_report(report_path)
-    levelled = levelled_xyz(sample.xyz, report)
+    to_work = work_transform(report)
+    levelled = sample.xyz if to_work is None else sample.xyz @ to_work[:3, :3].T + to_work[:3, 3]
     kept, voxel = voxel_downsample(levelled, max_points)
     index = None if voxel is None and sample.rows.size == sample.total else kept  # None: all
 
@@ -287,6 +342,8 @@ def load_scene(
         spacing=estimate_spacing(shown),
         counts=sample.counts,
         report=report,
+        confidence=None if sample.confidence is None else pick(sample.confidence),
+        to_work=to_work,
     )
     log.info(
         "loaded %s: %d of %d points shown (voxel %s)",
@@ -311,16 +368,25 @@ def axis_bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def levelled_xyz(xyz: np.ndarray, report: dict[str, Any] | None) -> np.ndarray:
     """The points as the pipeline saw them (z up, metres: the report's ``frame.to_work``), so
     a y-up or millimetre scan is shown standing, at the size the viewer's spacing expects."""
+    matrix = work_transform(report)
+    return xyz if matrix is None else xyz @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def work_transform(report: dict[str, Any] | None) -> np.ndarray | None:
+    """The report's ``frame.to_work`` as a 4x4 matrix, None when the scan was used as stored
+    (or the entry is missing or unusable)."""
     frame = (report or {}).get("frame")
     if not isinstance(frame, dict) or frame.get("identity", True) or "to_work" not in frame:
-        return xyz
+        return None
     try:
         matrix = np.asarray(frame["to_work"], dtype=np.float64)
     except (TypeError, ValueError):
-        return xyz
+        return None
     if matrix.shape != (4, 4) or not np.isfinite(matrix).all():
-        return xyz
-    return xyz @ matrix[:3, :3].T + matrix[:3, 3]
+        return None
+    if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
+        return None
+    return matrix
 
 
 def read_report(path: str | os.PathLike[str] | None) -> dict[str, Any] | None:

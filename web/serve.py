@@ -16,6 +16,7 @@ import threading
 from types import FrameType
 
 from jointseg.io.atomic import atomic_open
+from server.api.auth import key_accepted
 from server.serve_parts import ServeParts
 from server.settings import Settings
 from web.page import VIEWER_FILE, job_page_router
@@ -42,7 +43,10 @@ def run_viewer(settings: Settings) -> None:
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, note)
     source = ServiceSource(settings)
-    viewer = Viewer(source, host=settings.viewer_host, port=settings.viewer_port)
+    authorise = None if not settings.api_keys else (lambda key: key_accepted(settings, key))
+    viewer = Viewer(
+        source, host=settings.viewer_host, port=settings.viewer_port, authorise=authorise
+    )
     if viewer.port != settings.viewer_port:
         log.warning("viewer port %d is taken; using %d", settings.viewer_port, viewer.port)
     record = settings.data_dir / VIEWER_FILE

@@ -9,7 +9,14 @@ parameter (default: the page's own address). A link of the form
 
 (:func:`viewer_link`) therefore opens a websocket whose request path names the job; the
 viewer reads that path when the tab connects and shows the job. The link survives reloads,
-because the client keeps the parameter in its address bar.
+because the client keeps the parameter in its address bar, and the view writes the rest of
+its state there too (:mod:`web.view_state`).
+
+Keys
+----
+When the job service has API keys, the viewer asks for one of them before it lists or shows
+anything: in the link (``?key=`` on the websocket address, as the job page writes it) or typed
+into the sign-in box it shows instead of its controls.
 """
 
 from __future__ import annotations
@@ -17,7 +24,9 @@ from __future__ import annotations
 import logging
 import re
 import threading
-from urllib.parse import quote, unquote
+from collections.abc import Callable
+from dataclasses import replace
+from urllib.parse import unquote
 
 import viser
 
@@ -25,21 +34,22 @@ from web.client_view import ClientView
 from web.memory import release_soon
 from web.scene import MAX_PANEL_POINTS, SceneCache
 from web.sources import JobSource
+from web.view_state import ViewState, parse_path
+from web.view_state import viewer_link as state_link
 
 log = logging.getLogger(__name__)
 
 _JOB_PATH = re.compile(r"^/job/([^/?#]+)/?$")
 
 
-def viewer_link(base_url: str, job_id: str) -> str:
-    """The address that opens the viewer at ``base_url`` (``http://host:port``) on ``job_id``."""
-    base = base_url.rstrip("/")
-    ws = re.sub(r"^http", "ws", base) + "/job/" + quote(job_id, safe="")
-    return f"{base}/?websocket={quote(ws, safe=':/')}"
+def viewer_link(base_url: str, job_id: str, key: str | None = None) -> str:
+    """The address that opens the viewer at ``base_url`` (``http://host:port``) on ``job_id``
+    (signed in with ``key`` when given)."""
+    return state_link(base_url, ViewState(job_id=job_id, key=key))
 
 
 def job_from_path(path: str | None) -> str | None:
-    """The job id in a websocket request path ``/job/<id>``, else None."""
+    """The job id in a websocket request path ``/job/<id>`` (any query dropped), else None."""
     if not path:
         return None
     match = _JOB_PATH.match(path.partition("?")[0])
@@ -54,13 +64,16 @@ class Viewer:
     source : JobSource
         Where finished jobs and their files are found.
     host : str
-        Interface to listen on; loopback by default (the viewer has no authentication).
+        Interface to listen on; loopback by default.
     port : int
         viser moves to the next free port when this one is taken: read :attr:`port`.
     max_points : int
         Most points per panel (voxel down-sampling above).
     cache_size : int
         Loaded results kept for quick switching, shared by all clients.
+    authorise : callable, optional
+        Whether a presented API key (None: none) may see the jobs; None when the service has
+        no keys (everyone may).
     """
 
     def __init__(
@@ -71,8 +84,10 @@ class Viewer:
         port: int = 8080,
         max_points: int = MAX_PANEL_POINTS,
         cache_size: int = 2,
+        authorise: Callable[[str | None], bool] | None = None,
     ) -> None:
         self.source = source
+        self.authorise = authorise
         self.cache = SceneCache(cache_size, max_points=max_points)
         self.views: dict[int, ClientView] = {}
         self._views_lock = threading.Lock()
@@ -88,19 +103,48 @@ class Viewer:
         """The port the viewer listens on."""
         return self.server.get_port()
 
-    def link(self, job_id: str, host: str = "127.0.0.1") -> str:
+    def link(self, job_id: str, host: str = "127.0.0.1", key: str | None = None) -> str:
         """A link opening this viewer on ``job_id``."""
-        return viewer_link(f"http://{host}:{self.port}", job_id)
+        return viewer_link(f"http://{host}:{self.port}", job_id, key)
 
     def _connect(self, client: viser.ClientHandle) -> None:
         client.gui.configure_theme(control_width="large", show_logo=False)
         client.gui.main_panel.dock_right()  # beside the canvas, not over the panels
-        view = ClientView(client, self.source, self.cache)
+        state = parse_path(self._request_path(client))
+        if self.authorise is not None and not self.authorise(state.key):
+            self._sign_in(client, state)
+            return
+        self._open(client, state, key_in_address=state.key is not None)
+
+    def _open(self, client: viser.ClientHandle, state: ViewState, *, key_in_address: bool) -> None:
+        view = ClientView(client, self.source, self.cache, state, key_in_address=key_in_address)
         with self._views_lock:
             self.views[client.client_id] = view
-        job_id = job_from_path(self._request_path(client))
-        if job_id is not None:
-            view.select(job_id)
+        if state.job_id is not None:
+            view.select(state.job_id)
+        else:
+            view.sync_address()
+
+    def _sign_in(self, client: viser.ClientHandle, state: ViewState) -> None:
+        """Show only a key box: nothing is listed or drawn until a key is accepted."""
+        gui = client.gui
+        with gui.add_folder("Sign in") as folder:
+            why = "The key in this link was refused." if state.key else "This viewer needs a key."
+            note = gui.add_markdown(f"{why} Enter one of the job service's API keys.")
+            box = gui.add_text("API key", "")
+            button = gui.add_button("Sign in", icon=viser.Icon.LOGIN)
+
+        def attempt(_: object) -> None:
+            key = str(box.value).strip()
+            assert self.authorise is not None
+            if not self.authorise(key or None):
+                log.info("viewer: client %d presented a refused key", client.client_id)
+                note.content = "**This key was refused.** Enter one of the service's API keys."
+                return
+            folder.remove()
+            self._open(client, replace(state, key=key), key_in_address=False)
+
+        button.on_click(attempt)
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._views_lock:

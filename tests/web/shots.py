@@ -1,7 +1,8 @@
 """Reading the viewer's screenshots: where the panels are, which palette colours they show.
 
 The viewer draws points with flat shading, so a class's points appear in exactly its palette
-colour; the background is white. Panels are separated by empty columns of pixels.
+colour; the background is one flat colour (read from the canvas's corners, so the tests hold
+whatever it is). Panels are separated by empty columns of pixels.
 """
 
 from __future__ import annotations
@@ -51,9 +52,19 @@ def settled(page: Any, *, timeout: float = 30.0, min_ink: int = 20_000) -> np.nd
     raise AssertionError(f"the viewer did not settle within {timeout} s")
 
 
+def background(image: np.ndarray) -> np.ndarray:
+    """The background colour: the commonest colour of the canvas's four corners, (3,) int16."""
+    h, w = image.shape[:2]
+    corners = [image[6:16, 6:16], image[6:16, w - 16 : w - 6]]
+    corners += [image[h - 16 : h - 6, 6:16], image[h - 16 : h - 6, w - 16 : w - 6]]
+    pixels = np.concatenate([c.reshape(-1, 3) for c in corners]).astype(np.int16)
+    colours, counts = np.unique(pixels, axis=0, return_counts=True)
+    return colours[int(np.argmax(counts))]
+
+
 def ink(image: np.ndarray) -> np.ndarray:
-    """Pixels that are not (nearly) white background, (H, W) bool."""
-    return (255 - image.astype(np.int16)).max(axis=2) > 10
+    """Pixels that are not (nearly) the background colour, (H, W) bool."""
+    return np.abs(image.astype(np.int16) - background(image)).max(axis=2) > 10
 
 
 def panel_spans(image: np.ndarray, count: int, *, min_gap: int = 2) -> list[tuple[int, int]]:

@@ -60,3 +60,21 @@ def test_overview_camera_sees_every_corner_of_every_panel(count: int, aspect: fl
                     assert abs(u) < 1 and abs(v) < 1, (corner, u, v)
                     reach = max(reach, abs(u), abs(v))
     assert reach > 0.6  # and the rooms fill the view rather than sit small in its middle
+
+
+@pytest.mark.parametrize("view", ["Top", "Front", "Side"])
+@pytest.mark.parametrize("count", [1, 5])
+def test_preset_views_look_from_their_side_and_see_every_corner(view: str, count: int) -> None:
+    from web.layout import VIEW_DIRECTIONS, view_camera
+
+    extent, aspect = np.array([7.0, 5.0, 2.8]), 1.6
+    pose = view_camera(extent, count, view, aspect=aspect)
+    position = np.array(pose.position)
+    direction = np.asarray(VIEW_DIRECTIONS[view]) / np.linalg.norm(VIEW_DIRECTIONS[view])
+    assert np.allclose(position / np.linalg.norm(position), direction)
+    for offset in panel_offsets(extent, count):
+        for corner in np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]):
+            if view == "Side" and count > 1:
+                break  # seen from the side the row hides behind its first panel
+            u, v = _project(offset + extent / 2 * corner, position, np.zeros(3), pose.fov, aspect)
+            assert abs(u) < 1 and abs(v) < 1

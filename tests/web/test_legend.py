@@ -50,3 +50,18 @@ def test_no_iou_table_without_ground_truth(results: Path) -> None:
     report = json.loads((results / "unlabelled.report.json").read_text())
     assert iou_html(report) is None
     assert iou_html(None) is None
+
+
+def test_confusion_table_rows_are_truth_in_percent() -> None:
+    from web.legend import confusion_html
+
+    truth = np.array([1, 1, 1, 1, 2, 2, -1])
+    fused = np.array([1, 1, 1, 2, 2, 2, 5])
+    html = confusion_html(truth, fused)
+    assert html is not None
+    floor_row = html.split("floor</td>")[1].split("</tr>")[0]
+    assert ">75<" in floor_row and ">25<" in floor_row
+    wall_row = html.split("wall</td>")[1].split("</tr>")[0]
+    assert ">100<" in wall_row
+    assert "window" not in html  # a prediction only on a point without truth is not counted
+    assert confusion_html(np.full(3, -1), np.zeros(3, int)) is None

@@ -69,7 +69,15 @@ def test_load_scene_reads_every_label_set_centred_as_float32(results: Path) -> N
     assert np.array_equal(data.fused, scan.fields["fused_label"])
     assert data.truth is not None and np.array_equal(data.truth, scan.labels)
     assert np.array_equal(data.changed, data.network != data.fused)
-    assert [p.key for p in data.panels] == ["raw", "network", "fused", "truth", "segments"]
+    assert [p.key for p in data.panels] == [
+        "raw",
+        "network",
+        "fused",
+        "truth",
+        "segments",
+        "confidence",
+        "errors",
+    ]
     assert data.counts["fused"][:13].sum() == len(scan)
     assert data.report is not None and data.report["points"] == len(scan)
     assert 0 < data.spacing < 1
@@ -179,3 +187,39 @@ def test_a_y_up_millimetre_result_is_shown_levelled_in_metres(tmp_path: Path) ->
     assert np.all(extent < 20)
     # without the report the file's own frame is shown (y up, millimetres)
     assert load_scene(out).extent[1] > 1000
+    # a picked point maps back to the file's own coordinates (millimetres, y up) exactly
+    picked = shown.file_xyz(shown.xyz[:5])
+    tree_rows = [int(np.argmin(np.linalg.norm(yup.xyz - p, axis=1))) for p in picked]
+    assert np.abs(yup.xyz[tree_rows] - picked).max() < 0.5  # half a millimetre
+
+
+def test_confidence_and_error_panels_colour_what_they_say(results: Path) -> None:
+    from web.scene import (
+        CONFIDENCE,
+        CONFIDENCE_RAMP,
+        ERRORS,
+        NO_TRUTH_COLOUR,
+        RIGHT_COLOUR,
+        WRONG_COLOUR,
+    )
+
+    data = load_scene(results / "labelled.ply", results / "labelled.report.json")
+    scan = read_scan(results / "labelled.ply")
+    assert data.confidence is not None
+    assert np.allclose(data.confidence, scan.fields["network_confidence"])
+    from web.scene import confidence_colours
+
+    # red where the network is unsure, yellow half way, green where it is sure
+    ramp = CONFIDENCE_RAMP.astype(np.uint8)
+    assert np.array_equal(confidence_colours(np.array([0.0, 0.5, 1.0])), ramp)
+    assert np.array_equal(data.colours_of(CONFIDENCE), confidence_colours(data.confidence))
+    errors = data.colours_of(ERRORS)
+    assert data.truth is not None
+    wrong = (data.fused != data.truth) & (data.truth >= 0)
+    assert wrong.any() and (~wrong).any()
+    assert (errors[wrong] == WRONG_COLOUR).all()
+    assert (errors[~wrong & (data.truth >= 0)] == RIGHT_COLOUR).all()
+    assert (errors[data.truth < 0] == NO_TRUTH_COLOUR).all()
+    # without ground truth there is no error map, and the confidence panel stays
+    bare = load_scene(results / "unlabelled.ply")
+    assert ERRORS not in bare.panels and CONFIDENCE in bare.panels

@@ -168,13 +168,31 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         counts = np.bincount(labelled.fields["fused_label"], minlength=NUM_CLASSES)
         counts[0] = 0
         off = int(np.argmax(counts))
-        viewer.get_by_label(CLASS_NAMES[off], exact=True).uncheck()
+        viewer.get_by_role("button", name=CLASS_NAMES[off], exact=True).click()
         image = settled(viewer)
         (artifacts / "service_viewer_class_off.png").write_bytes(viewer.screenshot())
         spans = panel_spans(image, 4)
         assert palette_pixels(image, spans[1])[off] == 0
         assert palette_pixels(image, spans[2])[off] == 0
         viewer.close()
+
+        # the viewer needs the API's key too: without one (or with a wrong one) a sign-in box,
+        # no job listed, nothing drawn
+        base = f"http://127.0.0.1:{service.viewer_port}"
+        for query in ("", "?key=not-a-key"):
+            ws = f"ws://127.0.0.1:{service.viewer_port}/job/{job_id}{query}"
+            locked = browser.new_page(viewport={"width": 1600, "height": 900})
+            try:
+                locked.goto(f"{base}/?websocket={quote(ws, safe='')}")
+                locked.get_by_text("Enter one of the job service's API keys").wait_for(
+                    timeout=60_000
+                )
+                time.sleep(1.0)
+                assert locked.get_by_text("points shown").count() == 0
+                assert locked.get_by_text("office.ply").count() == 0
+                assert locked.get_by_label("Job", exact=True).count() == 0
+            finally:
+                locked.close()
     finally:
         page.close()
 

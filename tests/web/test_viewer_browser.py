@@ -111,7 +111,7 @@ def test_panels_show_class_colours_and_a_class_switched_off_disappears(
         counts = np.bincount(data.fused, minlength=NUM_CLASSES)
         counts[0] = 0
         off = int(np.argmax(counts))
-        page.get_by_label(CLASS_NAMES[off], exact=True).uncheck()
+        page.get_by_role("button", name=CLASS_NAMES[off], exact=True).click()
         image = settled(page)
         (artifacts / f"viewer_room_without_{CLASS_NAMES[off]}.png").write_bytes(page.screenshot())
         _, network, fused, _ = panel_spans(image, 4)
@@ -122,11 +122,11 @@ def test_panels_show_class_colours_and_a_class_switched_off_disappears(
             assert all(seen[c] > 0 for c in others)
 
         # and the ceiling on again: its colour appears
-        page.get_by_label("ceiling", exact=True).check()
+        page.get_by_role("button", name="ceiling", exact=True).click()
         image = settled(page)
         assert palette_pixels(image, panel_spans(image, 4)[2])[0] > 100
-        page.get_by_label("ceiling", exact=True).uncheck()
-        page.get_by_label(CLASS_NAMES[off], exact=True).check()
+        page.get_by_role("button", name="ceiling", exact=True).click()
+        page.get_by_role("button", name=CLASS_NAMES[off], exact=True).click()
     finally:
         page.close()
 

@@ -1,0 +1,58 @@
+"""Views as links (web.view_state): what a link holds comes back whole; junk falls back."""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+from web.view_state import ViewState, address_html, parse_path, state_path, viewer_link
+
+FULL = ViewState(
+    job_id="a b/ç",
+    key="k&y=+/%",
+    camera=(1.25, -2.5, 3.0, 0.0, 0.5, -0.125),
+    hidden=frozenset({0, 2, -1}),
+    panels=frozenset({"segments", "errors"}),
+    only_changed=True,
+    point_size=1.5,
+    single="fused",
+    budget=50_000,
+)
+
+
+def test_a_view_comes_back_from_its_path_with_and_without_the_key() -> None:
+    assert parse_path(state_path(FULL, with_key=True)) == FULL
+    without = parse_path(state_path(FULL, with_key=False))
+    assert without.key is None and without.camera == FULL.camera and without.job_id == FULL.job_id
+
+
+def test_the_path_has_no_character_viser_would_split_the_address_on() -> None:
+    # viser writes the websocket address back unescaped: '&', '#', '+' and '%' would break it
+    path = state_path(FULL, with_key=True)
+    query = path.partition("?")[2]
+    assert not set(query) & set("&#+% ")
+    assert query.count("=") == 1
+
+
+def test_the_job_page_key_parameter_is_read() -> None:
+    state = parse_path("/job/abc?key=secret")
+    assert state.job_id == "abc" and state.key == "secret"
+
+
+def test_malformed_tokens_keep_their_defaults() -> None:
+    state = parse_path("/job/j?v=c.1,2~h.x,0~z.-3~b.lots~l.Bad!~q.9~p.tzq")
+    assert state.job_id == "j"
+    assert state.camera is None and state.hidden is None and state.point_size is None
+    assert state.budget is None and state.single is None
+    assert state.panels == frozenset({"truth"})
+    assert parse_path("/elsewhere").job_id is None
+    assert parse_path(None) == ViewState()
+
+
+def test_a_link_opens_the_view_on_the_viewer_and_the_address_element_names_the_path() -> None:
+    link = viewer_link("http://h:9", FULL)
+    ws = parse_qs(urlsplit(link).query)["websocket"][0]
+    assert ws.startswith("ws://h:9/job/")
+    assert parse_path(ws.removeprefix("ws://h:9")) == FULL
+    html = address_html(state_path(FULL, with_key=False), 7)
+    assert 'data-view="7"' in html and "window.URL" in html and "replaceState" in html
+    assert '"' not in html.split('onerror="')[1][:-2]  # the handler's quotes are escaped

@@ -1,0 +1,451 @@
+"""The viewer's layout, links, keys and tools in Debian's headless chromium (issue 32).
+
+Each test drives the page as a user does (clicks, the job picker, the address bar) and checks
+what the browser shows against the scene the server sent: panel columns in a screenshot, the
+nodes' positions and points, the answer of a click on a known point.
+"""
+
+from __future__ import annotations
+
+import io
+import re
+import socket
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+from result_files import write_result
+from shots import HIDE_TOASTS, canvas_box, panel_spans, settled
+
+from jointseg.classes import CLASS_NAMES, NUM_CLASSES
+from jointseg.io import read_scan
+from jointseg.pipeline import PipelineConfig
+from jointseg.scan import Scan
+from jointseg.synth import make_room
+from web.layout import panel_offsets
+from web.sources import DirectorySource
+from web.viewer import Viewer
+
+VIEWPORT = {"width": 1600, "height": 900}
+KEY = "s3cret-key"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
+    """``room``: 30 k labelled points through the bundled network; ``bare``: 30 k points without
+    ground truth through the random network."""
+    folder = tmp_path_factory.mktemp("tool_jobs")
+    write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
+    scan = make_room(5, points=30_000)
+    write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def viewer(jobs: Path) -> Iterator[Viewer]:
+    instance = Viewer(DirectorySource(jobs), port=free_port())
+    try:
+        yield instance
+    finally:
+        instance.stop()
+
+
+@pytest.fixture(scope="module")
+def locked(jobs: Path) -> Iterator[Viewer]:
+    """The same jobs behind a key, as the job service runs the viewer when it has API keys."""
+    instance = Viewer(DirectorySource(jobs), port=free_port(), authorise=lambda k: k == KEY)
+    try:
+        yield instance
+    finally:
+        instance.stop()
+
+
+def open_page(browser: Any, url: str) -> Any:
+    page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
+    page.goto(url)
+    page.add_style_tag(content=HIDE_TOASTS)
+    return page
+
+
+def shown(page: Any) -> Any:
+    status = page.get_by_text("points shown")
+    status.wait_for(timeout=30_000)
+    return status
+
+
+def view_of(viewer: Viewer, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        found = [v for v in viewer.views.values() if v.job_id == job_id and v not in exclude]
+        if found:
+            return found[0]
+        time.sleep(0.1)
+    raise AssertionError(f"no client shows {job_id}")
+
+
+def drawn_count(page: Any) -> int:
+    found = re.search(r"\*?\*?[^:]*: ([\d,]+) of ([\d,]+) points shown", shown(page).inner_text())
+    assert found is not None
+    return int(found.group(1).replace(",", ""))
+
+
+def field(page: Any, label: str) -> Any:
+    """The text or number input of the viser control labelled ``label`` (viser labels its
+    inputs with a text beside them, not a <label>)."""
+    row = page.get_by_text(label, exact=True).locator(
+        "xpath=ancestor::div[contains(@class, 'mantine-Flex-root')][1]"
+    )
+    return row.locator("input").first
+
+
+def address(page: Any) -> str:
+    """The page's address now (``page.url`` only changes when Playwright handles its events)."""
+    return str(page.evaluate("location.href"))
+
+
+def wait_for(condition: Any, timeout: float = 15.0, what: str = "condition") -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+# ------------------------------------------------------------------------------------- keys
+def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
+    browser: Any, locked: Viewer, artifacts: Path
+) -> None:
+    # no key: a sign-in box, no job list, no points, no view on the server
+    page = open_page(browser, locked.link("room"))
+    try:
+        page.get_by_text("This viewer needs a key").wait_for(timeout=30_000)
+        (artifacts / "viewer_sign_in.png").write_bytes(page.screenshot())
+        assert page.get_by_label("Job", exact=True).count() == 0
+        assert page.get_by_text("points shown").count() == 0
+        assert page.get_by_text("room.ply").count() == 0
+        assert not locked.views
+        # a wrong key typed in is refused, still nothing shown
+        field(page, "API key").fill("wrong")
+        page.get_by_role("button", name="Sign in").click()
+        page.get_by_text("This key was refused").wait_for(timeout=15_000)
+        assert not locked.views
+        # the right key opens the job of the link
+        field(page, "API key").fill(KEY)
+        page.get_by_role("button", name="Sign in").click()
+        shown(page)
+        assert view_of(locked, "room").job_id == "room"
+        # the typed key never goes into the address (a copied link does not carry it)
+        wait_for(lambda: "job%2Froom" in address(page), what="the address")
+        assert KEY not in address(page) and "k." not in address(page)
+    finally:
+        page.close()
+    # a wrong key in the link: refused; the key in the link (as the job page writes it): shown
+    page = open_page(browser, locked.link("room", key="nope"))
+    try:
+        page.get_by_text("The key in this link was refused").wait_for(timeout=30_000)
+        assert page.get_by_text("points shown").count() == 0
+    finally:
+        page.close()
+    port = locked.port
+    ws = f"ws://127.0.0.1:{port}/job/bare?key={KEY}"
+    from urllib.parse import quote
+
+    page = open_page(browser, f"http://127.0.0.1:{port}/?websocket={quote(ws, safe='')}")
+    try:
+        shown(page)
+        assert view_of(locked, "bare").job_id == "bare"
+    finally:
+        page.close()
+
+
+# ----------------------------------------------------------------------------- layout
+def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows(
+    browser: Any, viewer: Viewer, artifacts: Path
+) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        assert len(panel_spans(settled(page), 4)) == 4
+        view = view_of(viewer, "room")
+        # pick the job without ground truth in the picker: three panels, evenly laid out
+        page.get_by_label("Job", exact=True).click()
+        page.get_by_role("option", name="bare.ply", exact=False).click()
+        page.locator("strong", has_text="bare.ply [bare]").wait_for(timeout=30_000)
+        image = settled(page)
+        (artifacts / "viewer_switched_to_bare.png").write_bytes(page.screenshot())
+        spans = panel_spans(image, 3)
+        widths = [b - a for a, b in spans]
+        assert min(widths) > 0.7 * max(widths), spans  # no panel drawn over another
+        data = view.data
+        assert data is not None and view.job_id == "bare"
+        expected = panel_offsets(data.extent, 3)
+        frames = [view.frames[k] for k in ("raw", "network", "fused")]
+        assert np.allclose([f.position for f in frames], expected)
+        # nothing of the first job is left in the scene
+        assert all(key[0] in ("raw", "network", "fused") for key in view.nodes)
+        # the address names the job now: a reload shows it again
+        wait_for(lambda: "job%2Fbare" in address(page), what="the address to follow the job")
+        page.reload()
+        page.add_style_tag(content=HIDE_TOASTS)
+        page.locator("strong", has_text="bare.ply [bare]").wait_for(timeout=30_000)
+        # and back to the job with ground truth: four panels again
+        page.get_by_label("Job", exact=True).click()
+        page.get_by_role("option", name="room.ply", exact=False).click()
+        page.locator("strong", has_text="room.ply [room]").wait_for(timeout=30_000)
+        spans = panel_spans(settled(page), 4)
+        widths = [b - a for a, b in spans]
+        assert min(widths) > 0.7 * max(widths), spans
+        # a scan without labels leaves the ground truth box unticked and disabled
+    finally:
+        page.close()
+
+
+def test_the_truth_box_is_unticked_for_a_scan_without_labels(browser: Any, viewer: Viewer) -> None:
+    page = open_page(browser, viewer.link("bare"))
+    try:
+        shown(page)
+        box = page.get_by_label("Ground truth panel", exact=True)
+        assert not box.is_checked() and box.is_disabled()
+    finally:
+        page.close()
+
+
+def test_the_shown_points_line_follows_class_toggles_and_changed_only(
+    browser: Any, viewer: Viewer, jobs: Path
+) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        view = view_of(viewer, "room")
+        data = view.data
+        assert data is not None
+        fused = data.fused
+        everything = int((fused != 0).sum())  # the ceiling starts hidden
+        wait_for(lambda: drawn_count(page) == everything, what="the first count")
+        counts = np.bincount(fused[fused >= 0], minlength=NUM_CLASSES)
+        counts[0] = 0
+        off = int(np.argmax(counts))
+        page.get_by_role("button", name=CLASS_NAMES[off], exact=True).click()
+        wait_for(lambda: drawn_count(page) == everything - counts[off], what="class off")
+        page.get_by_role("button", name=CLASS_NAMES[off], exact=True).click()
+        page.get_by_label("Only points changed by fusion", exact=True).check()
+        changed = int((data.changed & (fused != 0)).sum())
+        wait_for(lambda: drawn_count(page) == changed, what="changed only")
+        assert 0 < changed < everything
+    finally:
+        page.close()
+
+
+def test_five_and_seven_panels_fit_the_view(browser: Any, viewer: Viewer, artifacts: Path) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        width = int(canvas_box(page)["width"])
+        for box, count in (("Segments panel", 5), ("Confidence panel", 6), ("Error map panel", 7)):
+            page.get_by_label(box, exact=True).check()
+            image = settled(page)
+            (artifacts / f"viewer_{count}_panels.png").write_bytes(page.screenshot())
+            spans = panel_spans(image, count)
+            assert spans[0][0] > 8 and spans[-1][1] < width - 8, (count, spans)  # none clipped
+    finally:
+        page.close()
+
+
+# ------------------------------------------------------------------------- click tools
+def clear_point(data: Any, rows: np.ndarray, back: np.ndarray, clearance: float) -> int:
+    """A drawn row whose line of sight towards ``back`` passes no other drawn point closer than
+    ``clearance`` (so a click on it hits it, not something in front)."""
+    xyz = data.xyz[rows].astype(np.float64)
+    order = np.random.default_rng(0).permutation(rows.size)
+    for i in order[:400]:
+        rel = xyz - xyz[i]
+        along = rel @ back
+        off = np.linalg.norm(rel - along[:, None] * back, axis=1)
+        if not np.any((along > 0.15) & (off < clearance)):
+            return int(rows[i])
+    raise AssertionError("no clear point")
+
+
+def visible_rows(view: Any, panel: str) -> np.ndarray:
+    key = {"network": "network", "truth": "truth"}.get(panel, "fused")
+    parts = [idx for (c, ch), idx in view._groups[key].items() if view._node_visible(c, ch)]
+    return view._rows(np.concatenate(parts))
+
+
+def aim(page: Any, view: Any, panel: str, row: int, back: np.ndarray) -> None:
+    """Point the camera of ``view`` at ``row`` of ``panel`` from direction ``back``; wait for
+    the browser to report it."""
+    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.frames[panel].position)
+    camera = view.client.camera
+    position = target + 2.5 * back
+    camera.up_direction = (0.0, 0.0, 1.0)
+    camera.position = position
+    camera.look_at = target
+    wait_for(
+        lambda: (
+            np.allclose(camera.position, position, atol=1e-3)
+            and np.allclose(camera.look_at, target, atol=1e-3)
+        ),
+        what=f"the camera {camera.position} {camera.look_at} != {position} {target}",
+    )
+    time.sleep(0.5)
+
+
+def click_centre(page: Any) -> None:
+    box = canvas_box(page)
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+
+
+def answer(page: Any, pattern: str) -> re.Match[str]:
+    found: list[re.Match[str]] = []
+
+    def seen() -> bool:
+        text = page.locator("body").inner_text()
+        m = re.search(pattern, text)
+        if m:
+            found.append(m)
+        return m is not None
+
+    wait_for(seen, what=f"an answer matching {pattern!r}")
+    return found[0]
+
+
+BACK = np.array([0.0, -0.35, 1.0]) / np.linalg.norm([0.0, -0.35, 1.0])
+
+
+def test_a_click_on_a_known_point_tells_its_labels_and_two_clicks_measure_it(
+    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
+) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        settled(page)
+        view = view_of(viewer, "room")
+        data = view.data
+        rows = visible_rows(view, "fused")
+        first = clear_point(data, rows, BACK, 0.25)
+        aim(page, view, "fused", first, BACK)
+        click_centre(page)
+        m = answer(page, r"Point x (-?[\d.]+), y (-?[\d.]+), z (-?[\d.]+)")
+        scan = read_scan(jobs / "room.ply")
+        picked = np.array([float(v) for v in m.groups()])
+        nearest = int(np.argmin(np.linalg.norm(scan.xyz - picked, axis=1)))
+        assert np.linalg.norm(scan.xyz[nearest] - (data.xyz[first] + data.centre)) < 1e-3
+        body = page.locator("body").inner_text()
+        fused_name = CLASS_NAMES[int(scan.fields["fused_label"][nearest])]
+        net_name = CLASS_NAMES[int(scan.fields["network_label"][nearest])]
+        assert scan.labels is not None
+        truth_name = CLASS_NAMES[int(scan.labels[nearest])]
+        assert f"fused: {fused_name}" in body and f"network: {net_name}" in body
+        assert f"ground truth: {truth_name}" in body
+        assert f"segment: {int(scan.fields['segment'][nearest])}" in body
+        conf = float(scan.fields["network_confidence"][nearest])
+        assert f"confidence {conf:.2f}" in body
+        (artifacts / "viewer_pick.png").write_bytes(page.screenshot())
+
+        # measure: two clicks on two known points give their distance within 1 mm
+        page.get_by_label("Click to", exact=True).click()
+        page.get_by_role("option", name="Measure distance").click()
+        page.get_by_text("Click two points.").wait_for(timeout=10_000)
+        far = data.xyz[rows].astype(np.float64)
+        second = None
+        for _ in range(20):
+            candidate = clear_point(data, rows, BACK, 0.25)
+            if np.linalg.norm(far[np.searchsorted(rows, candidate)] - data.xyz[first]) > 1.0:
+                second = candidate
+                break
+            rows = rows[rows != candidate]
+        assert second is not None
+        aim(page, view, "fused", first, BACK)
+        click_centre(page)
+        page.get_by_text("Distance: click a second point.").wait_for(timeout=10_000)
+        aim(page, view, "fused", second, BACK)
+        click_centre(page)
+        m = answer(page, r"Distance ([\d.]+) m")
+        truth = float(np.linalg.norm(data.xyz[second].astype(np.float64) - data.xyz[first]))
+        assert abs(float(m.group(1)) - truth) <= 1e-3, (m.group(1), truth)
+        (artifacts / "viewer_measure.png").write_bytes(page.screenshot())
+    finally:
+        page.close()
+
+
+# ------------------------------------------------------------------ links and downloads
+def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
+    browser: Any, viewer: Viewer
+) -> None:
+    page = open_page(browser, viewer.link("room"))
+    other = None
+    try:
+        shown(page)
+        view = view_of(viewer, "room")
+        page.get_by_role("button", name="wall", exact=True).click()
+        page.get_by_label("Segments panel", exact=True).check()
+        page.get_by_role("button", name="Top").click()
+        wait_for(lambda: not view._camera_auto, what="the preset view")
+        wait_for(lambda: "c." in address(page) and "p." in address(page), what="the address")
+        link = address(page)
+        before = np.asarray(view.client.camera.position)
+        other = open_page(browser, link)
+        shown(other)
+        copy = view_of(viewer, "room", exclude=(view,))
+        wait_for(
+            lambda: np.allclose(copy.client.camera.position, before, atol=2e-3),
+            what="the linked camera",
+        )
+        assert np.allclose(copy.client.camera.look_at, view.client.camera.look_at, atol=2e-3)
+        assert copy.hidden == view.hidden and 2 in copy.hidden
+        assert copy.segments_box.value and not copy.class_shown(2)
+        assert len(panel_spans(settled(other), 5)) == 5
+    finally:
+        page.close()
+        if other is not None:
+            other.close()
+
+
+def test_the_screenshot_button_downloads_a_png_of_the_view(browser: Any, viewer: Viewer) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        settled(page)
+        with page.expect_download(timeout=60_000) as info:
+            page.get_by_role("button", name="Screenshot (PNG)").click()
+        assert info.value.suggested_filename == "room_view.png"
+        blob = Path(info.value.path()).read_bytes()
+        assert blob[:8] == b"\x89PNG\r\n\x1a\n"
+        image = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+        box = canvas_box(page)
+        assert abs(image.shape[1] - box["width"]) <= 2 and abs(image.shape[0] - box["height"]) <= 2
+        assert len(panel_spans(image, 4)) == 4  # the panels, as on the screen
+    finally:
+        page.close()
+
+
+def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> None:
+    page = open_page(browser, viewer.link("room"))
+    try:
+        shown(page)
+        view = view_of(viewer, "room")
+        data = view.data
+        assert data is not None and data.xyz.shape[0] > 20_000
+        budget = field(page, "Point budget")
+        budget.fill("5000")
+        budget.press("Enter")
+        page.get_by_text("budget").first.wait_for(timeout=30_000)
+        wait_for(lambda: view.shown is not None, what="the budget")
+        for panel in ("raw", "network", "fused", "truth"):
+            sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == panel)
+            assert 2500 < sent <= 5000, (panel, sent)
+        assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
+    finally:
+        page.close()

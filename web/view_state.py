@@ -1,0 +1,171 @@
+"""A view as a link: the job, the API key, the camera, hidden classes and toggles, in the URL.
+
+viser's browser client opens its websocket on the address in the page's ``websocket`` search
+parameter, so that address is the one part of the page URL the viewer receives. A view is
+written into it as the path and one query parameter,
+
+    ws://HOST:PORT/job/<id>?v=<token>~<token>~...
+
+each token a letter, a dot and a value (``c.`` camera, ``h.`` hidden classes, ...). A single
+parameter with ``~`` between tokens survives viser's own rewriting of the address bar, which
+puts the websocket address back unescaped (an ``&`` inside it would split it); API keys go as
+base64url for the same reason. ``key=<key>`` (what the job page adds) is read as well.
+
+The viewer keeps the browser's address following the view with :func:`address_html`: viser
+has no call to set a client's address, so a hidden image whose ``onerror`` runs
+``history.replaceState`` is sent as an HTML element (the element's markup is set with
+``innerHTML``, where an image's error handler runs and a script would not). Inside an inline
+handler ``URL`` is ``document.URL``, a string: the handler names ``window.URL``.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import re
+from dataclasses import dataclass, field, replace
+from urllib.parse import parse_qs, quote, unquote
+
+from jointseg.classes import NUM_CLASSES
+
+_JOB_PATH = re.compile(r"^/job/([^/?#]+)/?$")
+#: Optional panels by their letter in the ``p.`` token.
+PANEL_LETTERS = {"t": "truth", "s": "segments", "c": "confidence", "e": "errors"}
+
+
+@dataclass(frozen=True)
+class ViewState:
+    """What a link restores; None (or empty) means the viewer's default."""
+
+    job_id: str | None = None
+    key: str | None = None
+    camera: tuple[float, ...] | None = None  # position xyz, look-at xyz (scene coordinates)
+    hidden: frozenset[int] | None = None
+    panels: frozenset[str] | None = None  # optional panels shown: truth, segments, ...
+    only_changed: bool = False
+    point_size: float | None = None
+    single: str | None = None  # one large panel (its key) instead of the row
+    budget: int | None = None
+    extra: dict[str, str] = field(default_factory=dict)
+
+    def with_job(self, job_id: str | None) -> ViewState:
+        """The same view on another job (a new job starts with its own camera)."""
+        return replace(self, job_id=job_id, camera=None)
+
+
+def _b64(text: str) -> str:
+    return base64.urlsafe_b64encode(text.encode()).decode().rstrip("=")
+
+
+def _unb64(text: str) -> str | None:
+    try:
+        return base64.urlsafe_b64decode(text + "=" * (-len(text) % 4)).decode()
+    except (binascii.Error, UnicodeDecodeError, ValueError):
+        return None
+
+
+def _floats(text: str, count: int) -> tuple[float, ...] | None:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        return None
+    ok = len(values) == count and all(abs(v) < 1e7 for v in values)
+    return values if ok else None
+
+
+def parse_path(path: str | None) -> ViewState:
+    """The view a websocket request path names; anything malformed is left at its default."""
+    if not path:
+        return ViewState()
+    route, _, query = path.partition("?")
+    match = _JOB_PATH.match(route)
+    job_id = unquote(match.group(1)) if match else None
+    params = parse_qs(query, keep_blank_values=True)
+    keys = params.get("key") or [""]
+    state = ViewState(job_id=job_id, key=keys[0] or None)
+    for token in (params.get("v") or [""])[0].split("~"):
+        letter, _, value = token.partition(".")
+        state = _apply(state, letter, value)
+    return state
+
+
+def _apply(state: ViewState, letter: str, value: str) -> ViewState:
+    if letter == "k":
+        return replace(state, key=_unb64(value) or state.key)
+    if letter == "c":
+        return replace(state, camera=_floats(value, 6))
+    if letter == "h":
+        try:
+            classes = {int(v) for v in value.split(",") if v}
+        except ValueError:
+            return state
+        return replace(state, hidden=frozenset(c for c in classes if -1 <= c < NUM_CLASSES))
+    if letter == "p":
+        return replace(
+            state, panels=frozenset(PANEL_LETTERS[c] for c in value if c in PANEL_LETTERS)
+        )
+    if letter == "o":
+        return replace(state, only_changed=value == "1")
+    if letter == "z":
+        size = _floats(value, 1)
+        return replace(state, point_size=None if size is None or size[0] <= 0 else size[0])
+    if letter == "l":
+        return replace(state, single=value or None) if re.fullmatch(r"[a-z]*", value) else state
+    if letter == "b" and value.isdigit():
+        return replace(state, budget=int(value))
+    return state
+
+
+def state_path(state: ViewState, *, with_key: bool) -> str:
+    """The websocket path (and query) that restores ``state``; the key only when asked."""
+    if state.job_id is None:
+        return "/"
+    tokens = []
+    if with_key and state.key:
+        tokens.append("k." + _b64(state.key))
+    if state.camera is not None:
+        tokens.append("c." + ",".join(f"{v:.4f}" for v in state.camera))
+    if state.hidden is not None:
+        tokens.append("h." + ",".join(str(c) for c in sorted(state.hidden)))
+    if state.panels is not None:
+        letters = {name: letter for letter, name in PANEL_LETTERS.items()}
+        tokens.append("p." + "".join(sorted(letters[p] for p in state.panels if p in letters)))
+    if state.only_changed:
+        tokens.append("o.1")
+    if state.point_size is not None:
+        tokens.append(f"z.{state.point_size:g}")
+    if state.single:
+        tokens.append("l." + state.single)
+    if state.budget is not None:
+        tokens.append(f"b.{state.budget}")
+    path = "/job/" + quote(state.job_id, safe="")
+    return path + ("?v=" + "~".join(tokens) if tokens else "")
+
+
+def viewer_link(base_url: str, state: ViewState, *, with_key: bool = True) -> str:
+    """The page address at ``base_url`` (``http://host:port``) that opens ``state``."""
+    base = base_url.rstrip("/")
+    ws = re.sub(r"^http", "ws", base) + state_path(state, with_key=with_key)
+    return f"{base}/?websocket={quote(ws, safe='')}"
+
+
+def address_html(path: str, serial: int) -> str:
+    """An invisible element that sets the browser's address to open ``path`` (a websocket path
+    from :func:`state_path`) on this page's own host; ``serial`` makes every update new markup,
+    so the browser runs it again."""
+    script = (
+        "var u=new window.URL(window.location.href);"
+        "u.searchParams.set('websocket',(location.protocol==='https:'?'wss://':'ws://')"
+        f"+location.host+{json.dumps(path)});"
+        "history.replaceState(history.state,'',u.toString());"
+        "this.remove();"
+    )
+    return (
+        f'<img alt="" data-view="{serial}" src="data:,{serial}" style="display:none" '
+        f'onerror="{_attr(script)}">'
+    )
+
+
+def _attr(text: str) -> str:
+    return text.replace("&", "&amp;").replace('"', "&quot;").replace("<", "&lt;")
