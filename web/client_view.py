@@ -51,7 +51,6 @@ from web.scene import (
     SceneCache,
     SceneData,
     group_points,
-    voxel_downsample,
 )
 from web.sources import JobEntry, JobSource
 from web.tools import MODES, ClickTools, Picked
@@ -338,8 +337,11 @@ class ClientView:
 
     def _select_points(self, data: SceneData) -> None:
         """The rows sent to this browser (at most the point budget per panel) and their groups."""
-        budget = int(self.budget.value)
-        self.shown = None if data.xyz.shape[0] <= budget else voxel_downsample(data.xyz, budget)[0]
+        budget, n = int(self.budget.value), data.xyz.shape[0]
+        # an even random subset of what the viewer loaded (itself thinned evenly for big
+        # files): exactly the budget, the same rows every time for one budget
+        rng = np.random.default_rng(budget)
+        self.shown = None if n <= budget else np.sort(rng.choice(n, budget, replace=False))
 
         def sel(a: np.ndarray) -> np.ndarray:
             return a if self.shown is None else a[self.shown]

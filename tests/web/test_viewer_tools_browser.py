@@ -445,7 +445,7 @@ def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> 
         wait_for(lambda: view.shown is not None, what="the budget")
         for panel in ("raw", "network", "fused", "truth"):
             sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == panel)
-            assert 2500 < sent <= 5000, (panel, sent)
+            assert sent == 5000, (panel, sent)
         assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
     finally:
         page.close()

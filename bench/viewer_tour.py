@@ -1,0 +1,294 @@
+"""The viewer's tools on real scans, in Debian's headless chromium: screenshots for the docs, and
+what the point budget does for a weak client's frame rate.
+
+Real scans go through ``jointseg segment`` with defaults (cached in --cache): an S3DIS Area_6
+room (ground truth: error map and confusion table) and a ScanNet scan. The viewer serves them
+behind an API key, as ``jointseg serve`` does with ``JOINTSEG_API_KEYS`` set. The tour signs
+in, shows every panel, picks a point, measures a distance, switches to one large panel with the
+error map seen from the top, and saves each screen as a PNG under --out.
+
+Frame rate: a 300 000-point synthetic result (the pipeline's fields filled, as bench/viewer.py
+does for big results) with five panels, orbited by the server moving the camera every 50 ms
+while the page counts animation frames for --seconds; once with every point sent, then with
+lower point budgets. SwiftShader (chromium's software WebGL) stands in for a weak client.
+
+    .venv/bin/python bench/viewer_tour.py [--out docs/images] [--cache bench/_cache]
+        [--budgets 300000,100000,30000] [--seconds 6]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SHARED = ROOT.parent / "shared" / "data"
+JOINTSEG = str(Path(sys.executable).parent / "jointseg")
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--no-first-run", "--disable-dev-shm-usage"]  # fmt: skip
+KEY = "tour-key"
+HIDE_TOASTS = '[class*="mantine-Notifications"] { display: none !important; }'
+SCANS = {
+    "area6_office_4": SHARED / "s3dis_area6" / "area6_office_4.ply",
+    "scene0002_00": SHARED / "scannet" / "scene0002_00.ply",
+}
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def segmented(folder: Path, cache: Path) -> None:
+    """Each real scan segmented with defaults into ``folder`` (results cached in ``cache``)."""
+    cache.mkdir(parents=True, exist_ok=True)
+    for name, source in SCANS.items():
+        out, report = cache / f"tour_{name}.ply", cache / f"tour_{name}.report.json"
+        if not out.exists():
+            subprocess.run(
+                [JOINTSEG, "segment", str(source), "-o", str(out), "--report", str(report)],
+                check=True,
+                capture_output=True,
+            )
+        (folder / f"{name}.ply").write_bytes(out.read_bytes())
+        (folder / f"{name}.report.json").write_bytes(report.read_bytes())
+
+
+def wait(condition: Any, timeout: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.1)
+    raise TimeoutError("the viewer did not get there")
+
+
+def view_of(viewer: Any, job_id: str) -> Any:
+    """The server-side view of the tab showing ``job_id``."""
+
+    def showing() -> list[Any]:
+        return [v for v in list(viewer.views.values()) if v.job_id == job_id]
+
+    wait(lambda: bool(showing()))
+    return showing()[0]
+
+
+def aim(view: Any, panel: str, row: int, back: np.ndarray, distance: float = 2.5) -> None:
+    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.frames[panel].position)
+    camera = view.client.camera
+    camera.position = target + distance * back
+    camera.look_at = target
+    wait(lambda: np.allclose(camera.look_at, target, atol=1e-3))
+    time.sleep(0.8)
+
+
+def click_centre(page: Any) -> None:
+    canvas = page.locator("canvas")
+    box = max(
+        (canvas.nth(i).bounding_box() for i in range(canvas.count())),
+        key=lambda b: b["width"] * b["height"],
+    )
+    page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+
+
+def in_sight(view: Any, row: int, back: np.ndarray) -> bool:
+    """Whether nothing drawn (the ceiling is hidden) lies in front of ``row`` along ``back``."""
+    data = view.data
+    rel = data.xyz.astype(np.float64) - data.xyz[row]
+    along = rel @ back
+    off = np.linalg.norm(rel - along[:, None] * back, axis=1)
+    return not np.any((along > 0.15) & (off < 0.2) & (data.fused != 0))
+
+
+def top_row(view: Any, label: int, back: np.ndarray) -> int:
+    """A fused-panel row of class ``label`` with nothing drawn in front of it along ``back``."""
+    rows = np.flatnonzero(view.data.fused == label)
+    found = (int(i) for i in np.random.default_rng(1).permutation(rows)[:300])
+    return next((i for i in found if in_sight(view, i, back)), int(rows[0]))
+
+
+def tour(page: Any, viewer: Any, out: Path) -> list[str]:
+    """Sign in, every panel, a pick, a measure, one large panel; the screenshots' names."""
+    shots = []
+
+    def shot(name: str) -> None:
+        time.sleep(1.5)
+        page.screenshot(path=str(out / name))
+        shots.append(name)
+
+    page.goto(viewer.link("area6_office_4"))
+    page.add_style_tag(content=HIDE_TOASTS)
+    page.get_by_text("This viewer needs a key").wait_for(timeout=60_000)
+    shot("viewer_sign_in.png")
+    page.get_by_text("API key", exact=True).locator(
+        "xpath=ancestor::div[contains(@class, 'mantine-Flex-root')][1]"
+    ).locator("input").first.fill(KEY)
+    page.get_by_role("button", name="Sign in").click()
+    page.get_by_text("points shown").wait_for(timeout=60_000)
+    for box in ("Segments panel", "Confidence panel", "Error map panel"):
+        page.get_by_label(box, exact=True).check()
+    shot("viewer_all_panels.png")
+    for box in ("Segments panel", "Confidence panel", "Error map panel"):
+        page.get_by_label(box, exact=True).uncheck()
+    view = view_of(viewer, "area6_office_4")
+    back = np.array([0.0, -0.35, 1.0]) / np.linalg.norm([0.0, -0.35, 1.0])
+    time.sleep(1.0)
+    aim(view, "fused", top_row(view, 7, back), back, 5.0)  # a table top
+    click_centre(page)
+    page.get_by_text("height above floor").wait_for(timeout=30_000)
+    shot("viewer_pick.png")
+    page.get_by_label("Click to", exact=True).click()
+    page.get_by_role("option", name="Measure distance").click()
+    xyz = view.data.xyz
+    a = top_row(view, 1, back)  # two floor points far apart
+    floor = np.flatnonzero((view.data.fused == 1) & (np.abs(xyz[:, 2] - xyz[a, 2]) < 0.05))
+    far = floor[np.argsort(-np.linalg.norm(xyz[floor] - xyz[a], axis=1))]
+    b = next(int(i) for i in far if in_sight(view, int(i), back))
+    aim(view, "fused", a, back, 6.0)
+    click_centre(page)
+    aim(view, "fused", b, back, 6.0)
+    click_centre(page)
+    page.get_by_text("Distance", exact=False).first.wait_for(timeout=30_000)
+    page.get_by_role("button", name="Top").click()
+    shot("viewer_measure.png")
+    page.get_by_label("Layout", exact=True).click()
+    page.get_by_role("option", name="One large panel").click()
+    page.get_by_label("Panel", exact=True).click()
+    page.get_by_role("option", name="Errors").click()
+    page.get_by_role("button", name="Top").click()
+    shot("viewer_single_errors_top.png")
+    page.get_by_text("Confusion", exact=True).scroll_into_view_if_needed()
+    shot("viewer_confusion.png")
+    # a ScanNet scan with the confidence panel, chosen in the same tab's picker
+    page.get_by_label("Layout", exact=True).click()
+    page.get_by_role("option", name="Row of panels").click()
+    page.get_by_label("Job", exact=True).click()
+    page.get_by_role("option", name="scene0002_00.ply", exact=False).click()
+    page.locator("strong", has_text="scene0002_00.ply").wait_for(timeout=60_000)
+    page.get_by_label("Confidence panel", exact=True).check()
+    page.get_by_role("button", name="Fit all").click()
+    shot("viewer_scannet_confidence.png")
+    return shots
+
+
+def frame_rate(browser: Any, budgets: list[int], seconds: float, cache: Path) -> list[tuple]:
+    """Frames per second while orbiting a 300 k-point result with five panels, per budget."""
+    from bench.viewer import make_big_result  # type: ignore[import-not-found]
+    from web.sources import DirectorySource
+    from web.viewer import Viewer
+
+    big = make_big_result(300_000, cache)
+    folder = Path(tempfile.mkdtemp(prefix="tour_fps_"))
+    (folder / "big.ply").write_bytes(big.read_bytes())
+    viewer = Viewer(DirectorySource(folder), port=free_port())
+    rows = []
+    try:
+        for budget in budgets:
+            rows.append(_orbit_rate(browser, viewer, budget, seconds))
+    finally:
+        viewer.stop()
+    return rows
+
+
+def _orbit_rate(browser: Any, viewer: Any, budget: int, seconds: float) -> tuple:
+    """(budget, points per panel sent, points drawn, frames per second) for one budget."""
+    page = browser.new_page(viewport={"width": 1600, "height": 900})
+    page.goto(viewer.link("big"))
+    page.get_by_text("points shown").wait_for(timeout=120_000)
+    view = view_of(viewer, "big")
+    view.segments_box.value = True
+    view.budget.value = budget
+    wait(lambda: view.shown is None or view.shown.size <= budget, 120)
+    time.sleep(3.0)
+    sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == "fused")
+    stop = threading.Event()
+    camera = view.client.camera
+    centre, radius = (
+        np.asarray(camera.look_at),
+        float(np.linalg.norm(np.asarray(camera.position) - np.asarray(camera.look_at))),
+    )
+    height = float(np.asarray(camera.position)[2])
+
+    def orbit() -> None:
+        angle = -math.pi / 2
+        while not stop.is_set():
+            angle += 0.05
+            flat = radius * 0.5
+            camera.position = (
+                centre[0] + flat * math.cos(angle),
+                centre[1] + flat * math.sin(angle),
+                height,
+            )
+            time.sleep(0.05)
+
+    mover = threading.Thread(target=orbit, daemon=True)
+    mover.start()
+    frames = page.evaluate(
+        """(ms) => new Promise(done => { let n = 0; const end = performance.now() + ms;
+           const step = () => { n++; if (performance.now() < end)
+           requestAnimationFrame(step); else done(n); }; requestAnimationFrame(step); })""",
+        int(seconds * 1000),
+    )
+    stop.set()
+    mover.join()
+    page.close()
+    return (budget, sent, 5 * sent, frames / seconds)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "images")
+    ap.add_argument("--cache", type=Path, default=ROOT / "bench" / "_cache")
+    ap.add_argument("--budgets", default="300000,100000,30000")
+    ap.add_argument("--seconds", type=float, default=6.0)
+    ap.add_argument("--skip-tour", action="store_true")
+    args = ap.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    from web.sources import DirectorySource
+    from web.viewer import Viewer
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        try:
+            if not args.skip_tour:
+                folder = Path(tempfile.mkdtemp(prefix="tour_"))
+                segmented(folder, args.cache)
+                viewer = Viewer(
+                    DirectorySource(folder), port=free_port(), authorise=lambda k: k == KEY
+                )
+                page = browser.new_page(viewport={"width": 1600, "height": 900})
+                try:
+                    for name in tour(page, viewer, args.out):
+                        print(f"wrote {args.out / name}")
+                finally:
+                    page.close()
+                    viewer.stop()
+            rows = frame_rate(
+                browser, [int(b) for b in args.budgets.split(",")], args.seconds, args.cache
+            )
+        finally:
+            browser.close()
+    print("\n| point budget per panel | points per panel sent | points drawn (5 panels) | "
+          "frames per second while orbiting |")  # fmt: skip
+    print("|---|---|---|---|")
+    for budget, sent, drawn, fps in rows:
+        print(f"| {budget:,} | {sent:,} | {drawn:,} | {fps:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
