@@ -108,7 +108,9 @@ class Viewer:
         return viewer_link(f"http://{host}:{self.port}", job_id, key)
 
     def _connect(self, client: viser.ClientHandle) -> None:
-        client.gui.configure_theme(control_width="large", show_logo=False)
+        # no share button: viser's would publish the scan through its public relay; the
+        # address bar is this viewer's way to share a view
+        client.gui.configure_theme(control_width="large", show_logo=False, show_share_button=False)
         client.gui.main_panel.dock_right()  # beside the canvas, not over the panels
         state = parse_path(self._request_path(client))
         if self.authorise is not None and not self.authorise(state.key):
