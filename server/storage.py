@@ -31,8 +31,8 @@ from jointseg.io.atomic import atomic_open
 
 log = logging.getLogger(__name__)
 
-ResultFormat = Literal["ply", "las", "laz"]
-RESULT_FORMATS: tuple[ResultFormat, ...] = ("ply", "las", "laz")
+ResultFormat = Literal["ply", "las", "laz", "ifc"]
+RESULT_FORMATS: tuple[ResultFormat, ...] = ("ply", "las", "laz", "ifc")
 _JOB_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
@@ -89,7 +89,8 @@ class Storage:
         return found[0]
 
     def result_path(self, job_id: str, fmt: ResultFormat = "ply") -> Path:
-        """The result scan in ``fmt`` (ply, las or laz); it may not exist yet."""
+        """The result scan in ``fmt`` (ply, las or laz), or its IFC model (ifc); it may not exist
+        yet."""
         if fmt not in RESULT_FORMATS:
             raise ValueError(f"result format must be one of {RESULT_FORMATS}, got {fmt!r}")
         return self.job_dir(job_id) / f"result.{fmt}"

@@ -39,6 +39,7 @@ from web.layout import (
 )
 from web.legend import class_title, confusion_html, iou_html, legend_html, present_classes
 from web.memory import release_soon
+from web.objects_view import box_segments, objects_html
 from web.picking import pick
 from web.scene import (
     CONFIDENCE,
@@ -117,6 +118,7 @@ class ClientView:
         self.frames: dict[str, viser.FrameHandle] = {}
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
         self.shown: np.ndarray | None = None  # rows of the scene data sent (point budget)
+        self.boxes: viser.LineSegmentsHandle | None = None
         self._groups: dict[str, dict[tuple[int, bool], np.ndarray]] = {}
         self._root: viser.FrameHandle | None = None
         self._root_path = ROOT
@@ -216,6 +218,9 @@ class ClientView:
             self.scores = gui.add_html("")
         with gui.add_folder("Confusion", visible=False) as self.confusion_folder:
             self.confusion = gui.add_html("")
+        with gui.add_folder("Objects and rooms", visible=False) as self.objects_folder:
+            self.boxes_box = gui.add_checkbox("Object boxes", True, hint="in the fused panel")
+            self.objects_table = gui.add_html("")
         with gui.add_folder("Downloads"):
             self.download_result = gui.add_button("Result", icon=viser.Icon.DOWNLOAD, disabled=True)
             self.download_report = gui.add_button("Report", icon=viser.Icon.DOWNLOAD, disabled=True)
@@ -233,6 +238,7 @@ class ClientView:
         self.views.on_click(lambda event: self.set_view(str(event.target.value)))
         self.screenshot.on_click(lambda _: self.send_screenshot())
         self.mode.on_update(lambda _: self._mode_changed())
+        self.boxes_box.on_update(lambda _: self._changed(self._show_boxes))
         self.clear_marks.on_click(lambda _: self._clear_marks())
         for cls, button in self.class_buttons.items():
             button.on_click(self._class_toggle(cls))
@@ -368,6 +374,8 @@ class ClientView:
             self.frames, self.nodes, self._groups = {}, {}, {}
             self.download_result.disabled = self.download_report.disabled = True
             self.scores_folder.visible = self.confusion_folder.visible = False
+            self.objects_folder.visible = False
+            self.boxes = None
             self.legend.content = ""
             for button in self.class_buttons.values():
                 button.visible = False
@@ -382,6 +390,9 @@ class ClientView:
         table = iou_html(data.report)
         self.scores.content = table or ""
         self.scores_folder.visible = table is not None
+        listing = objects_html(data)
+        self.objects_table.content = listing or ""
+        self.objects_folder.visible = listing is not None
         matrix = None if data.truth is None else confusion_html(data.truth, data.fused)
         self.confusion.content = matrix or ""
         self.confusion_folder.visible = matrix is not None
@@ -494,6 +505,8 @@ class ClientView:
                     if panel.key not in self.frames:
                         self._send_panel(panel, data)
                     self.frames[panel.key].position = offset
+                    if panel.key == "fused" and self.boxes is None:
+                        self._send_boxes(data)
                 for key, frame in self.frames.items():
                     frame.visible = any(p.key == key for p in panels)
                 self._apply_visibility()
@@ -527,6 +540,24 @@ class ClientView:
                 precision="float32",
                 visible=self._node_visible(cls, changed),
             )
+
+    def _send_boxes(self, data: SceneData) -> None:
+        """The objects' boxes, drawn once in the fused panel (the report's objects)."""
+        segments, colours = box_segments(data)
+        if not len(segments):
+            return
+        self.boxes = self.client.scene.add_line_segments(
+            f"{self._root_path}/fused/objects",
+            segments,
+            colours,
+            thickness=2.0,
+            thickness_units="screen",
+            visible=bool(self.boxes_box.value),
+        )
+
+    def _show_boxes(self) -> None:
+        if self.boxes is not None:
+            self.boxes.visible = bool(self.boxes_box.value)
 
     def _size(self, data: SceneData) -> float:
         return float(self.point_size.value) * max(data.spacing, 1e-4)

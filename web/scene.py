@@ -92,6 +92,8 @@ class SceneData:
         The job's report.json.
     confidence : ndarray of shape (M,), float32, optional
         The network's confidence in its label, when the result has it.
+    instance : ndarray of shape (M,), int32, optional
+        The object of each shown point (-1: none), when the result has it.
     to_work : ndarray of shape (4, 4), optional
         The frame stage's transform from the file's coordinates to the levelled metric frame
         the points are shown in (None: shown as stored); picking maps back through it.
@@ -113,6 +115,14 @@ class SceneData:
     report: dict[str, Any] | None
     confidence: np.ndarray | None = None
     to_work: np.ndarray | None = None
+    instance: np.ndarray | None = None
+
+    def shown_xyz(self, user: np.ndarray) -> np.ndarray:
+        """Points in the file's own coordinates ((..., 3)) as shown: levelled, centred."""
+        p = np.asarray(user, dtype=np.float64)
+        if self.to_work is not None:
+            p = p @ self.to_work[:3, :3].T + self.to_work[:3, 3]
+        return p - self.centre
 
     @property
     def panels(self) -> tuple[Panel, ...]:
@@ -344,6 +354,7 @@ def load_scene(
         report=report,
         confidence=None if sample.confidence is None else pick(sample.confidence),
         to_work=to_work,
+        instance=None if sample.instance is None else pick(sample.instance),
     )
     log.info(
         "loaded %s: %d of %d points shown (voxel %s)",

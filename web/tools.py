@@ -54,6 +54,13 @@ def describe(data: SceneData, index: int) -> str:
     if data.truth is not None:
         lines.append(f"- ground truth: {_label(data.truth, index)}")
     lines.append(f"- segment: {int(data.segments[index])}")
+    from web.objects_view import object_name, room_at
+
+    obj, room = object_name(data, index), room_at(data, data.xyz[index])
+    if obj is not None:
+        lines.append(f"- object: {obj}")
+    if room is not None:
+        lines.append(f"- room: {room}")
     lines.append(f"- height above floor: {float(data.xyz[index, 2]) - floor:.3f} m")
     return "\n".join(lines)
 

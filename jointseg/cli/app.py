@@ -17,6 +17,7 @@ from jointseg.cli import (
     client_commands,
     geometry_command,
     network_commands,
+    objects_command,
     pipeline_commands,
     scan_commands,
 )
@@ -33,6 +34,7 @@ app = typer.Typer(
 scan_commands.register(app)
 geometry_command.register(app)
 network_commands.register(app)
+objects_command.register(app)
 pipeline_commands.register(app)
 client_commands.register(app)
 

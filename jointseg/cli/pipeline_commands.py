@@ -80,7 +80,9 @@ def with_frame(
         raise ConfigError(f"{where}: {first['msg']}") from None
 
 
-def _check_writable(path: Path, what: str) -> None:
+def _check_writable(path: Path | None, what: str) -> None:
+    if path is None:
+        return
     if not path.parent.is_dir():
         raise ConfigError(f"{what} {path}: folder {path.parent} does not exist")
     if path.is_dir():
@@ -98,6 +100,10 @@ def segment_scan(
         ..., "-o", "--output", help="Output scan (.ply, .las or .laz) with the pipeline's fields."
     ),
     report: Path | None = typer.Option(None, "--report", help="Write a JSON report here."),
+    objects_out: Path | None = typer.Option(
+        None, "--objects", help="Write objects.json (objects, rooms, walls) here."
+    ),
+    ifc: Path | None = typer.Option(None, "--ifc", help="Write an IFC4 model of it here."),
     network: str | None = typer.Option(None, "--network", help=NETWORK_HELP),
     weights: Path | None = typer.Option(None, "--weights", help=WEIGHTS_HELP),
     config: Path | None = typer.Option(None, "--config", help=CONFIG_HELP),
@@ -146,8 +152,8 @@ def segment_scan(
             f"use one of {', '.join(FIELD_EXTENSIONS)}"
         )
     _check_writable(output, "output")
-    if report is not None:
-        _check_writable(report, "report")
+    for path, what in ((report, "report"), (objects_out, "objects"), (ifc, "IFC model")):
+        _check_writable(path, what)
     info = probe_scan(source, max_points=max_points)
     if work_dir is not None and not work_dir.is_dir():
         raise ConfigError(f"--work-dir {work_dir}: not a folder")
@@ -167,6 +173,18 @@ def segment_scan(
             workdir=work_dir,
         )
     _finish(done, report, output)
+    _write_objects(done, objects_out, ifc, source.stem)
+
+
+def _write_objects(
+    done: SegmentedFile, objects_out: Path | None, ifc: Path | None, name: str
+) -> None:
+    """``--objects`` and ``--ifc``: the run's layout as objects.json and an IFC model."""
+    if objects_out is None and ifc is None:
+        return
+    from jointseg.cli.objects_command import layout_from_report, write_layout
+
+    typer.echo(write_layout(layout_from_report(done.report), objects_out, ifc, name), err=True)
 
 
 def _finish(done: SegmentedFile, report: Path | None, output: Path) -> None:

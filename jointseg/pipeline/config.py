@@ -16,6 +16,7 @@ from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
 from jointseg.network.devices import DEVICE_NAMES, check_device_name
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
+from jointseg.objects.params import ObjectParams
 from jointseg.pipeline.tiled.grid import TileParams
 
 
@@ -111,6 +112,10 @@ class PipelineConfig(BaseModel):
     tiles: TileParams = Field(
         default_factory=TileParams,
         description="When a big scan is cut into tiles, and how (bounded memory; issue 16).",
+    )
+    objects: ObjectParams = Field(
+        default_factory=ObjectParams,
+        description="Objects, rooms and walls found from the fused labels (issue 33).",
     )
     seed: int = Field(0, description="Crop and RANSAC randomness; a seed gives one result.")
     concurrent: bool = Field(

@@ -21,6 +21,7 @@ OUTPUT_FIELDS: tuple[str, ...] = (
     "fused_label",
     "fused_confidence",
     "stray",
+    "instance",
 )
 
 
@@ -38,8 +39,14 @@ def annotate(scan: Scan, result: PipelineResult) -> Scan:
     Scan
         With fields ``network_label`` (int32), ``network_confidence`` (float32), ``segment``
         (int32), ``fused_label`` (int32), ``fused_confidence`` (float32) and ``stray`` (uint8:
-        1 for a point the frame stage set aside as stray; it still has labels).
+        1 for a point the frame stage set aside as stray; it still has labels) and
+        ``instance`` (int32: the object a point belongs to, -1 for walls, floor, ceiling and
+        strays). An ``instance`` field of the input is kept as ``instance_input``.
     """
+    if "instance" in scan.fields:
+        fields = {k: v for k, v in scan.fields.items() if k != "instance"}
+        fields["instance_input"] = scan.fields["instance"]
+        scan = Scan(scan.xyz, scan.rgb, scan.labels, fields, scan.source_format, scan.meta)
     return scan.with_fields(
         network_label=result.network_labels.astype(np.int32),
         network_confidence=result.network.confidence.astype(np.float32),
@@ -47,6 +54,7 @@ def annotate(scan: Scan, result: PipelineResult) -> Scan:
         fused_label=result.fused_labels.astype(np.int32),
         fused_confidence=result.fused_confidence.astype(np.float32),
         stray=result.stray.astype(np.uint8),
+        instance=result.instances.astype(np.int32),
     )
 
 
@@ -89,7 +97,20 @@ def report_body(
         },
         "params": result.params,
         "frame": None if result.frame is None else result.frame.report(),
+        **layout_sections(result),
         "metrics": None
         if result.metrics is None
         else {name: m.model_dump() for name, m in result.metrics.items()},
+    }
+
+
+def layout_sections(result: PipelineResult) -> dict[str, Any]:
+    """The report's ``objects`` (one record per object) and ``rooms`` (rooms, walls with their
+    doors and windows, the floor's height and why a section is empty) sections."""
+    if result.layout is None:
+        return {"objects": None, "rooms": None}
+    body = result.layout.report.model_dump(mode="json")
+    return {
+        "objects": body.pop("objects"),
+        "rooms": body,
     }

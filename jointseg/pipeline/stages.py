@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
+
+if TYPE_CHECKING:
+    from jointseg.objects.layout import Layout
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -51,6 +54,8 @@ class PipelineResult:
     frame : Frame, optional
         What the frame stage decided (up, units, stray points, colour); every per-point
         array above is for the user's points, strays included.
+    layout : Layout, optional
+        Objects (an id per point), rooms and walls; None when ``config.objects`` is off.
     """
 
     network: NetworkResult
@@ -61,6 +66,14 @@ class PipelineResult:
     timings: dict[str, float] = field(default_factory=dict)
     metrics: dict[str, SegmentationMetrics] | None = None
     frame: Frame | None = None
+    layout: Layout | None = None
+
+    @property
+    def instances(self) -> np.ndarray:
+        """Object id per point, -1 for structure and strays (all -1 without objects)."""
+        if self.layout is None:
+            return np.full(len(self.fusion.labels), -1, dtype=np.int64)
+        return self.layout.instances
 
     @property
     def stray(self) -> np.ndarray:
@@ -179,8 +192,10 @@ def run(
     net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
 
     fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
+    layout = _objects_stage(work, fused, frame, config, timings)
     if index is not None:
         net, geo, fused = expand(net, geo, fused, index)
+        layout = _expand_layout(layout, index, frame.stray)
 
     t = time.perf_counter()
     metrics = _metrics(scan, net, geo, fused)
@@ -199,7 +214,41 @@ def run(
         timings=timings,
         metrics=metrics,
         frame=frame,
+        layout=layout,
     )
+
+
+def _expand_layout(layout: Layout | None, index: np.ndarray, stray: np.ndarray) -> Layout | None:
+    """The work scan's object ids carried to every user point; stray points belong to none."""
+    if layout is None:
+        return None
+    instances = layout.instances[index]
+    instances[stray] = -1
+    return replace(layout, instances=instances)
+
+
+def _objects_stage(
+    work: Scan, fused: FusionResult, frame: Frame, config: PipelineConfig, timings: dict[str, float]
+) -> Layout | None:
+    """Objects, rooms and walls from the fused labels, in the work frame, reported in the
+    user's coordinates; timed as ``objects``. None when switched off."""
+    if not config.objects.enabled:
+        return None
+    from jointseg.objects.layout import find_layout
+    from jointseg.spacing import estimate_spacing
+
+    t = time.perf_counter()
+    to_user = np.linalg.inv(np.asarray(frame.matrix(), dtype=np.float64))
+    layout = find_layout(
+        work.xyz,
+        fused.labels,
+        fused.confidence,
+        estimate_spacing(work.xyz),
+        to_user=to_user,
+        params=config.objects,
+    )
+    timings["objects"] = time.perf_counter() - t
+    return layout
 
 
 def _frame_stage(

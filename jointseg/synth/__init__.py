@@ -6,7 +6,7 @@ lighting, and scanned by ray casting from tripod positions, so occlusion, range 
 fall of density with range look like a real terrestrial scan.
 """
 
-from jointseg.synth.floor import make_floor
-from jointseg.synth.room import make_room
+from jointseg.synth.floor import floor_layout, make_floor
+from jointseg.synth.room import make_room, room_layout
 
-__all__ = ["make_floor", "make_room"]
+__all__ = ["floor_layout", "make_floor", "make_room", "room_layout"]

@@ -10,6 +10,7 @@ import numpy as np
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 from jointseg.synth.furnish import draw_flags, furnish
+from jointseg.synth.layout import Plan
 from jointseg.synth.meshes import MeshBuilder
 from jointseg.synth.params import check_count, check_points, check_seed, check_yaw
 from jointseg.synth.plans import floor_plan
@@ -20,6 +21,14 @@ from jointseg.synth.structure import Ids, build_openings, build_shell, space_loo
 log = logging.getLogger(__name__)
 
 MAX_ROOMS = 32
+
+
+def floor_layout(seed: int, *, rooms: int = 4) -> Plan:
+    """The plan :func:`make_floor` builds for ``seed`` and ``rooms``: the true spaces (rooms and
+    the corridor), wall height and thickness, doors and windows (plan coordinates)."""
+    rng = np.random.default_rng(check_seed(seed))
+    rng.uniform(0.0, 360.0)  # the yaw, drawn first
+    return floor_plan(rng, check_count("rooms", rooms, 1, MAX_ROOMS))
 
 
 def make_floor(
@@ -50,7 +59,7 @@ def make_floor(
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     drawn_yaw = float(rng.uniform(0.0, 360.0))
-    plan = floor_plan(rng, rooms)
+    plan = floor_plan(rng, rooms)  # floor_layout draws the same
     mb, ids = MeshBuilder(), Ids()
     looks = [space_look(rng, corridor=sp.kind == "corridor") for sp in plan.spaces]
     build_shell(plan, mb, ids, looks, rng)

@@ -12,6 +12,7 @@ from jointseg.exceptions import ConfigError
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 from jointseg.synth.furnish import draw_flags, furnish
+from jointseg.synth.layout import Plan
 from jointseg.synth.meshes import MeshBuilder
 from jointseg.synth.params import check_count, check_points, check_seed, check_yaw
 from jointseg.synth.plans import room_plan
@@ -35,6 +36,21 @@ def _check_args(
     yaw = check_yaw(yaw)
     scanners = None if scanners is None else check_count("scanners", scanners, 1, MAX_SCANNERS)
     return seed, points, yaw, scanners
+
+
+def _draw_room(rng: np.random.Generator, shape: str) -> tuple[float, int, bool, Plan]:
+    """The first draws of a room: its yaw, its scanner count, whether it has windows, its plan."""
+    drawn_yaw = float(rng.uniform(0.0, 360.0))
+    # An L-shaped room needs a scanner in each arm to be seen whole.
+    drawn_scanners = int(rng.integers(1, 4) if shape == "box" else rng.integers(2, 4))
+    windows = bool(rng.random() < 0.85)
+    return drawn_yaw, drawn_scanners, windows, room_plan(rng, shape, windows)
+
+
+def room_layout(seed: int, *, shape: Literal["box", "L"] = "box") -> Plan:
+    """The plan :func:`make_room` builds for ``seed`` and ``shape``: the true rooms, wall
+    height and thickness, doors and windows (plan coordinates: before the yaw, floor at z 0)."""
+    return _draw_room(np.random.default_rng(seed), shape)[3]
 
 
 def make_room(
@@ -79,11 +95,7 @@ def make_room(
     seed, points, yaw, scanners = _check_args(seed, points, shape, yaw, scanners)
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
-    drawn_yaw = float(rng.uniform(0.0, 360.0))
-    # An L-shaped room needs a scanner in each arm to be seen whole.
-    drawn_scanners = int(rng.integers(1, 4) if shape == "box" else rng.integers(2, 4))
-    windows = bool(rng.random() < 0.85)
-    plan = room_plan(rng, shape, windows)
+    drawn_yaw, drawn_scanners, windows, plan = _draw_room(rng, shape)
     space = plan.spaces[0]
     flags = draw_flags(rng, space.kind, at_least=4 - int(windows))
     report(progress, STAGE, 0.02)

@@ -83,6 +83,14 @@ def shown(page: Any) -> Any:
     return status
 
 
+def settled_view(browser: Any, viewer: Viewer, job_id: str) -> tuple[Any, Any]:
+    """A new tab on ``job_id`` once its scene is drawn, and its server-side view."""
+    page = open_page(browser, viewer.link(job_id))
+    shown(page)
+    settled(page)
+    return page, view_of(viewer, job_id)
+
+
 def view_of(viewer: Viewer, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
     deadline = time.monotonic() + 15
     while time.monotonic() < deadline:
@@ -327,11 +335,8 @@ BACK = np.array([0.0, -0.35, 1.0]) / np.linalg.norm([0.0, -0.35, 1.0])
 def test_a_click_on_a_known_point_tells_its_labels_and_two_clicks_measure_it(
     browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
 ) -> None:
-    page = open_page(browser, viewer.link("room"))
+    page, view = settled_view(browser, viewer, "room")
     try:
-        shown(page)
-        settled(page)
-        view = view_of(viewer, "room")
         data = view.data
         rows = visible_rows(view, "fused")
         first = clear_point(data, rows, BACK, 0.25)
@@ -447,5 +452,42 @@ def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> 
             sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == panel)
             assert sent == 5000, (panel, sent)
         assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
+    finally:
+        page.close()
+
+
+# ------------------------------------------------------------------- objects and rooms
+def test_objects_and_rooms_are_drawn_listed_and_told_on_a_click(
+    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
+) -> None:
+    import json
+
+    report = json.loads((jobs / "room.report.json").read_text())
+    objects, rooms = report["objects"], report["rooms"]["rooms"]
+    assert objects and rooms
+    page, view = settled_view(browser, viewer, "room")
+    try:
+        data = view.data
+        # every object's box: 12 edges each, in the fused panel
+        assert view.boxes is not None and view.boxes.points.shape == (12 * len(objects), 2, 3)
+        body = page.locator("body").inner_text()
+        assert "Objects and rooms" in body and rooms[0]["name"] in body
+        chairs = sum(o["cls"] == "chair" for o in objects)
+        assert chairs == 0 or re.search(rf"chair\s+{chairs}\b", body)
+        # a click on a point of an object tells the object and the room
+        rows = visible_rows(view, "fused")
+        rows = rows[data.instance[rows] >= 0]
+        target = clear_point(data, rows, BACK, 0.25)
+        aim(page, view, "fused", target, BACK)
+        click_centre(page)
+        m = answer(page, r"object: (\w+) (\d+)")
+        assert int(m.group(2)) == int(data.instance[target])
+        record = next(o for o in objects if o["id"] == int(data.instance[target]))
+        assert m.group(1) == record["cls"]
+        answer(page, r"room: Room \d+")
+        (artifacts / "viewer_objects.png").write_bytes(page.screenshot())
+        # the boxes can be switched off
+        page.get_by_label("Object boxes", exact=True).uncheck()
+        wait_for(lambda: not view.boxes.visible, what="boxes hidden")
     finally:
         page.close()

@@ -182,6 +182,12 @@ def _annotated_chunks(
         stop = start + len(chunk)
         stray = np.zeros(len(chunk), dtype=bool) if stream is None else stream.stray(chunk.xyz)
         counts.append(int(stray.sum()))
+        if "instance" in chunk.fields:  # as annotate does: the input's own ids kept aside
+            fields = {k: v for k, v in chunk.fields.items() if k != "instance"}
+            fields["instance_input"] = chunk.fields["instance"]
+            chunk = Scan(
+                chunk.xyz, chunk.rgb, chunk.labels, fields, chunk.source_format, chunk.meta
+            )
         yield chunk.with_fields(
             network_label=merged.network_label[start:stop].astype(np.int32),
             network_confidence=merged.network_confidence[start:stop],
@@ -189,6 +195,8 @@ def _annotated_chunks(
             fused_label=merged.fused_label[start:stop].astype(np.int32),
             fused_confidence=merged.fused_confidence[start:stop],
             stray=stray.astype(np.uint8),
+            # objects are not found in tiled runs yet (issue 33): no object ids
+            instance=np.full(len(chunk), -1, dtype=np.int32),
         )
         start = stop
 

@@ -15,10 +15,11 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 
 from jointseg.exceptions import JobStateError
+from jointseg.objects.records import LayoutReport
 from server.api.auth import require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
 from server.api.errors import ERROR_RESPONSES
-from server.api.results import result_file
+from server.api.results import layout_of, result_file
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
 from server.schemas import JobList, JobResponse, JobStatus, JobView
@@ -79,17 +80,33 @@ def get_job(job_id: JobId, session: SessionDep) -> JobResponse:
 async def get_result(
     job_id: JobId,
     services: ServicesDep,
-    format: Annotated[ResultFormat, Query(description="ply, las or laz.")] = "ply",
+    format: Annotated[
+        ResultFormat, Query(description="ply, las or laz (the scan), or ifc (an IFC4 model).")
+    ] = "ply",
 ) -> FileResponse:
-    """The segmented scan with every field of ``jointseg segment`` (409 until it succeeded)."""
+    """The segmented scan with every field of ``jointseg segment``, or its IFC4 model of rooms,
+    walls, doors, windows and furniture (409 until it succeeded, or when the run found no
+    objects or rooms)."""
     view = await run_in_threadpool(_current_view, services, job_id)
     if view.status != "succeeded":
         raise JobStateError(f"job {job_id} is {view.status}; no result")
     path = await run_in_threadpool(result_file, services.storage, job_id, format)
     stem = view.filename.rsplit(".", 1)[0]
+    if format == "ifc":
+        return FileResponse(path, media_type="application/x-step", filename=f"{stem}.ifc")
     return FileResponse(
         path, media_type="application/octet-stream", filename=f"{stem}_segmented.{format}"
     )
+
+
+@jobs_router.get("/jobs/{job_id}/objects", response_model=LayoutReport)
+async def get_objects(job_id: JobId, services: ServicesDep) -> LayoutReport:
+    """The objects, rooms and walls (with their doors and windows) the run found, as
+    ``jointseg segment --objects`` writes them (409 until it succeeded, or without them)."""
+    view = await run_in_threadpool(_current_view, services, job_id)
+    if view.status != "succeeded":
+        raise JobStateError(f"job {job_id} is {view.status}; no objects")
+    return await run_in_threadpool(layout_of, services.storage, job_id)
 
 
 @jobs_router.get("/jobs/{job_id}/report", responses={200: {"content": {"application/json": {}}}})

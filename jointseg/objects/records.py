@@ -1,0 +1,99 @@
+"""The records of objects, rooms and walls: plain pydantic models, so the report, ``objects.json``,
+the job API and the IFC writer share one shape without importing the geometry code."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, Field
+
+from jointseg.exceptions import JobStateError
+
+Vec = tuple[float, float, float]
+
+
+class ObjectRecord(BaseModel):
+    """One object: a group of touching points of one class."""
+
+    id: int
+    cls: str = Field(description="S3DIS class name.")
+    points: int
+    confidence: float = Field(description="Mean fused confidence of its points.")
+    centroid: Vec = Field(description="User coordinates.")
+    box: list[Vec] = Field(description="8 corners of a box aligned with the room, user coords.")
+    size: Vec = Field(description="Box size along the room's axes and up, metres.")
+    height_above_floor: float = Field(description="Lowest point above the floor, metres.")
+    room: int | None = None
+
+
+class OpeningRecord(BaseModel):
+    """A door or window in a wall."""
+
+    object: int
+    kind: str
+    width: float
+    height: float
+    sill: float = Field(description="Bottom above the floor, metres.")
+
+
+class WallRecord(BaseModel):
+    """A planar wall: a vertical rectangle."""
+
+    id: int
+    corners: list[Vec] = Field(description="4 corners (bottom, bottom, top, top), user coords.")
+    length: float
+    height: float
+    area: float = Field(description="Gross area, m².")
+    net_area: float = Field(description="Area less its doors and windows, m².")
+    rooms: list[int] = Field(default_factory=list)
+    openings: list[OpeningRecord] = Field(default_factory=list)
+
+
+class RoomRecord(BaseModel):
+    """A room: a region of the floor plan closed by walls."""
+
+    id: int
+    name: str
+    kind: str = Field(description="'room', or 'corridor' for a long narrow one.")
+    floor_area: float = Field(description="m², floor under furniture included.")
+    ceiling_height: float | None = Field(description="Floor to ceiling, metres.")
+    footprint: list[tuple[float, float]] = Field(description="Outline in the plan, work frame.")
+    walls: list[int] = Field(default_factory=list)
+    objects: list[int] = Field(default_factory=list)
+
+
+class LayoutReport(BaseModel):
+    """The report's ``objects`` and ``rooms`` sections, and what the IFC writer needs."""
+
+    objects: list[ObjectRecord] = Field(default_factory=list)
+    rooms: list[RoomRecord] = Field(default_factory=list)
+    walls: list[WallRecord] = Field(default_factory=list)
+    floor_z: float | None = Field(None, description="Floor height in the work frame, metres.")
+    yaw: float = Field(0.0, description="Walls' direction in the work frame, degrees.")
+    to_user: list[list[float]] | None = Field(None, description="4x4 work -> user matrix.")
+    reason: str | None = Field(None, description="Why a section is empty, when it is.")
+
+    def counts(self) -> dict[str, int]:
+        """Objects per class, rooms, walls, doors and windows: what a summary line shows."""
+        out: dict[str, int] = {}
+        for o in self.objects:
+            out[o.cls] = out.get(o.cls, 0) + 1
+        out["rooms"] = len(self.rooms)
+        out["walls"] = len(self.walls)
+        return out
+
+    @classmethod
+    def from_report(cls, body: dict[str, Any]) -> LayoutReport:
+        """The layout a run's report holds (its ``objects`` and ``rooms`` sections).
+
+        Raises
+        ------
+        JobStateError
+            When the run found no objects or rooms (a tiled run, or the stage switched off).
+        """
+        if body.get("rooms") is None:
+            raise JobStateError(
+                "this run has no objects or rooms (objects.enabled was off, or the scan was "
+                "processed in tiles, which do not find objects yet)"
+            )
+        return cls(objects=body["objects"], **body["rooms"])

@@ -1,0 +1,186 @@
+"""Rooms from labelled points: the floor's footprint cut apart by the walls.
+
+Everything happens on a grid over the levelled floor plan, turned to the walls' dominant
+direction (:func:`jointseg.geometry.alignment.dominant_yaw`) so that walls run along grid rows
+and columns. The footprint is every cell with floor points, and the cells under furniture that
+stands on the floor (their floor is hidden, not missing). Wall and door cells, thickened by a
+cell, are barriers; the footprint minus the barriers splits into connected regions, one per
+room; the barrier cells are then handed to the nearest room so each room reaches its walls.
+A room's area counts a cell on its outline as half a cell, which removes the bias of where the
+outline falls inside its cells.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from jointseg.objects.params import CEILING, DOOR, FLOOR, WALL, ObjectParams
+
+#: Furniture lower than this above the floor hides floor under it.
+STANDS_BELOW = 0.5
+#: Openings up to this wide (m) are closed when walls divide rooms.
+DOOR_GAP = 1.9
+#: Cells of a wall's face handed to the room beside it.
+HAND_CELLS = 3.0
+
+
+@dataclass(frozen=True)
+class RoomGrid:
+    """The floor plan as a grid: a room id per cell (-1 none), and how to find cells."""
+
+    labels: np.ndarray  # (H, W) int64
+    origin: np.ndarray  # (2,) plan coordinates of cell (0, 0)'s corner
+    cell: float
+    yaw: float  # degrees: plan coordinates are the work frame turned by -yaw
+
+    def plan_xy(self, xyz: np.ndarray) -> np.ndarray:
+        """Work-frame points' plan coordinates (turned so walls run along the axes), (N, 2)."""
+        a = np.radians(-self.yaw)
+        c, s = np.cos(a), np.sin(a)
+        return np.c_[c * xyz[:, 0] - s * xyz[:, 1], s * xyz[:, 0] + c * xyz[:, 1]]
+
+    def work_xy(self, plan: np.ndarray) -> np.ndarray:
+        """Plan coordinates back to the work frame, (N, 2)."""
+        a = np.radians(self.yaw)
+        c, s = np.cos(a), np.sin(a)
+        return np.c_[c * plan[:, 0] - s * plan[:, 1], s * plan[:, 0] + c * plan[:, 1]]
+
+    def room_of(self, xyz: np.ndarray) -> np.ndarray:
+        """The room id under each work-frame point, -1 outside every room, (N,)."""
+        ij = np.floor((self.plan_xy(xyz) - self.origin) / self.cell).astype(np.int64)
+        h, w = self.labels.shape
+        inside = (ij[:, 0] >= 0) & (ij[:, 0] < h) & (ij[:, 1] >= 0) & (ij[:, 1] < w)
+        out = np.full(len(xyz), -1, dtype=np.int64)
+        out[inside] = self.labels[ij[inside, 0], ij[inside, 1]]
+        return out
+
+
+def floor_height(z: np.ndarray, labels: np.ndarray) -> float | None:
+    """Median height of the floor points, None with fewer than 50 of them."""
+    floor = z[labels == FLOOR]
+    return float(np.median(floor)) if floor.size >= 50 else None
+
+
+def room_grid(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    yaw: float,
+    floor_z: float,
+    params: ObjectParams,
+) -> RoomGrid:
+    """Split the floor plan into rooms (see the module's docstring)."""
+    cell = params.room_cell
+    grid = RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), cell, yaw)
+    plan = grid.plan_xy(xyz)
+    height = xyz[:, 2] - floor_z
+    floor = labels == FLOOR
+    stands = (labels > WALL) & (labels != DOOR) & (height < STANDS_BELOW) & (height > -0.2)
+    barrier = ((labels == WALL) | (labels == DOOR)) & (height > 0.1)
+    used = floor | stands | barrier
+    if not floor.any():
+        return grid
+    lo = np.quantile(plan[used], 0.0005, axis=0) - 2 * cell
+    hi = np.quantile(plan[used], 0.9995, axis=0) + 2 * cell
+    shape = tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1)
+    grid = RoomGrid(np.zeros((0, 0), np.int64), lo, cell, yaw)
+
+    def raster(mask: np.ndarray) -> np.ndarray:
+        ij = np.floor((plan[mask] - lo) / cell).astype(np.int64)
+        ok = (ij >= 0).all(axis=1) & (ij[:, 0] < shape[0]) & (ij[:, 1] < shape[1])
+        out = np.zeros(shape, dtype=bool)
+        out[ij[ok, 0], ij[ok, 1]] = True
+        return out
+
+    # walls closed across door-wide gaps along the grid's rows and columns (openings would
+    # join rooms, or let a room's inside leak out through a door to the outside)
+    walls = raster(barrier)
+    span = max(int(round(DOOR_GAP / cell)), 1) | 1
+    padded = np.pad(walls, span)  # a closing erodes from the array's edge: keep walls off it
+    closed = ndimage.binary_closing(padded, structure=np.ones((span, 1), bool))
+    closed |= ndimage.binary_closing(padded, structure=np.ones((1, span), bool))
+    closed = closed[span:-span, span:-span]
+    seen = ndimage.binary_closing(raster(floor) | raster(stands), iterations=2)
+    footprint = seen | walled_in(closed)
+    thick = ndimage.binary_dilation(closed, iterations=1)
+    regions, count = ndimage.label(footprint & ~thick)
+    # a region counts as a room when enough of it is seen floor (not the inside of a wall)
+    sizes = np.bincount(regions.ravel(), weights=seen.ravel(), minlength=count + 1) * cell * cell
+    keep = np.flatnonzero(sizes >= params.min_room_area)
+    keep = keep[keep > 0]
+    renumber = np.full(count + 1, -1, dtype=np.int64)
+    renumber[keep] = np.arange(keep.size)
+    rooms = renumber[regions]
+    # furniture against a wall hides both the floor and the wall behind it: fill each room to
+    # its orthogonal hull (rectangles and L shapes are their own), where no other room is
+    for r in range(keep.size):
+        hull = surrounded(rooms == r) >= 3
+        rooms[hull & (rooms < 0) & ~closed] = r
+    # hand the footprint's cells next to a room (its wall faces) to the nearest room
+    if keep.size:
+        distance, (ii, jj) = ndimage.distance_transform_edt(rooms < 0, return_indices=True)
+        near = footprint & thick & (rooms < 0) & (distance <= HAND_CELLS)
+        rooms = np.where(near, rooms[ii, jj], rooms)
+    return RoomGrid(rooms, lo, cell, yaw)
+
+
+def surrounded(mask: np.ndarray) -> np.ndarray:
+    """Per cell, on how many of its four sides (along its row and column) ``mask`` has a cell:
+    3 for a notch in a room's edge, 2 for the missing corner of an L."""
+    count = np.zeros(mask.shape, dtype=np.int8)
+    for axis in (0, 1):
+        for flip in (False, True):
+            m = np.flip(mask, axis) if flip else mask
+            seen = np.maximum.accumulate(m, axis=axis)
+            count += np.flip(seen, axis) if flip else seen
+    return count
+
+
+def walled_in(walls: np.ndarray) -> np.ndarray:
+    """Cells with a wall on all four sides along their row and column: the inside of the walls,
+    whatever the scan saw of the floor, and robust to gaps where walls fail to meet (a gap
+    only matters to the one row or column through it, and a cell needs all four)."""
+    inside = np.ones_like(walls)
+    for axis in (0, 1):
+        for flip in (False, True):
+            w = np.flip(walls, axis) if flip else walls
+            seen = np.maximum.accumulate(w, axis=axis)
+            inside &= np.flip(seen, axis) if flip else seen
+    return inside
+
+
+def room_areas(grid: RoomGrid) -> np.ndarray:
+    """Floor area of each room, m², outline cells counted as half cells."""
+    n = int(grid.labels.max()) + 1 if grid.labels.size else 0
+    if n == 0:
+        return np.zeros(0)
+    lab = grid.labels
+    padded = np.pad(lab, 1, constant_values=-1)
+    inner = lab.copy()
+    for di, dj in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        shifted = padded[di : di + lab.shape[0], dj : dj + lab.shape[1]]
+        inner = np.where(shifted != lab, -1, inner)
+    edge = (lab >= 0) & (inner < 0)
+    full = np.bincount(lab[lab >= 0], minlength=n).astype(np.float64)
+    half = np.bincount(lab[edge], minlength=n).astype(np.float64)
+    return (full - 0.5 * half) * grid.cell * grid.cell
+
+
+def ceiling_heights(
+    xyz: np.ndarray, labels: np.ndarray, room: np.ndarray, floor_z: float, n_rooms: int
+) -> np.ndarray:
+    """Per room: the median ceiling point's height above the floor; without ceiling points, the
+    99th percentile of the room's wall points (NaN when the room has neither)."""
+    out = np.full(n_rooms, np.nan)
+    for r in range(n_rooms):
+        inside = room == r
+        ceiling = xyz[inside & (labels == CEILING), 2]
+        if ceiling.size >= 20:
+            out[r] = float(np.median(ceiling)) - floor_z
+            continue
+        walls = xyz[inside & (labels == WALL), 2]
+        if walls.size >= 20:
+            out[r] = float(np.quantile(walls, 0.99)) - floor_z
+    return out

@@ -1,0 +1,146 @@
+"""Objects, rooms, walls and the IFC model (jointseg.objects), on synthetic scans whose true
+objects and rooms are known (jointseg.synth); seeds 11-14 were not used to tune anything."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jointseg.objects.layout import find_layout
+from jointseg.objects.scoring import f1, match_counts
+from jointseg.scan import Scan
+from jointseg.spacing import estimate_spacing
+from jointseg.synth import floor_layout, make_floor, make_room, room_layout
+
+JOINTSEG = str(Path(sys.executable).parent / "jointseg")
+ROOMS = [(11, "box"), (12, "L"), (13, "box"), (14, "L")]
+
+
+@pytest.fixture(scope="module")
+def judged() -> list[tuple[Scan, object, object]]:
+    """(scan, true plan, layout found from the true labels) of four judging rooms."""
+    out = []
+    for seed, shape in ROOMS:
+        scan = make_room(seed, points=200_000, shape=shape)
+        layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz))
+        out.append((scan, room_layout(seed, shape=shape), layout))
+    return out
+
+
+def test_rooms_have_their_true_floor_area_and_ceiling_height(judged: list) -> None:
+    for _, plan, layout in judged:
+        rooms = layout.report.rooms
+        assert len(rooms) == 1, [r.floor_area for r in rooms]
+        truth = plan.spaces[0].area
+        assert abs(rooms[0].floor_area - truth) <= 0.03 * truth, (rooms[0].floor_area, truth)
+        assert abs(rooms[0].ceiling_height - plan.height) <= 0.03
+        assert rooms[0].walls and rooms[0].objects
+
+
+def test_objects_from_true_labels_match_the_true_objects(judged: list) -> None:
+    classes = (5, 6, 8, 9)  # window, door, chair, sofa (tables: see the issue note)
+    totals = {c: np.zeros(3, int) for c in classes}
+    for scan, _, layout in judged:
+        truth = np.where(scan.fields["instance"] >= 0, scan.fields["instance"], -1)
+        found = match_counts(truth, scan.labels, layout.instances, scan.labels, classes=classes)
+        for c, counts in found.items():
+            totals[c] += counts
+    for c, counts in totals.items():
+        assert f1(*counts)[2] >= 0.8, (c, counts)
+    # structure has no object id; every object record agrees with the ids
+    scan, _, layout = judged[0]
+    assert (layout.instances[np.isin(scan.labels, (0, 1, 2))] == -1).all()
+    ids = {o.id for o in layout.report.objects}
+    assert ids == set(np.unique(layout.instances[layout.instances >= 0]).tolist())
+
+
+def test_windows_are_found_in_walls_with_their_width(judged: list) -> None:
+    found, true = [], []
+    for _, plan, layout in judged:
+        found += [o.width for w in layout.report.walls for o in w.openings if o.kind == "window"]
+        true += [o.width for o in plan.openings if o.kind == "window"]
+    assert len(found) >= len(true) - 1
+    for width in found:
+        assert min(abs(width - t) for t in true) <= 0.1
+
+
+def test_a_three_room_floor_splits_into_its_rooms_and_corridor() -> None:
+    scan = make_floor(22, rooms=3, points=400_000)
+    truth = sorted(s.area for s in floor_layout(22, rooms=3).spaces)
+    layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
+    areas = sorted(r.floor_area for r in layout.rooms)
+    assert len(areas) == len(truth) == 4
+    assert np.allclose(areas, truth, rtol=0.05), (areas, truth)
+
+
+def test_bad_input_gives_empty_sections_and_a_reason() -> None:
+    rng = np.random.default_rng(0)
+    wall = np.c_[rng.uniform(0, 4, 2000), np.zeros(2000), rng.uniform(0, 2.5, 2000)]
+    only_wall = find_layout(wall, np.full(2000, 2), None, 0.02).report
+    assert only_wall.rooms == [] and only_wall.objects == [] and "floor" in only_wall.reason
+    floor = np.c_[rng.uniform(0, 4, (2000, 2)), np.zeros(2000)]
+    no_walls = find_layout(floor, np.ones(2000, int), None, 0.02).report
+    assert no_walls.rooms == [] or no_walls.walls == []
+    assert no_walls.reason
+
+
+def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(tmp_path: Path) -> None:
+    import ifcopenshell
+
+    from jointseg.objects.ifc import entity_counts, validation_errors, write_ifc
+
+    scan = make_floor(22, rooms=3, points=200_000)
+    layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
+    counts = write_ifc(layout, tmp_path / "floor.ifc")
+    model = ifcopenshell.open(str(tmp_path / "floor.ifc"))
+    assert validation_errors(model) == []
+    assert entity_counts(model) == counts
+    assert counts["IfcSpace"] == len(layout.rooms) and counts["IfcWall"] == len(layout.walls)
+    kinds = [o.cls for o in layout.objects]
+    assert counts["IfcDoor"] == kinds.count("door")
+    assert counts["IfcWindow"] == kinds.count("window")
+    furniture = sum(kinds.count(k) for k in ("table", "chair", "sofa", "bookcase"))
+    assert counts["IfcFurniture"] == furniture
+    assert counts["IfcSlab"] == 2 * len(layout.rooms)
+    assert model.by_type("IfcProject") and model.by_type("IfcBuildingStorey")
+
+
+def test_segment_writes_objects_and_ifc_and_objects_rederives_them(tmp_path: Path) -> None:
+    from jointseg.io import read_scan, write_scan
+
+    scan = make_room(11, points=20_000)
+    source = write_scan(scan, tmp_path / "room.ply")
+    run = subprocess.run(
+        [JOINTSEG, "segment", str(source), "-o", str(tmp_path / "out.ply"),
+         "--objects", str(tmp_path / "objects.json"), "--ifc",
+         str(tmp_path / "model.ifc"), "--report", str(tmp_path / "report.json")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "objects:" in run.stderr and "IfcWall" in run.stderr
+    body = json.loads((tmp_path / "objects.json").read_text())
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert body["objects"] == report["objects"] and body["rooms"] == report["rooms"]["rooms"]
+    out = read_scan(tmp_path / "out.ply")
+    assert "instance" in out.fields and "instance_input" in out.fields
+    assert np.array_equal(out.fields["instance_input"], scan.fields["instance"])
+    ids = {o["id"] for o in body["objects"]}
+    assert ids == set(np.unique(out.fields["instance"][out.fields["instance"] >= 0]).tolist())
+    again = subprocess.run(
+        [JOINTSEG, "objects", str(tmp_path / "out.ply"), "--objects", str(tmp_path / "o2.json")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert len(json.loads((tmp_path / "o2.json").read_text())["objects"]) == len(body["objects"])
+    # a file that is not a segmented scan: one clear line, nothing written
+    bad = subprocess.run(
+        [JOINTSEG, "objects", str(source), "--objects", str(tmp_path / "bad.json")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert bad.returncode != 0 and "fused_label" in bad.stderr and "Traceback" not in bad.stderr
+    assert not (tmp_path / "bad.json").exists()
