@@ -97,3 +97,12 @@ class LayoutReport(BaseModel):
                 "processed in tiles, which do not find objects yet)"
             )
         return cls(objects=body["objects"], **body["rooms"])
+
+
+def report_sections(layout: LayoutReport | None) -> dict[str, Any]:
+    """The report's ``objects`` (object records) and ``rooms`` (rooms, walls, floor height,
+    reason) sections; both null when the stage did not run."""
+    if layout is None:
+        return {"objects": None, "rooms": None}
+    body = layout.model_dump(mode="json")
+    return {"objects": body.pop("objects"), "rooms": body}

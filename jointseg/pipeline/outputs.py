@@ -107,10 +107,6 @@ def report_body(
 def layout_sections(result: PipelineResult) -> dict[str, Any]:
     """The report's ``objects`` (one record per object) and ``rooms`` (rooms, walls with their
     doors and windows, the floor's height and why a section is empty) sections."""
-    if result.layout is None:
-        return {"objects": None, "rooms": None}
-    body = result.layout.report.model_dump(mode="json")
-    return {
-        "objects": body.pop("objects"),
-        "rooms": body,
-    }
+    from jointseg.objects.records import report_sections
+
+    return report_sections(None if result.layout is None else result.layout.report)

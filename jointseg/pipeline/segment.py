@@ -155,4 +155,4 @@ def _tiled(
         if own:
             shutil.rmtree(work, ignore_errors=True)
     timings["total"] = time.perf_counter() - started
-    return tiled.TiledRun(done.merged, done.plan, timings, done.strays)
+    return tiled.TiledRun(done.merged, done.plan, timings, done.strays, done.layout)

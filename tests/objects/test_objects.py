@@ -144,3 +144,40 @@ def test_segment_writes_objects_and_ifc_and_objects_rederives_them(tmp_path: Pat
     )  # fmt: skip
     assert bad.returncode != 0 and "fused_label" in bad.stderr and "Traceback" not in bad.stderr
     assert not (tmp_path / "bad.json").exists()
+
+
+def test_a_tiled_run_finds_the_same_rooms_and_keeps_objects_whole(tmp_path: Path) -> None:
+    """A tiled run's objects and rooms equal those found on its own labels all at once: the
+    voxel pass loses nothing, and tile borders cut no object."""
+    from jointseg.io import read_scan, write_scan
+    from jointseg.pipeline import PipelineConfig, load_predictor, segment_file
+
+    source = write_scan(make_floor(22, rooms=3, points=150_000), tmp_path / "floor.ply")
+    config = PipelineConfig(seed=0)
+    config = config.model_copy(
+        update={"tiles": config.tiles.model_copy(update={"max_points": 50_000})}
+    )
+    tiled = segment_file(source, tmp_path / "tiled.ply", config,
+                         predictor=load_predictor(config.network), max_points=10**7)  # fmt: skip
+    assert tiled.tiles is not None and tiled.tiles >= 3
+    out = read_scan(tmp_path / "tiled.ply")
+    labels = out.fields["fused_label"]
+    at_once = find_layout(out.xyz, labels, None, estimate_spacing(out.xyz))
+    rooms_t = sorted(r["floor_area"] for r in tiled.report["rooms"]["rooms"])
+    rooms_a = sorted(r.floor_area for r in at_once.report.rooms)
+    assert len(rooms_t) == len(rooms_a) >= 3
+    assert np.allclose(rooms_t, rooms_a, rtol=0.02), (rooms_t, rooms_a)
+    objects_t, objects_a = len(tiled.report["objects"]), len(at_once.report.objects)
+    assert abs(objects_t - objects_a) <= 0.05 * objects_a, (objects_t, objects_a)
+    # sizeable objects found at once are one object of the tiled run (objects are grouped on
+    # a grid: a different grid phase may join or part two pieces at the contact distance)
+    a, b = at_once.instances, out.fields["instance"]
+    ids, counts = np.unique(a[a >= 0], return_counts=True)
+    big = ids[counts >= 300]
+    assert big.size >= 5
+    whole = 0
+    for obj in big:
+        theirs = b[a == obj]
+        theirs = theirs[theirs >= 0]
+        whole += bool(theirs.size) and np.bincount(theirs).max() >= 0.9 * (a == obj).sum()
+    assert whole >= 0.85 * big.size, (whole, big.size)

@@ -22,10 +22,12 @@ import numpy as np
 from jointseg.exceptions import ConfigError
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.network.backends import Predictor
+from jointseg.objects.records import LayoutReport, report_sections
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.stages import colour_free_if_needed
 from jointseg.pipeline.tiled import frame
 from jointseg.pipeline.tiled.merge import MergedScan, merge
+from jointseg.pipeline.tiled.objects import TiledLayout, chunk_inputs, tiled_layout
 from jointseg.pipeline.tiled.run import tile_done
 from jointseg.pipeline.tiled.store import CHUNK_POINTS, TilePlan, prepare, read_plan
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
@@ -43,6 +45,7 @@ class TiledRun:
     plan: TilePlan
     timings: dict[str, float]
     strays: int = 0
+    layout: LayoutReport | None = None
 
     def report(self, config: PipelineConfig, timings: dict[str, float]) -> dict[str, Any]:
         """The run's report with ``timings`` (the caller's, whole-run), with the same keys as
@@ -77,6 +80,7 @@ class TiledRun:
             "metrics": None
             if merged.metrics is None
             else {name: m.model_dump() for name, m in merged.metrics.items()},
+            **report_sections(self.layout),
         }
 
 
@@ -166,14 +170,37 @@ def finish(
     check_cancel(cancel)
     timings = dict(merged.timings)
     t = time.perf_counter()
+    layout = _layout(source, merged, plan, config, max_points) if config.objects.enabled else None
+    if layout is not None:
+        timings["objects"] = time.perf_counter() - t
+    t = time.perf_counter()
     with open_chunks(source, max_points=max_points) as chunks:
-        strays = _write_merged(chunks, merged, plan, output, progress=progress)
+        strays = _write_merged(chunks, merged, plan, output, layout=layout, progress=progress)
     timings["write"] = time.perf_counter() - t
-    return TiledRun(merged, plan, timings, strays)
+    return TiledRun(merged, plan, timings, strays, None if layout is None else layout.report)
+
+
+def _layout(
+    source: Path, merged: MergedScan, plan: TilePlan, config: PipelineConfig, max_points: int
+) -> TiledLayout | None:
+    """Objects and rooms of the whole scan from one more streamed pass (see tiled.objects)."""
+    stream = None if plan.frame is None else frame.StreamFrame(plan.frame)
+    to_user = np.eye(4)
+    if plan.frame is not None:
+        to_user = np.linalg.inv(np.array(plan.frame["report"]["to_work"], dtype=np.float64))
+    with open_chunks(source, max_points=max_points) as chunks:
+        inputs = chunk_inputs(
+            chunks.chunks(CHUNK_POINTS), merged.fused_label, merged.fused_confidence, stream
+        )
+        return tiled_layout(inputs, to_user, config.objects)
 
 
 def _annotated_chunks(
-    chunks: Iterator[Scan], merged: MergedScan, stream: frame.StreamFrame | None, counts: list[int]
+    chunks: Iterator[Scan],
+    merged: MergedScan,
+    stream: frame.StreamFrame | None,
+    counts: list[int],
+    layout: TiledLayout | None = None,
 ) -> Iterator[Scan]:
     """The input's chunks with the pipeline's fields, as :func:`annotate` gives them
     (``counts`` gets the stray points found)."""
@@ -195,10 +222,25 @@ def _annotated_chunks(
             fused_label=merged.fused_label[start:stop].astype(np.int32),
             fused_confidence=merged.fused_confidence[start:stop],
             stray=stray.astype(np.uint8),
-            # objects are not found in tiled runs yet (issue 33): no object ids
-            instance=np.full(len(chunk), -1, dtype=np.int32),
+            instance=_instances(chunk, merged.fused_label[start:stop], stream, stray, layout),
         )
         start = stop
+
+
+def _instances(
+    chunk: Scan,
+    fused: np.ndarray,
+    stream: frame.StreamFrame | None,
+    stray: np.ndarray,
+    layout: TiledLayout | None,
+) -> np.ndarray:
+    """A chunk's object ids (-1 for structure, strays, or without the objects stage)."""
+    if layout is None:
+        return np.full(len(chunk), -1, dtype=np.int32)
+    work = chunk.xyz if stream is None else stream.work_xyz(chunk.xyz)
+    out = layout.point_instances(work, fused)
+    out[stray] = -1
+    return out
 
 
 def _write_merged(
@@ -207,6 +249,7 @@ def _write_merged(
     plan: TilePlan,
     output: Path,
     *,
+    layout: TiledLayout | None = None,
     progress: ProgressFn | None = None,
 ) -> int:
     """Stream the input again, chunk by chunk, into ``output`` with the pipeline's fields;
@@ -217,7 +260,7 @@ def _write_merged(
         decided = frame.StreamFrame(plan.frame)
         bounds = (np.array(plan.frame["file_lower"]), np.array(plan.frame["file_upper"]))
     counts: list[int] = []
-    stream = _annotated_chunks(chunks.chunks(CHUNK_POINTS), merged, decided, counts)
+    stream = _annotated_chunks(chunks.chunks(CHUNK_POINTS), merged, decided, counts, layout)
     first = next(stream)
     written = 0
     with open_writer(output, count=plan.points, like=first, bounds=bounds) as writer:
