@@ -75,6 +75,7 @@ def find_instances(
         key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
         uniq_key, first, inverse = np.unique(key, return_index=True, return_inverse=True)
         comp = cell_components(cell[first])[inverse.reshape(-1)]
+        comp = _join_parts(xyz[members], comp)
         counts = np.bincount(comp)
         keep = np.flatnonzero(counts >= params.min_points)
         keep = keep[np.argsort(-counts[keep], kind="stable")]
@@ -83,3 +84,36 @@ def find_instances(
         out[members] = new[comp]
         next_id += keep.size
     return out
+
+
+#: A part joins a larger object of its class when it is this much smaller at most ...
+PART_SHARE = 0.2
+#: ... and its footprint lies within the larger one's, grown by this margin (m).
+PART_MARGIN = 0.1
+
+
+def _join_parts(xyz: np.ndarray, comp: np.ndarray) -> np.ndarray:
+    """Pieces of one object the scan cut apart: a table leg whose top is hidden under the
+    table top, a chair leg below its seat. A small group lying inside a larger group's
+    footprint (seen from above) joins it."""
+    n = int(comp.max()) + 1 if comp.size else 0
+    if n < 2:
+        return comp
+    counts = np.bincount(comp, minlength=n)
+    lo = np.full((n, 2), np.inf)
+    hi = np.full((n, 2), -np.inf)
+    np.minimum.at(lo, comp, xyz[:, :2])
+    np.maximum.at(hi, comp, xyz[:, :2])
+    target = np.arange(n)
+    for small in np.argsort(counts, kind="stable"):
+        big = np.flatnonzero(
+            (counts * PART_SHARE >= counts[small])
+            & np.all(lo - PART_MARGIN <= lo[small], axis=1)
+            & np.all(hi + PART_MARGIN >= hi[small], axis=1)
+        )
+        if big.size:
+            target[small] = big[np.argmax(counts[big])]
+    # follow chains (a part of a part) to their root
+    for _ in range(4):
+        target = target[target]
+    return target[comp]

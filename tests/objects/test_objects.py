@@ -43,7 +43,7 @@ def test_rooms_have_their_true_floor_area_and_ceiling_height(judged: list) -> No
 
 
 def test_objects_from_true_labels_match_the_true_objects(judged: list) -> None:
-    classes = (5, 6, 8, 9)  # window, door, chair, sofa (tables: see the issue note)
+    classes = (5, 6, 7, 8, 9)  # window, door, table, chair, sofa
     totals = {c: np.zeros(3, int) for c in classes}
     for scan, _, layout in judged:
         truth = np.where(scan.fields["instance"] >= 0, scan.fields["instance"], -1)
@@ -168,7 +168,7 @@ def test_a_tiled_run_finds_the_same_rooms_and_keeps_objects_whole(tmp_path: Path
     assert len(rooms_t) == len(rooms_a) >= 3
     assert np.allclose(rooms_t, rooms_a, rtol=0.02), (rooms_t, rooms_a)
     objects_t, objects_a = len(tiled.report["objects"]), len(at_once.report.objects)
-    assert abs(objects_t - objects_a) <= 0.05 * objects_a, (objects_t, objects_a)
+    assert abs(objects_t - objects_a) <= 0.1 * objects_a, (objects_t, objects_a)
     # sizeable objects found at once are one object of the tiled run (objects are grouped on
     # a grid: a different grid phase may join or part two pieces at the contact distance)
     a, b = at_once.instances, out.fields["instance"]

@@ -446,10 +446,10 @@ def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> 
         budget = field(page, "Point budget")
         budget.fill("5000")
         budget.press("Enter")
-        page.get_by_text("budget").first.wait_for(timeout=30_000)
-        wait_for(lambda: view.shown is not None, what="the budget")
+        # the status line names the budget once every panel is sent again
+        page.get_by_text(re.compile(r"budget 5,000 of")).wait_for(timeout=30_000)
         for panel in ("raw", "network", "fused", "truth"):
-            sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == panel)
+            sent = sum(n.points.shape[0] for k, n in list(view.nodes.items()) if k[0] == panel)
             assert sent == 5000, (panel, sent)
         assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
     finally:
