@@ -5,7 +5,8 @@ Real scans go through ``jointseg segment`` with defaults (cached in --cache): an
 room (ground truth: error map and confusion table) and a ScanNet scan. The viewer serves them
 behind an API key, as ``jointseg serve`` does with ``JOINTSEG_API_KEYS`` set. The tour signs
 in, shows every panel, picks a point, measures a distance, switches to one large panel with the
-error map seen from the top, and saves each screen as a PNG under --out.
+error map seen from the top, shows the objects' boxes and the rooms, and saves each screen as a
+PNG under --out.
 
 Frame rate: a 300 000-point synthetic result (the pipeline's fields filled, as bench/viewer.py
 does for big results) with five panels, orbited by the server moving the camera every 50 ms
@@ -172,6 +173,12 @@ def tour(page: Any, viewer: Any, out: Path) -> list[str]:
     shot("viewer_single_errors_top.png")
     page.get_by_text("Confusion", exact=True).scroll_into_view_if_needed()
     shot("viewer_confusion.png")
+    # objects and rooms: back to the row, boxes in the fused panel, the list beside
+    page.get_by_label("Layout", exact=True).click()
+    page.get_by_role("option", name="Row of panels").click()
+    page.get_by_role("button", name="Fit all").click()
+    page.get_by_text("Objects and rooms", exact=True).scroll_into_view_if_needed()
+    shot("viewer_objects.png")
     # a ScanNet scan with the confidence panel, chosen in the same tab's picker
     page.get_by_label("Layout", exact=True).click()
     page.get_by_role("option", name="Row of panels").click()
