@@ -22,6 +22,12 @@ ROOMS = [(11, "box"), (12, "L"), (13, "box"), (14, "L")]
 
 
 @pytest.fixture(scope="module")
+def floor22() -> Scan:
+    """A 3-room synthetic floor with its corridor (its plan: floor_layout(22, rooms=3))."""
+    return make_floor(22, rooms=3, points=300_000)
+
+
+@pytest.fixture(scope="module")
 def judged() -> list[tuple[Scan, object, object]]:
     """(scan, true plan, layout found from the true labels) of four judging rooms."""
     out = []
@@ -69,8 +75,8 @@ def test_windows_are_found_in_walls_with_their_width(judged: list) -> None:
         assert min(abs(width - t) for t in true) <= 0.1
 
 
-def test_a_three_room_floor_splits_into_its_rooms_and_corridor() -> None:
-    scan = make_floor(22, rooms=3, points=400_000)
+def test_a_three_room_floor_splits_into_its_rooms_and_corridor(floor22: Scan) -> None:
+    scan = floor22
     truth = sorted(s.area for s in floor_layout(22, rooms=3).spaces)
     layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
     areas = sorted(r.floor_area for r in layout.rooms)
@@ -89,12 +95,14 @@ def test_bad_input_gives_empty_sections_and_a_reason() -> None:
     assert no_walls.reason
 
 
-def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(tmp_path: Path) -> None:
+def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(
+    tmp_path: Path, floor22: Scan
+) -> None:
     import ifcopenshell
 
     from jointseg.objects.ifc import entity_counts, validation_errors, write_ifc
 
-    scan = make_floor(22, rooms=3, points=200_000)
+    scan = floor22
     layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
     counts = write_ifc(layout, tmp_path / "floor.ifc")
     model = ifcopenshell.open(str(tmp_path / "floor.ifc"))

@@ -202,6 +202,9 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         assert np.allclose([f.position for f in frames], expected)
         # nothing of the first job is left in the scene
         assert all(key[0] in ("raw", "network", "fused") for key in view.nodes)
+        # a scan without labels leaves the ground truth box unticked and disabled
+        box = page.get_by_label("Ground truth panel", exact=True)
+        assert not box.is_checked() and box.is_disabled()
         # the address names the job now: a reload shows it again
         wait_for(lambda: "job%2Fbare" in address(page), what="the address to follow the job")
         page.reload()
@@ -214,17 +217,6 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         spans = panel_spans(settled(page), 4)
         widths = [b - a for a, b in spans]
         assert min(widths) > 0.7 * max(widths), spans
-        # a scan without labels leaves the ground truth box unticked and disabled
-    finally:
-        page.close()
-
-
-def test_the_truth_box_is_unticked_for_a_scan_without_labels(browser: Any, viewer: Viewer) -> None:
-    page = open_page(browser, viewer.link("bare"))
-    try:
-        shown(page)
-        box = page.get_by_label("Ground truth panel", exact=True)
-        assert not box.is_checked() and box.is_disabled()
     finally:
         page.close()
 
@@ -332,7 +324,7 @@ def answer(page: Any, pattern: str) -> re.Match[str]:
 BACK = np.array([0.0, -0.35, 1.0]) / np.linalg.norm([0.0, -0.35, 1.0])
 
 
-def test_a_click_on_a_known_point_tells_its_labels_and_two_clicks_measure_it(
+def test_a_click_tells_a_known_points_labels_object_and_room_and_two_clicks_measure_it(
     browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
 ) -> None:
     page, view = settled_view(browser, viewer, "room")
@@ -381,6 +373,7 @@ def test_a_click_on_a_known_point_tells_its_labels_and_two_clicks_measure_it(
         truth = float(np.linalg.norm(data.xyz[second].astype(np.float64) - data.xyz[first]))
         assert abs(float(m.group(1)) - truth) <= 1e-3, (m.group(1), truth)
         (artifacts / "viewer_measure.png").write_bytes(page.screenshot())
+        check_objects(page, view, jobs, artifacts)
     finally:
         page.close()
 
@@ -418,11 +411,11 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
             other.close()
 
 
-def test_the_screenshot_button_downloads_a_png_of_the_view(browser: Any, viewer: Viewer) -> None:
-    page = open_page(browser, viewer.link("room"))
+def test_the_screenshot_button_downloads_a_png_and_the_point_budget_caps_the_points_sent(
+    browser: Any, viewer: Viewer
+) -> None:
+    page, view = settled_view(browser, viewer, "room")
     try:
-        shown(page)
-        settled(page)
         with page.expect_download(timeout=60_000) as info:
             page.get_by_role("button", name="Screenshot (PNG)").click()
         assert info.value.suggested_filename == "room_view.png"
@@ -432,15 +425,7 @@ def test_the_screenshot_button_downloads_a_png_of_the_view(browser: Any, viewer:
         box = canvas_box(page)
         assert abs(image.shape[1] - box["width"]) <= 2 and abs(image.shape[0] - box["height"]) <= 2
         assert len(panel_spans(image, 4)) == 4  # the panels, as on the screen
-    finally:
-        page.close()
 
-
-def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> None:
-    page = open_page(browser, viewer.link("room"))
-    try:
-        shown(page)
-        view = view_of(viewer, "room")
         data = view.data
         assert data is not None and data.xyz.shape[0] > 20_000
         budget = field(page, "Point budget")
@@ -456,38 +441,34 @@ def test_the_point_budget_caps_the_points_sent(browser: Any, viewer: Viewer) -> 
         page.close()
 
 
-# ------------------------------------------------------------------- objects and rooms
-def test_objects_and_rooms_are_drawn_listed_and_told_on_a_click(
-    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
-) -> None:
+def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
+    """Objects and rooms: boxes drawn, listed by class, told on a click (issue 33)."""
     import json
 
     report = json.loads((jobs / "room.report.json").read_text())
     objects, rooms = report["objects"], report["rooms"]["rooms"]
     assert objects and rooms
-    page, view = settled_view(browser, viewer, "room")
-    try:
-        data = view.data
-        # every object's box: 12 edges each, in the fused panel
-        assert view.boxes is not None and view.boxes.points.shape == (12 * len(objects), 2, 3)
-        body = page.locator("body").inner_text()
-        assert "Objects and rooms" in body and rooms[0]["name"] in body
-        chairs = sum(o["cls"] == "chair" for o in objects)
-        assert chairs == 0 or re.search(rf"chair\s+{chairs}\b", body)
-        # a click on a point of an object tells the object and the room
-        rows = visible_rows(view, "fused")
-        rows = rows[data.instance[rows] >= 0]
-        target = clear_point(data, rows, BACK, 0.25)
-        aim(page, view, "fused", target, BACK)
-        click_centre(page)
-        m = answer(page, r"object: (\w+) (\d+)")
-        assert int(m.group(2)) == int(data.instance[target])
-        record = next(o for o in objects if o["id"] == int(data.instance[target]))
-        assert m.group(1) == record["cls"]
-        answer(page, r"room: Room \d+")
-        (artifacts / "viewer_objects.png").write_bytes(page.screenshot())
-        # the boxes can be switched off
-        page.get_by_label("Object boxes", exact=True).uncheck()
-        wait_for(lambda: not view.boxes.visible, what="boxes hidden")
-    finally:
-        page.close()
+    data = view.data
+    # every object's box: 12 edges each, in the fused panel
+    assert view.boxes is not None and view.boxes.points.shape == (12 * len(objects), 2, 3)
+    body = page.locator("body").inner_text()
+    assert "Objects and rooms" in body and rooms[0]["name"] in body
+    chairs = sum(o["cls"] == "chair" for o in objects)
+    assert chairs == 0 or re.search(rf"chair\s+{chairs}\b", body)
+    # a click on a point of an object tells the object and the room
+    page.get_by_label("Click to", exact=True).click()
+    page.get_by_role("option", name="Pick a point").click()
+    rows = visible_rows(view, "fused")
+    rows = rows[data.instance[rows] >= 0]
+    target = clear_point(data, rows, BACK, 0.25)
+    aim(page, view, "fused", target, BACK)
+    click_centre(page)
+    m = answer(page, r"object: (\w+) (\d+)")
+    assert int(m.group(2)) == int(data.instance[target])
+    record = next(o for o in objects if o["id"] == int(data.instance[target]))
+    assert m.group(1) == record["cls"]
+    answer(page, r"room: Room \d+")
+    (artifacts / "viewer_objects.png").write_bytes(page.screenshot())
+    # the boxes can be switched off
+    page.get_by_label("Object boxes", exact=True).uncheck()
+    wait_for(lambda: not view.boxes.visible, what="boxes hidden")
