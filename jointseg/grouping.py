@@ -105,6 +105,17 @@ def cell_keys(
     return keys, int(dims.prod())
 
 
+def rows_by_id(ids: np.ndarray) -> list[np.ndarray]:
+    """The rows of each id >= 0, one ascending array per id, ids in ascending order (negative
+    ids are none): one sort, not a scan of the array per id."""
+    valid = np.flatnonzero(ids >= 0)
+    if valid.size == 0:
+        return []
+    order = valid[np.argsort(ids[valid], kind="stable")]
+    bounds = np.flatnonzero(np.diff(ids[order])) + 1
+    return np.split(order, bounds)
+
+
 def group_sums(group: np.ndarray, n_groups: int, values: np.ndarray) -> np.ndarray:
     """Column sums of ``values`` per group (soft votes, colour or position totals).
 

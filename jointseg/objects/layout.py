@@ -14,6 +14,7 @@ import numpy as np
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.geometry.alignment import dominant_yaw, point_normals
+from jointseg.grouping import rows_by_id
 from jointseg.objects.instances import find_instances
 from jointseg.objects.params import DOOR, WALL, WINDOW, ObjectParams
 from jointseg.objects.records import (
@@ -111,14 +112,12 @@ def _objects(
     floor_z: float | None,
     grid: RoomGrid | None,
 ) -> list[ObjectRecord]:
-    valid = np.flatnonzero(instances >= 0)
-    if valid.size == 0:
+    groups = rows_by_id(instances)
+    if not groups:
         return []
-    order = valid[np.argsort(instances[valid], kind="stable")]
-    bounds = np.flatnonzero(np.diff(instances[order])) + 1
     helper = grid or RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), 1.0, yaw)
     out = []
-    for rows in np.split(order, bounds):
+    for rows in groups:
         p = xyz[rows]
         plan = helper.plan_xy(p)
         lo = np.r_[plan.min(axis=0), p[:, 2].min()]
@@ -316,10 +315,8 @@ def _wall(
 
 
 def _groups(instances: np.ndarray, rows: np.ndarray) -> dict[int, np.ndarray]:
-    out: dict[int, list[int]] = {}
-    for i, r in zip(instances[rows].tolist(), rows.tolist(), strict=True):
-        out.setdefault(i, []).append(r)
-    return {k: np.asarray(v) for k, v in out.items()}
+    """The given rows by object id."""
+    return {int(instances[rows[part[0]]]): rows[part] for part in rows_by_id(instances[rows])}
 
 
 def _add_openings(

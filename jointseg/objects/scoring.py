@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.classes import NUM_CLASSES
+from jointseg.grouping import rows_by_id
 
 
 def match_counts(
@@ -56,19 +57,14 @@ def _objects(
     ids: np.ndarray, labels: np.ndarray, cls: int, min_points: int
 ) -> dict[int, np.ndarray]:
     """Rows of each object whose majority class is ``cls``."""
-    valid = np.flatnonzero(ids >= 0)
-    if valid.size == 0:
-        return {}
-    order = valid[np.argsort(ids[valid], kind="stable")]
-    bounds = np.flatnonzero(np.diff(ids[order])) + 1
     out = {}
-    for rows in np.split(order, bounds):
+    for rows in rows_by_id(ids):
         lab = labels[rows]
         lab = lab[(lab >= 0) & (lab < NUM_CLASSES)]
         if lab.size == 0 or rows.size < min_points:
             continue
         if int(np.bincount(lab, minlength=NUM_CLASSES).argmax()) == cls:
-            out[int(ids[rows[0]])] = np.sort(rows)
+            out[int(ids[rows[0]])] = rows
     return out
 
 

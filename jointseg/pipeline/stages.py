@@ -192,7 +192,7 @@ def run(
     net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
 
     fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
-    layout = _objects_stage(work, fused, frame, config, timings)
+    layout = _objects_stage(work, fused, frame, config, geo.params.spacing, timings)
     if index is not None:
         net, geo, fused = expand(net, geo, fused, index)
         layout = _expand_layout(layout, index, frame.stray)
@@ -228,14 +228,19 @@ def _expand_layout(layout: Layout | None, index: np.ndarray, stray: np.ndarray) 
 
 
 def _objects_stage(
-    work: Scan, fused: FusionResult, frame: Frame, config: PipelineConfig, timings: dict[str, float]
+    work: Scan,
+    fused: FusionResult,
+    frame: Frame,
+    config: PipelineConfig,
+    spacing: float,
+    timings: dict[str, float],
 ) -> Layout | None:
     """Objects, rooms and walls from the fused labels, in the work frame, reported in the
-    user's coordinates; timed as ``objects``. None when switched off."""
+    user's coordinates; timed as ``objects``. None when switched off. ``spacing`` is the one
+    the geometry stage measured on the same points."""
     if not config.objects.enabled:
         return None
     from jointseg.objects.layout import find_layout
-    from jointseg.spacing import estimate_spacing
 
     t = time.perf_counter()
     to_user = np.linalg.inv(np.asarray(frame.matrix(), dtype=np.float64))
@@ -243,7 +248,7 @@ def _objects_stage(
         work.xyz,
         fused.labels,
         fused.confidence,
-        estimate_spacing(work.xyz),
+        spacing,
         to_user=to_user,
         params=config.objects,
     )
