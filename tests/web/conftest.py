@@ -48,6 +48,32 @@ def results(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineCon
 
 
 @pytest.fixture(scope="session")
+def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
+    """``room``: 30 k labelled points through the bundled network (many classes, objects and
+    a room); ``bare``: 30 k points without ground truth through the random network."""
+    folder = tmp_path_factory.mktemp("viewer_jobs")
+    write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
+    scan = make_room(5, points=30_000)
+    write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
+    return folder
+
+
+@pytest.fixture(scope="session")
+def viewer(jobs: Path) -> Iterator[Any]:
+    """A viewer (no keys) on ``jobs``, shared by the viewer's browser tests."""
+    from viewer_pages import free_port
+
+    from web.sources import DirectorySource
+    from web.viewer import Viewer
+
+    instance = Viewer(DirectorySource(jobs), port=free_port())
+    try:
+        yield instance
+    finally:
+        instance.stop()
+
+
+@pytest.fixture(scope="session")
 def artifacts() -> Path:
     """Where browser tests leave their screenshots ($PYTEST_ARTIFACTS or tests/artifacts)."""
     folder = Path(os.environ.get("PYTEST_ARTIFACTS") or Path(__file__).parents[1] / "artifacts")

@@ -8,8 +8,6 @@ so a loader that kept the first rows would show one end of the floor only.
 from __future__ import annotations
 
 import re
-import socket
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,6 +17,7 @@ import pytest
 from result_files import synthetic_result
 from scipy.spatial import cKDTree
 from shots import HIDE_TOASTS, panel_spans, settled
+from viewer_pages import free_port, view_of
 
 from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
@@ -29,12 +28,6 @@ from web.viewer import Viewer
 CAP = 20_000
 POINTS = 300_000
 VIEWPORT = {"width": 1600, "height": 900}
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @pytest.fixture(scope="module")
@@ -57,17 +50,6 @@ def capped(big: Path) -> Iterator[Viewer]:
         yield instance
     finally:
         instance.stop()
-
-
-def view_of(viewer: Viewer, job_id: str) -> Any:
-    """The server-side view of the tab showing ``job_id``."""
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        found = [v for v in viewer.views.values() if v.job_id == job_id]
-        if found:
-            return found[0]
-        time.sleep(0.1)
-    raise AssertionError(f"no client shows {job_id}")
 
 
 def columns(xyz: np.ndarray, size: float = 2.0) -> set[tuple[int, int]]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -27,6 +26,7 @@ import httpx
 import numpy as np
 import pytest
 from shots import HIDE_TOASTS, palette_pixels, panel_spans, settled
+from viewer_pages import free_port
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan, write_scan
@@ -38,12 +38,6 @@ API_KEY = "viewer-test-key"
 #: A second accepted key with the characters a URL must escape.
 SPECIAL_KEY = "job+page/key=1&x"
 FINAL = ("succeeded", "failed", "cancelled")
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @dataclass

@@ -8,55 +8,22 @@ switching jobs does not pile up memory.
 from __future__ import annotations
 
 import gc
-import socket
 import time
 import tracemalloc
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pytest
-from result_files import write_result
 from shots import HIDE_TOASTS, ink, palette_pixels, panel_spans, settled
+from viewer_pages import view_of
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
-from jointseg.pipeline import PipelineConfig
-from jointseg.scan import Scan
-from jointseg.synth import make_room
 from web.scene import load_scene
-from web.sources import DirectorySource
 from web.viewer import Viewer
 
 VIEWPORT = {"width": 1600, "height": 900}
 #: The page's JavaScript heap after a forced collection (chromium runs with --expose-gc).
 HEAP_AFTER_GC = "() => { window.gc(); return performance.memory.usedJSHeapSize; }"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-@pytest.fixture(scope="module")
-def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
-    """``room``: 30 k labelled points through the bundled network (many classes);
-    ``bare``: 30 k points without ground truth through the random network."""
-    folder = tmp_path_factory.mktemp("viewer_jobs")
-    write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
-    scan = make_room(5, points=30_000)
-    write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
-    return folder
-
-
-@pytest.fixture(scope="module")
-def viewer(jobs: Path) -> Iterator[Viewer]:
-    instance = Viewer(DirectorySource(jobs), port=free_port())
-    try:
-        yield instance
-    finally:
-        instance.stop()
 
 
 def open_viewer(browser: Any, viewer: Viewer, job_id: str, *, toasts: bool = False) -> Any:
@@ -67,17 +34,6 @@ def open_viewer(browser: Any, viewer: Viewer, job_id: str, *, toasts: bool = Fal
         page.add_style_tag(content=HIDE_TOASTS)
     page.get_by_text("points shown").wait_for(timeout=30_000)
     return page
-
-
-def view_of(viewer: Viewer, job_id: str) -> Any:
-    """The server-side view of the tab showing ``job_id``."""
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline:
-        found = [v for v in viewer.views.values() if v.job_id == job_id]
-        if found:
-            return found[0]
-        time.sleep(0.1)
-    raise AssertionError(f"no client shows {job_id}")
 
 
 def visible_classes(labels: np.ndarray, *, share: float = 0.03) -> list[int]:

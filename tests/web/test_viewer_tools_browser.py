@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import io
 import re
-import socket
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,46 +17,17 @@ from typing import Any
 import numpy as np
 import pytest
 from PIL import Image
-from result_files import write_result
 from shots import HIDE_TOASTS, canvas_box, panel_spans, settled
+from viewer_pages import free_port, view_of
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
-from jointseg.pipeline import PipelineConfig
-from jointseg.scan import Scan
-from jointseg.synth import make_room
 from web.layout import panel_offsets
 from web.sources import DirectorySource
 from web.viewer import Viewer
 
 VIEWPORT = {"width": 1600, "height": 900}
 KEY = "s3cret-key"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-@pytest.fixture(scope="module")
-def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig) -> Path:
-    """``room``: 30 k labelled points through the bundled network; ``bare``: 30 k points without
-    ground truth through the random network."""
-    folder = tmp_path_factory.mktemp("tool_jobs")
-    write_result(folder, "room", make_room(4, points=30_000), PipelineConfig(seed=0))
-    scan = make_room(5, points=30_000)
-    write_result(folder, "bare", Scan(scan.xyz, scan.rgb), random_config)
-    return folder
-
-
-@pytest.fixture(scope="module")
-def viewer(jobs: Path) -> Iterator[Viewer]:
-    instance = Viewer(DirectorySource(jobs), port=free_port())
-    try:
-        yield instance
-    finally:
-        instance.stop()
 
 
 @pytest.fixture(scope="module")
@@ -89,16 +59,6 @@ def settled_view(browser: Any, viewer: Viewer, job_id: str) -> tuple[Any, Any]:
     shown(page)
     settled(page)
     return page, view_of(viewer, job_id)
-
-
-def view_of(viewer: Viewer, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        found = [v for v in viewer.views.values() if v.job_id == job_id and v not in exclude]
-        if found:
-            return found[0]
-        time.sleep(0.1)
-    raise AssertionError(f"no client shows {job_id}")
 
 
 def drawn_count(page: Any) -> int:
@@ -178,6 +138,20 @@ def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
 
 
 # ----------------------------------------------------------------------------- layout
+def choose_job(page: Any, job_id: str) -> None:
+    """Pick ``<job_id>.ply`` in the job picker and wait until its status line shows."""
+    page.get_by_label("Job", exact=True).click()
+    page.get_by_role("option", name=f"{job_id}.ply", exact=False).click()
+    page.locator("strong", has_text=f"{job_id}.ply [{job_id}]").wait_for(timeout=30_000)
+
+
+def even_spans(image: np.ndarray, count: int) -> None:
+    """``count`` panels of about one width: none drawn over another."""
+    spans = panel_spans(image, count)
+    widths = [b - a for a, b in spans]
+    assert min(widths) > 0.7 * max(widths), spans
+
+
 def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows(
     browser: Any, viewer: Viewer, artifacts: Path
 ) -> None:
@@ -187,14 +161,10 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         assert len(panel_spans(settled(page), 4)) == 4
         view = view_of(viewer, "room")
         # pick the job without ground truth in the picker: three panels, evenly laid out
-        page.get_by_label("Job", exact=True).click()
-        page.get_by_role("option", name="bare.ply", exact=False).click()
-        page.locator("strong", has_text="bare.ply [bare]").wait_for(timeout=30_000)
+        choose_job(page, "bare")
         image = settled(page)
         (artifacts / "viewer_switched_to_bare.png").write_bytes(page.screenshot())
-        spans = panel_spans(image, 3)
-        widths = [b - a for a, b in spans]
-        assert min(widths) > 0.7 * max(widths), spans  # no panel drawn over another
+        even_spans(image, 3)
         data = view.data
         assert data is not None and view.job_id == "bare"
         expected = panel_offsets(data.extent, 3)
@@ -211,12 +181,8 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         page.add_style_tag(content=HIDE_TOASTS)
         page.locator("strong", has_text="bare.ply [bare]").wait_for(timeout=30_000)
         # and back to the job with ground truth: four panels again
-        page.get_by_label("Job", exact=True).click()
-        page.get_by_role("option", name="room.ply", exact=False).click()
-        page.locator("strong", has_text="room.ply [room]").wait_for(timeout=30_000)
-        spans = panel_spans(settled(page), 4)
-        widths = [b - a for a, b in spans]
-        assert min(widths) > 0.7 * max(widths), spans
+        choose_job(page, "room")
+        even_spans(settled(page), 4)
     finally:
         page.close()
 
