@@ -24,7 +24,7 @@ import base64
 import binascii
 import json
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from urllib.parse import parse_qs, quote, unquote
 
 from jointseg.classes import NUM_CLASSES
@@ -47,11 +47,6 @@ class ViewState:
     point_size: float | None = None
     single: str | None = None  # one large panel (its key) instead of the row
     budget: int | None = None
-    extra: dict[str, str] = field(default_factory=dict)
-
-    def with_job(self, job_id: str | None) -> ViewState:
-        """The same view on another job (a new job starts with its own camera)."""
-        return replace(self, job_id=job_id, camera=None)
 
 
 def _b64(text: str) -> str:
