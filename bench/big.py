@@ -8,6 +8,8 @@ as LAZ, then segmented by the command a user types, in a fresh process, once per
   segments live in memory at once;
 - ``tiled``: the default tile size (``--tile-points`` to change it): spilled to disk, network and
   geometry tile by tile, segments joined across borders, output streamed.
+- ``untiled+ifc``, ``tiled+ifc``: the same, also writing ``--objects`` and ``--ifc`` (issue 33's
+  bound: the IFC export of a 20 M-point floor within the memory of the run without it).
 
 The peak resident memory of that process (getrusage of a wrapper's only child) and its wall
 time are printed with the report's stage times. Time per point is compared with the untiled run
@@ -42,12 +44,16 @@ PEAK_WRAPPER = (
 )
 
 
-def segment(scan: Path, out: Path, tile_points: int) -> dict[str, float]:
-    """`jointseg segment` on ``scan`` in a child process: wall time, peak RSS, stage times."""
+def segment(scan: Path, out: Path, tile_points: int, ifc: bool = False) -> dict[str, float]:
+    """`jointseg segment` on ``scan`` in a child process: wall time, peak RSS, stage times;
+    with ``ifc``, objects.json and an IFC model written too (the ``+ifc`` modes)."""
     report = out.with_suffix(".json")
     cmd = [sys.executable, "-c", PEAK_WRAPPER, sys.executable, "-m", "jointseg", "segment"]
     cmd += [str(scan), "-o", str(out), "--report", str(report)]
     cmd += ["--tile-points", str(tile_points)]
+    if ifc:
+        cmd += ["--objects", str(out.with_suffix(".objects.json"))]
+        cmd += ["--ifc", str(out.with_suffix(".ifc"))]
     t = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t
@@ -78,7 +84,7 @@ def agreement(a: Path, b: Path) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="1000000,4000000")
-    parser.add_argument("--modes", default="untiled,tiled")
+    parser.add_argument("--modes", default="untiled,tiled", help="also untiled+ifc, tiled+ifc")
     parser.add_argument("--tile-points", type=int, default=4_000_000)
     parser.add_argument("--baseline", type=int, default=4_000_000)
     parser.add_argument("--agree-max", type=int, default=4_000_000, help="compare labels up to")
@@ -102,8 +108,8 @@ def main() -> None:
             outputs: dict[str, Path] = {}
             for mode in modes:
                 out = Path(tmp) / f"out_{points}_{mode}.laz"
-                tile_points = 10**9 if mode == "untiled" else args.tile_points
-                row = segment(scan, out, tile_points)
+                tile_points = 10**9 if mode.startswith("untiled") else args.tile_points
+                row = segment(scan, out, tile_points, ifc=mode.endswith("+ifc"))
                 if row.get("failed"):
                     print(
                         f"| {points:,} | {mode} | | failed after {row['wall']:.0f} s "
@@ -122,7 +128,7 @@ def main() -> None:
                 work = row.get("tiles", side)
                 fusion, write = row.get("fusion", float("nan")), row.get("write", float("nan"))
                 same = "-"
-                if len(outputs) == 2 and points <= args.agree_max:
+                if {"untiled", "tiled"} <= outputs.keys() and points <= args.agree_max:
                     fused, network = agreement(outputs["untiled"], outputs["tiled"])
                     same = f"{fused:.4f} / {network:.4f}"
                 print(
@@ -132,7 +138,8 @@ def main() -> None:
                     flush=True,
                 )
             for out in outputs.values():
-                out.unlink(missing_ok=True)
+                for extra in (out, out.with_suffix(".ifc"), out.with_suffix(".objects.json")):
+                    extra.unlink(missing_ok=True)
 
 
 if __name__ == "__main__":

@@ -106,14 +106,26 @@ def objects_part(points: int) -> None:
               f"{per['table'][0]} / {per['table'][1]} |")  # fmt: skip
 
 
+def _wall_count(faces: list) -> int:
+    """Walls of a true plan: faces on one line that touch are one wall."""
+    spans = sorted((f.axis, round(f.coord, 3), f.u0, f.u1) for f in faces)
+    count, last = 0, None
+    for axis, coord, u0, u1 in spans:
+        if last is None or (axis, coord) != last[:2] or u0 > last[2] + 1e-6:
+            count += 1
+        last = (axis, coord, u1 if last is None or (axis, coord) != last[:2] else max(u1, last[2]))
+    return count
+
+
 def rooms_part(points: int) -> None:
     from jointseg.objects.layout import find_layout
     from jointseg.spacing import estimate_spacing
     from jointseg.synth import floor_layout, make_floor, make_room, room_layout
 
-    print("\n| scan | true area m² | found m² | error | true height | found | doors true / found |"
-          " windows true / found | door widths true | found |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| scan | true area m² | found m² | error | true height | found | walls true / found |"
+          " doors true / found | windows true / found | door widths true | found |"
+          " window widths true | found |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in (11, 12, 13, 14):
         shape = "L" if seed % 2 == 0 else "box"
         scan, plan = make_room(seed, points=points, shape=shape), room_layout(seed, shape=shape)
@@ -124,20 +136,22 @@ def rooms_part(points: int) -> None:
         openings = [o for w in layout.walls for o in w.openings]
         doors_t = sorted(round(o.width, 2) for o in plan.openings if o.kind == "door")
         doors_f = sorted(round(o.width, 2) for o in openings if o.kind == "door")
-        wins_t = sum(o.kind == "window" for o in plan.openings)
-        wins_f = sum(o.kind == "window" for o in openings)
+        wins_t = sorted(round(o.width, 2) for o in plan.openings if o.kind == "window")
+        wins_f = sorted(round(o.width, 2) for o in openings if o.kind == "window")
+        walls_t = _wall_count(plan.spaces[0].faces)
         height = room.ceiling_height if room else float("nan")
         error = 100 * (found / truth - 1)
         print(f"| synth{seed} ({shape}) | {truth:.2f} | {found:.2f} | {error:+.1f} % | "
-              f"{plan.height:.3f} | {height:.3f} | {len(doors_t)} / {len(doors_f)} | "
-              f"{wins_t} / {wins_f} | {doors_t} | {doors_f} |")  # fmt: skip
+              f"{plan.height:.3f} | {height:.3f} | {walls_t} / {len(layout.walls)} | "
+              f"{len(doors_t)} / {len(doors_f)} | {len(wins_t)} / {len(wins_f)} | {doors_t} | "
+              f"{doors_f} | {wins_t} | {wins_f} |")  # fmt: skip
     for seed in (21, 22):
         scan, plan = make_floor(seed, rooms=3, points=2 * points), floor_layout(seed, rooms=3)
         layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
         truth = sorted(round(s.area, 1) for s in plan.spaces)
         found = sorted(round(r.floor_area, 1) for r in layout.rooms)
         print(f"| floor{seed} (3 rooms + corridor) | {truth} | {found} | {len(found)} of "
-              f"{len(truth)} spaces | | | | | | |")  # fmt: skip
+              f"{len(truth)} spaces | | | | | | | | | |")  # fmt: skip
 
 
 def cost_part() -> None:

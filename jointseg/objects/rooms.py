@@ -4,8 +4,10 @@ Everything happens on a grid over the levelled floor plan, turned to the walls' 
 direction (:func:`jointseg.geometry.alignment.dominant_yaw`) so that walls run along grid rows
 and columns. The footprint is every cell with floor points, and the cells under furniture that
 stands on the floor (their floor is hidden, not missing). Wall and door cells, thickened by a
-cell, are barriers; the footprint minus the barriers splits into connected regions, one per
-room; the barrier cells are then handed to the nearest room so each room reaches its walls.
+cell, are barriers, their door-wide gaps closed along each wall's own direction (never across
+a corridor from one side to the other); the footprint minus the barriers splits into connected
+regions, one per room; the barrier cells are then handed to the nearest room so each room
+reaches its walls.
 A room's area counts a cell on its outline as half a cell, which removes the bias of where the
 outline falls inside its cells.
 """
@@ -23,6 +25,8 @@ from jointseg.objects.params import CEILING, DOOR, FLOOR, WALL, ObjectParams
 STANDS_BELOW = 0.5
 #: Openings up to this wide (m) are closed when walls divide rooms.
 DOOR_GAP = 1.9
+#: Only wall lines at least this long (m) close a gap along their own direction.
+LINE_MIN = 0.4
 #: Cells of a wall's face handed to the room beside it.
 HAND_CELLS = 3.0
 
@@ -70,8 +74,14 @@ def room_grid(
     yaw: float,
     floor_z: float,
     params: ObjectParams,
+    barrier_normals: np.ndarray | None = None,
 ) -> RoomGrid:
-    """Split the floor plan into rooms (see the module's docstring)."""
+    """Split the floor plan into rooms (see the module's docstring).
+
+    ``barrier_normals`` (of the wall and door points, in order) let each wall's gaps be closed
+    along its own direction only, so a corridor narrower than a double door between two
+    parallel walls is not closed shut; without them walls are closed along both directions.
+    """
     cell = params.room_cell
     grid = RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), cell, yaw)
     plan = grid.plan_xy(xyz)
@@ -87,21 +97,53 @@ def room_grid(
     shape = tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1)
     grid = RoomGrid(np.zeros((0, 0), np.int64), lo, cell, yaw)
 
-    def raster(mask: np.ndarray) -> np.ndarray:
+    def count_cells(mask: np.ndarray) -> np.ndarray:
         ij = np.floor((plan[mask] - lo) / cell).astype(np.int64)
         ok = (ij >= 0).all(axis=1) & (ij[:, 0] < shape[0]) & (ij[:, 1] < shape[1])
-        out = np.zeros(shape, dtype=bool)
-        out[ij[ok, 0], ij[ok, 1]] = True
-        return out
+        flat = np.ravel_multi_index((ij[ok, 0], ij[ok, 1]), shape)
+        return np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
+
+    def raster(mask: np.ndarray) -> np.ndarray:
+        return count_cells(mask) > 0
 
     # walls closed across door-wide gaps along the grid's rows and columns (openings would
     # join rooms, or let a room's inside leak out through a door to the outside)
     walls = raster(barrier)
     span = max(int(round(DOOR_GAP / cell)), 1) | 1
-    padded = np.pad(walls, span)  # a closing erodes from the array's edge: keep walls off it
-    closed = ndimage.binary_closing(padded, structure=np.ones((span, 1), bool))
-    closed |= ndimage.binary_closing(padded, structure=np.ones((1, span), bool))
-    closed = closed[span:-span, span:-span]
+    runs = [walls, walls]  # the barrier cells of walls running along grid axis 0, axis 1
+    if barrier_normals is not None:
+        n_plan = np.abs(grid.plan_xy(barrier_normals))
+        rows = np.flatnonzero((labels == WALL) | (labels == DOOR))
+        votes = []
+        for axis in (0, 1):  # a wall (or a door in it) runs along the axis its normal is across
+            mask = np.zeros(len(labels), dtype=bool)
+            mask[rows] = n_plan[:, 1 - axis] > 0.85
+            votes.append(count_cells(barrier & mask))
+        # a cell runs the way most of its points face: a stray point (a corner, a sill, an
+        # open door's leaf) facing across a corridor must not close the corridor
+        runs = [votes[0] > votes[1], votes[1] > votes[0]]
+        # only wall lines bridge a gap, not a door's jamb or a wall's end seen edge-on
+        line = max(int(round(LINE_MIN / cell)), 1)
+        for axis in (0, 1):
+            size = [1, 1]
+            size[axis] = line
+            runs[axis] = ndimage.binary_opening(runs[axis], structure=np.ones(size, bool))
+
+    def close(mask: np.ndarray, axis: int) -> np.ndarray:
+        size = [1, 1]
+        size[axis] = span
+        padded = np.pad(mask, span)  # a closing erodes from the array's edge
+        return ndimage.binary_closing(padded, np.ones(size, bool))[span:-span, span:-span]
+
+    closed = walls.copy()
+    for axis in (0, 1):
+        if runs[0] is runs[1]:
+            closed |= close(walls, axis)
+            continue
+        # a gap is closed along a wall line, from it to the next cell of any wall (a door by a
+        # corner); not between two walls across it (the two sides of a corridor)
+        across = close(runs[1 - axis], axis) & ~runs[1 - axis]
+        closed |= close(runs[axis] | runs[1 - axis], axis) & ~across
     seen = ndimage.binary_closing(raster(floor) | raster(stands), iterations=2)
     footprint = seen | walled_in(closed)
     thick = ndimage.binary_dilation(closed, iterations=1)
