@@ -5,11 +5,22 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from pydantic import BaseModel, Field
 
 from jointseg.exceptions import JobStateError
 
 Vec = tuple[float, float, float]
+
+
+def user_coords(matrix: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """Work-frame points to the user's coordinates through a 4x4 matrix."""
+    return np.asarray(xyz, dtype=np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def vec(v: np.ndarray) -> Vec:
+    """A record's 3-vector from an array's first three values."""
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 class ObjectRecord(BaseModel):

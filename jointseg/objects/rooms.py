@@ -27,6 +27,8 @@ STANDS_BELOW = 0.5
 DOOR_GAP = 1.9
 #: Only wall lines at least this long (m) close a gap along their own direction.
 LINE_MIN = 0.4
+#: The points of a wall line may lie this far apart along it (m) and still be one line.
+DOTS = 0.25
 #: Cells of a wall's face handed to the room beside it.
 HAND_CELLS = 3.0
 
@@ -122,12 +124,17 @@ def room_grid(
         # a cell runs the way most of its points face: a stray point (a corner, a sill, an
         # open door's leaf) facing across a corridor must not close the corridor
         runs = [votes[0] > votes[1], votes[1] > votes[0]]
-        # only wall lines bridge a gap, not a door's jamb or a wall's end seen edge-on
+        # only wall lines bridge a gap, not a door's jamb or a wall's end seen edge-on; a
+        # far wall seen at a grazing angle is a dotted line: its dots join first
         line = max(int(round(LINE_MIN / cell)), 1)
+        dots = max(int(round(DOTS / cell)), 1) | 1
         for axis in (0, 1):
-            size = [1, 1]
-            size[axis] = line
-            runs[axis] = ndimage.binary_opening(runs[axis], structure=np.ones(size, bool))
+            size, near = [1, 1], [1, 1]
+            size[axis], near[axis] = line, dots
+            joined = ndimage.binary_closing(
+                np.pad(runs[axis], dots), structure=np.ones(near, bool)
+            )[dots:-dots, dots:-dots]
+            runs[axis] = ndimage.binary_opening(joined, structure=np.ones(size, bool))
 
     def close(mask: np.ndarray, axis: int) -> np.ndarray:
         size = [1, 1]
@@ -144,6 +151,8 @@ def room_grid(
         # corner); not between two walls across it (the two sides of a corridor)
         across = close(runs[1 - axis], axis) & ~runs[1 - axis]
         closed |= close(runs[axis] | runs[1 - axis], axis) & ~across
+    if runs[0] is not runs[1]:
+        closed |= complete_corners(closed & runs[0], closed & runs[1], span)
     seen = ndimage.binary_closing(raster(floor) | raster(stands), iterations=2)
     footprint = seen | walled_in(closed)
     thick = ndimage.binary_dilation(closed, iterations=1)
@@ -166,6 +175,45 @@ def room_grid(
         near = footprint & thick & (rooms < 0) & (distance <= HAND_CELLS)
         rooms = np.where(near, rooms[ii, jj], rooms)
     return RoomGrid(rooms, lo, cell, yaw)
+
+
+def complete_corners(along0: np.ndarray, along1: np.ndarray, span: int) -> np.ndarray:
+    """The cells that join a wall line running along grid axis 0 and one running along axis
+    1 into a corner, where each line stops short of the other's line by at most ``span``
+    cells: a cupboard standing in a corner hides both walls' last metre or so."""
+    out = np.zeros(along0.shape, dtype=bool)
+    lines0 = ndimage.find_objects(ndimage.label(along0)[0])
+    lines1 = ndimage.find_objects(ndimage.label(along1)[0])
+    long0 = [b for b in lines0 if b is not None and b[0].stop - b[0].start >= span // 2]
+    long1 = [b for b in lines1 if b is not None and b[1].stop - b[1].start >= span // 2]
+    for a in long0:  # tens of wall lines, not cells
+        for b in long1:
+            # a runs along axis 0 across rows a[0], at columns a[1]; b the other way
+            reach0 = _reach(a[0], b[0])  # rows from a's end to b's rows
+            reach1 = _reach(b[1], a[1])  # columns from b's end to a's columns
+            if reach0 is None or reach1 is None or reach0.stop - reach0.start > span:
+                continue
+            if reach1.stop - reach1.start > span or (_empty(reach0) and _empty(reach1)):
+                continue
+            out[reach0, a[1]] = True
+            out[b[0], reach1] = True
+    return out
+
+
+def _reach(own: slice, other: slice) -> slice | None:
+    """The cells along a line's own axis from its end to another line's cells (an empty
+    slice where it already reaches them), None where the other lies beside its middle."""
+    if own.stop <= other.start:
+        return slice(own.stop, other.stop)
+    if other.stop <= own.start:
+        return slice(other.start, own.start)
+    if own.start < other.start and other.stop < own.stop:
+        return None  # a T: the other line meets this one's middle
+    return slice(own.start, own.start)
+
+
+def _empty(s: slice) -> bool:
+    return s.stop <= s.start
 
 
 def surrounded(mask: np.ndarray) -> np.ndarray:

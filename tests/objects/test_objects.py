@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jointseg.objects.layout import _inside_trims, find_layout
+from jointseg.objects.layout import find_layout
+from jointseg.objects.openings import inside_trims
 from jointseg.objects.scoring import f1, match_counts
 from jointseg.scan import Scan
 from jointseg.spacing import estimate_spacing
@@ -89,14 +90,35 @@ def test_every_wall_and_door_is_found(judged: list) -> None:
         assert np.allclose(found, true, atol=0.1), (found, true)
 
 
+@pytest.mark.parametrize("seed", [30, 38, 39])
+def test_open_doors_and_hidden_corners(seed: int) -> None:
+    """Rooms never tuned on: open doors (their far casing parted from the leaf, or unseen:
+    the leaf's own width then) within 10 cm, and 38's corner hidden behind a cupboard on
+    both walls still closed (its area within 3 %)."""
+    shape = "L" if seed % 2 == 0 else "box"
+    scan, plan = make_room(seed, points=200_000, shape=shape), room_layout(seed, shape=shape)
+    layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
+    true = sorted(o.width for o in plan.openings if o.kind == "door")
+    found = sorted(o.width for w in layout.walls for o in w.openings if o.kind == "door")
+    assert len(found) == len(true) and np.allclose(found, true, atol=0.1), (found, true)
+    assert len(layout.rooms) == 1
+    assert layout.rooms[0].floor_area == pytest.approx(plan.spaces[0].area, rel=0.03)
+
+
 def test_trims_proud_of_a_door_leaf_are_not_its_width() -> None:
-    """A 0.9 m opening with 7 cm casings 4 cm proud of a recessed leaf: 0.9 m, not 1.04 m."""
+    """A 0.9 m opening with 7 cm casings standing off its leaf: 0.9 m, not 1.04 m."""
     u = np.linspace(-0.52, 0.52, 800)
     depth = np.where(np.abs(u) > 0.45, -0.04, 0.05)
-    lo, hi = _inside_trims(u, depth, -0.52, 0.52)
-    assert hi - lo == pytest.approx(0.9, abs=0.03)
-    # a leaf flush with its trims cannot be told from them: the measured edges stay
-    assert _inside_trims(u, np.full_like(u, -0.04), -0.52, 0.52) == (-0.52, 0.52)
+    span = inside_trims(u, depth, -0.52, 0.52)
+    assert span is not None and span[1] - span[0] == pytest.approx(0.9, abs=0.03)
+    # trims 5 mm proud of a flat leaf still stand out of its spread
+    span = inside_trims(u, np.where(np.abs(u) > 0.45, -0.045, -0.04), -0.52, 0.52)
+    assert span is not None and span[1] - span[0] == pytest.approx(0.9, abs=0.03)
+    # a leaf exactly flush with its trims cannot be told from them: the edges stay
+    assert inside_trims(u, np.full_like(u, -0.04), -0.52, 0.52) == (-0.52, 0.52)
+    # an open door (nothing between the casings) is for the next reading
+    ends = np.abs(u) > 0.45
+    assert inside_trims(u[ends], np.full(ends.sum(), -0.04), -0.52, 0.52) is None
 
 
 def test_a_three_room_floor_splits_into_its_rooms_and_corridor(floor22: Scan) -> None:

@@ -1,0 +1,238 @@
+"""Wall faces in the floor plan: where they are, which side their body lies on, the rooms beside
+them, and the door whose pieces the grouping parted.
+
+A face is a histogram peak of the wall points that face along one of the plan's two axes,
+cut where its points (or a door or window in it) leave a gap wider than ``WALL_GAP``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from jointseg.grouping import rows_by_id
+from jointseg.objects.params import DOOR, FLOOR, WALL, WINDOW, ObjectParams
+from jointseg.objects.records import WallRecord, user_coords, vec
+from jointseg.objects.rooms import RoomGrid
+
+#: A wall plane is cut where its points (and its doors and windows) leave a gap this wide, m:
+#: furniture in front of a wall hides stretches of it shorter than that.
+WALL_GAP = 2.0
+#: The widest door (a double door with its casings), m: door pieces further apart are two doors.
+MAX_DOOR = 2.2
+
+
+@dataclass(frozen=True)
+class WallFace:
+    """A wall face in the plan: its axis (the face lies at plan coordinate ``c`` along it),
+    its span ``u0..u1`` along the other axis, the side of the face its wall's body lies on
+    (+1 or -1 along ``axis``), and its own points (along it, height)."""
+
+    axis: int
+    c: float
+    u0: float
+    u1: float
+    back: int
+    u: np.ndarray
+    z: np.ndarray
+
+    def holds(self, plan: np.ndarray) -> bool:
+        """Whether an object's points (plan coordinates) stand in this wall: a fifth of them
+        within 0.3 m of its plane (an open door's leaf reaches into the room), their middle
+        within its span."""
+        near = np.abs(plan[:, self.axis] - self.c) < 0.3
+        if np.mean(near) < 0.2:
+            return False
+        mid = float(np.median(plan[near, 1 - self.axis]))
+        return self.u0 - 0.2 <= mid <= self.u1 + 0.2
+
+
+def wall_faces(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    normals: np.ndarray,
+    instances: np.ndarray,
+    grid: RoomGrid,
+    params: ObjectParams,
+) -> list[WallFace]:
+    """The faces of the walls, along the plan's two axes (``normals``: of the wall points)."""
+    wall = np.flatnonzero(labels == WALL)
+    plan = grid.plan_xy(xyz[wall])
+    n_plan = grid.plan_xy(normals)
+    openings = np.flatnonzero(((labels == DOOR) | (labels == WINDOW)) & (instances >= 0))
+    open_plan = grid.plan_xy(xyz[openings])
+    floor_plan = grid.plan_xy(xyz[labels == FLOOR])
+    wall_z = xyz[wall, 2]
+    out: list[WallFace] = []
+    for axis in (0, 1):
+        facing = np.abs(n_plan[:, axis]) > 0.8
+        coord, along, z = plan[facing, axis], plan[facing, 1 - axis], wall_z[facing]
+        for c in _planes(coord, min_count=max(50, int(0.002 * wall.size))):
+            on = np.abs(coord - c) < 0.06
+            near_open = np.abs(open_plan[:, axis] - c) < 0.3
+            u = np.sort(np.r_[along[on], open_plan[near_open, 1 - axis]])
+            own = np.sort(along[on])
+            for u0, u1 in _runs(u, gap=WALL_GAP):
+                # its own wall points must span a wall (a window's reveal faces along the wall
+                # it is cut in, and a door's leaf beside it would lengthen the run)
+                inside = own[np.searchsorted(own, u0) : np.searchsorted(own, u1, side="right")]
+                span = float(inside[-1] - inside[0]) if inside.size else 0.0
+                if span >= params.min_wall_length:
+                    back = _back_side(floor_plan, axis, c, u0, u1)
+                    out.append(WallFace(axis, c, u0, u1, back, along[on], z[on]))
+    return out
+
+
+def join_door_pieces(
+    instances: np.ndarray,
+    labels: np.ndarray,
+    xyz: np.ndarray,
+    grid: RoomGrid,
+    faces: list[WallFace],
+    floor_z: float,
+) -> int:
+    """Join the pieces of one door in place; return how many joins were made.
+
+    An open door's leaf and hinge-side casing touch, but the casing across the opening meets
+    them only over the head, which a scan from below may miss: the grouping makes two objects,
+    or leaves the far casing as crumbs too small to be one. Door pieces in one wall, side by
+    side within a door's width, with no wall between them at mid height, are one door (crumbs
+    join an object, never make one). Two doors in one wall have wall between them.
+    """
+    doors = np.flatnonzero(labels == DOOR)
+    if doors.size == 0 or not (instances[doors] >= 0).any():
+        return 0
+    plan = grid.plan_xy(xyz[doors])
+    ids = instances[doors]
+    parts = {int(ids[p[0]]): p for p in rows_by_id(ids)}
+    crumbs = np.flatnonzero(ids < 0)
+    joined = 0
+    for face in faces:
+        pieces = _pieces(face, plan, parts, crumbs)
+        band = (face.z > floor_z + 0.5) & (face.z < floor_z + 1.8)
+        wall_u = np.sort(face.u[band])
+        density = wall_u.size / max(face.u1 - face.u0, 1e-6)  # wall points per metre of face
+        k = 0
+        while k + 1 < len(pieces):
+            (a0, b0, i0, r0), (a1, b1, i1, r1) = pieces[k], pieces[k + 1]
+            lo, hi = b0 + 0.03, a1 - 0.03
+            between = np.searchsorted(wall_u, hi) - np.searchsorted(wall_u, lo) if hi > lo else 0
+            free = between <= 0.1 * density * max(hi - lo, 0.0)
+            if max(b0, b1) - a0 > MAX_DOOR or not free or max(i0, i1) < 0:
+                k += 1
+                continue
+            keep = i0 if i0 >= 0 else i1
+            rows = np.r_[r0, r1]
+            ids[rows] = keep
+            if i0 >= 0 and i1 >= 0:
+                joined += 1
+                parts.pop(i0 if keep == i1 else i1, None)
+            parts[keep] = np.unique(np.r_[parts.get(keep, rows), rows])
+            pieces[k] = (a0, max(b0, b1), keep, rows)
+            del pieces[k + 1]
+            k = max(k - 1, 0)  # the piece before may join the grown one now
+        crumbs = np.flatnonzero(ids < 0)
+    changed = ids != instances[doors]
+    instances[doors[changed]] = ids[changed]
+    return joined + int(changed.any())
+
+
+def _pieces(
+    face: WallFace, plan: np.ndarray, parts: dict[int, np.ndarray], crumbs: np.ndarray
+) -> list[tuple[float, float, int, np.ndarray]]:
+    """The door objects standing in a face, and its runs of crumbs (door points of no object,
+    id -1), as (start, end along the wall, id, rows), sorted along the wall."""
+    out: list[tuple[float, float, int, np.ndarray]] = []
+    for i, rows in parts.items():
+        if face.holds(plan[rows]):
+            near = np.abs(plan[rows, face.axis] - face.c) < 0.3
+            a, b = np.quantile(plan[rows[near], 1 - face.axis], [0.01, 0.99])
+            out.append((float(a), float(b), i, rows))
+    near = crumbs[np.abs(plan[crumbs, face.axis] - face.c) < 0.3]
+    u = plan[near, 1 - face.axis]
+    inside = (u > face.u0 - 0.2) & (u < face.u1 + 0.2)
+    near, u = near[inside], u[inside]
+    order = np.argsort(u)
+    near, u = near[order], u[order]
+    if u.size:
+        cuts = np.flatnonzero(np.diff(u) > 0.1) + 1
+        for run, along in zip(np.split(near, cuts), np.split(u, cuts), strict=True):
+            out.append((float(along[0]), float(along[-1]), -1, run))
+    out.sort(key=lambda p: (p[0], p[1]))
+    return out
+
+
+def wall_records(
+    faces: list[WallFace], grid: RoomGrid, floor_z: float, top: float, matrix: np.ndarray
+) -> list[WallRecord]:
+    """One record per face: its rectangle in user coordinates and the rooms on either side."""
+    out = []
+    for index, face in enumerate(faces):
+        ends = np.array([_point(face, face.u0), _point(face, face.u1)])
+        work = grid.work_xy(ends)
+        corners = np.array(
+            [[*work[0], floor_z], [*work[1], floor_z], [*work[1], top], [*work[0], top]]
+        )
+        # rooms on either side: probe the grid 0.25 m off the wall's middle
+        probes = []
+        for side in (-0.25, 0.25):
+            q = _point(face, (face.u0 + face.u1) / 2)
+            q[face.axis] += side
+            probes.append(q)
+        beside = grid.room_of(np.c_[grid.work_xy(np.array(probes)), np.zeros(2)])
+        length, height = face.u1 - face.u0, top - floor_z
+        out.append(
+            WallRecord(
+                id=index,
+                corners=[vec(v) for v in user_coords(matrix, corners)],
+                length=round(length, 3),
+                height=round(height, 3),
+                area=round(length * height, 3),
+                net_area=round(length * height, 3),
+                rooms=sorted({int(r) for r in beside if r >= 0}),
+            )
+        )
+    return out
+
+
+def _point(face: WallFace, u: float) -> np.ndarray:
+    p = np.zeros(2)
+    p[face.axis], p[1 - face.axis] = face.c, u
+    return p
+
+
+def _back_side(floor_plan: np.ndarray, axis: int, c: float, u0: float, u1: float) -> int:
+    """Which side of a wall face is the wall's body: the side with no floor in the first few
+    centimetres (a room's floor runs up to the face, and any wall is thicker than 8 cm)."""
+    along = floor_plan[:, 1 - axis]
+    off = floor_plan[:, axis] - c
+    beside = (along > u0) & (along < u1)
+    plus = int(np.count_nonzero(beside & (off > 0.02) & (off < 0.08)))
+    minus = int(np.count_nonzero(beside & (off < -0.02) & (off > -0.08)))
+    return 1 if plus < minus else -1
+
+
+def _planes(coord: np.ndarray, *, min_count: int, bin_width: float = 0.05) -> list[float]:
+    """Offsets where many points share one coordinate: histogram peaks, refined by a mean."""
+    if coord.size < min_count:
+        return []
+    lo = coord.min()
+    bins = np.floor((coord - lo) / bin_width).astype(np.int64)
+    hist = np.bincount(bins)
+    out = []
+    for b in np.flatnonzero(hist >= min_count):
+        if b > 0 and hist[b - 1] > hist[b] or b + 1 < hist.size and hist[b + 1] > hist[b]:
+            continue
+        near = np.abs(coord - (lo + (b + 0.5) * bin_width)) < 1.5 * bin_width
+        out.append(float(coord[near].mean()))
+    return out
+
+
+def _runs(u: np.ndarray, *, gap: float) -> list[tuple[float, float]]:
+    if u.size == 0:
+        return []
+    cuts = np.flatnonzero(np.diff(u) > gap)
+    starts = np.r_[0, cuts + 1]
+    ends = np.r_[cuts, u.size - 1]
+    return [(float(u[a]), float(u[b])) for a, b in zip(starts, ends, strict=True)]
