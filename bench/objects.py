@@ -2,13 +2,15 @@
 
 Objects: per class, instance precision / recall / F1 at IoU >= 0.5, grouping (a) the true labels
 (what the grouping itself can do) and (b) the fused labels of ``jointseg.pipeline.run`` with the
-bundled network (what a user gets), on the ScanNet scans of ../shared/data/scannet (their own
-``instance`` ids; judging scans scene0002, 0005, 0007 apart from the tuning ones) and on
-synthetic rooms (``jointseg.synth`` knows every object; seeds 11-14 and 20-21 judge, 1-8 were
-used to tune the contact distance). Per scan: chairs and tables found against the truth.
+bundled network (what a user gets; "inventory": only the objects of their class's shape,
+``jointseg.objects.shapes``, set on the tuning scans). Scans: ScanNet's in
+../shared/data/scannet (their own ``instance`` ids; scene0002, 0005 and 0007 judge, the others
+tune) and synthetic rooms (``jointseg.synth`` knows every object; seeds 11-14 and 20-21 judge,
+1-8 tuned the contact distance). Per scan: chairs and tables found against the truth.
 
 Rooms: on synthetic rooms and 3-room floors (true plans from ``jointseg.synth.room_layout`` /
-``floor_layout``): floor area and ceiling height against the truth, doors and windows found.
+``floor_layout``): floor area and ceiling height against the truth, walls, doors and windows
+found, door and window widths.
 
 Cost: the objects stage's seconds against the whole run on the 1 M-point room (``jointseg synth
 --seed 1501 --points 1000000``), the same ``run`` call, as a share.
@@ -91,10 +93,17 @@ def objects_part(points: int) -> None:
         sets.setdefault(f"{split}, fused labels", []).append(
             (name, truth, scan.labels, result.instances, fused)
         )
+        # the inventory: objects of their class's shape (fragments are not counted)
+        objects = result.layout.report.objects if result.layout else []
+        fragments = [o.id for o in objects if not o.plausible]
+        inventory = np.where(np.isin(result.instances, fragments), -1, result.instances)
+        sets.setdefault(f"{split}, fused labels, inventory", []).append(
+            (name, truth, scan.labels, inventory, fused)
+        )
         per = {}
         for cls, label in ((8, "chair"), (7, "table")):
             t = len({int(i) for i in np.unique(truth[(scan.labels == cls) & (truth >= 0)])})
-            f = sum(o.cls == label for o in result.layout.report.objects) if result.layout else 0
+            f = sum(o.cls == label and o.plausible for o in objects)
             per[label] = (t, f)
         counts.append((split, name, per))
     for title, rows in sets.items():

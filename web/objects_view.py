@@ -53,19 +53,26 @@ def box_segments(data: SceneData) -> tuple[np.ndarray, np.ndarray]:
 
 
 def objects_html(data: SceneData) -> str | None:
-    """Objects counted by class, then the rooms with their area and height; None without."""
+    """Objects counted by class (fragments apart), then the rooms with their area and height;
+    None without."""
     objects, rooms = objects_of(data), rooms_of(data)
     if not objects and not rooms:
         return None
     counts: dict[str, int] = {}
+    fragments = 0
     for obj in objects:
-        counts[obj["cls"]] = counts.get(obj["cls"], 0) + 1
+        if obj.get("plausible", True):
+            counts[obj["cls"]] = counts.get(obj["cls"], 0) + 1
+        else:
+            fragments += 1
     rows = []
     for name in sorted(counts, key=lambda n: CLASS_NAMES.index(n) if n in CLASS_NAMES else 99):
         cls = CLASS_NAMES.index(name) if name in CLASS_NAMES else -1
         rows.append(
             f"<tr><td {_LEFT}>{swatch(cls)} {escape(name)}</td><td {_CELL}>{counts[name]}</td></tr>"
         )
+    if fragments:  # pieces whose shape is not their class's: boxes drawn, not counted
+        rows.append(f"<tr><td {_LEFT}>fragments</td><td {_CELL}>{fragments}</td></tr>")
     head = f"<tr><th {_LEFT}>objects</th><th {_CELL}>count</th></tr>"
     table = f"<table {_TABLE}>{head}{''.join(rows)}</table>"
     room_rows = []

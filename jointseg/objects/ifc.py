@@ -145,7 +145,10 @@ class _Writer:
             ifc_class = {"door": "IfcDoor", "window": "IfcWindow"}.get(obj.cls)
             if ifc_class is None:
                 ifc_class = "IfcFurniture" if obj.cls in FURNITURE else "IfcBuildingElementProxy"
-            entity = self.entity(ifc_class, f"{obj.cls} {obj.id}")
+            name = f"{obj.cls} {obj.id}"
+            if not obj.plausible:  # a fragment: not a door, a window or furniture
+                ifc_class, name = "IfcBuildingElementProxy", f"{obj.cls} fragment {obj.id}"
+            entity = self.entity(ifc_class, name)
             if ifc_class in ("IfcDoor", "IfcWindow"):
                 entity.OverallWidth, entity.OverallHeight = max(sx, sy), sz
             # a box: a "wall" profile of the object's length, depth and height

@@ -21,6 +21,7 @@ from jointseg.objects.outline import fit_to_walls, room_outline
 from jointseg.objects.params import DOOR, WALL, ObjectParams
 from jointseg.objects.records import LayoutReport, ObjectRecord, RoomRecord, user_coords, vec
 from jointseg.objects.rooms import RoomGrid, ceiling_heights, floor_height, room_areas, room_grid
+from jointseg.objects.shapes import fits_class
 from jointseg.objects.walls import join_door_pieces, wall_faces, wall_records
 
 log = logging.getLogger(__name__)
@@ -142,6 +143,8 @@ def _objects(
                 size=vec(hi - lo),
                 height_above_floor=round(float(lo[2] - (floor_z or 0.0)), 4),
                 room=room,
+                plausible=floor_z is None
+                or fits_class(CLASS_NAMES[cls], vec(hi - lo), float(lo[2] - floor_z)),
             )
         )
     return out

@@ -35,6 +35,11 @@ class ObjectRecord(BaseModel):
     size: Vec = Field(description="Box size along the room's axes and up, metres.")
     height_above_floor: float = Field(description="Lowest point above the floor, metres.")
     room: int | None = None
+    plausible: bool = Field(
+        True,
+        description="Its box has its class's shape (jointseg.objects.shapes); False: a "
+        "fragment the labels gave that class, left out of counts and modelled as a proxy.",
+    )
 
 
 class OpeningRecord(BaseModel):
@@ -85,10 +90,12 @@ class LayoutReport(BaseModel):
     reason: str | None = Field(None, description="Why a section is empty, when it is.")
 
     def counts(self) -> dict[str, int]:
-        """Objects per class, rooms, walls, doors and windows: what a summary line shows."""
+        """Objects per class (those of their class's shape), fragments (the rest), rooms and
+        walls: what a summary line shows."""
         out: dict[str, int] = {}
         for o in self.objects:
-            out[o.cls] = out.get(o.cls, 0) + 1
+            key = o.cls if o.plausible else "fragments"
+            out[key] = out.get(key, 0) + 1
         out["rooms"] = len(self.rooms)
         out["walls"] = len(self.walls)
         return out

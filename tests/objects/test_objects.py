@@ -14,6 +14,7 @@ import pytest
 from jointseg.objects.layout import find_layout
 from jointseg.objects.openings import inside_trims
 from jointseg.objects.scoring import f1, match_counts
+from jointseg.objects.shapes import fits_class
 from jointseg.scan import Scan
 from jointseg.spacing import estimate_spacing
 from jointseg.synth import floor_layout, make_floor, make_room, room_layout
@@ -142,6 +143,26 @@ def test_a_corridor_narrower_than_a_double_door_stays_a_room() -> None:
     assert sum(r.kind == "corridor" for r in layout.rooms) == 1
 
 
+def test_objects_of_their_class_shape_are_counted_and_fragments_are_not(judged: list) -> None:
+    """True labels give whole objects: nearly all have their class's shape. A door-labelled
+    strip of wall, a table top floating at 2 m or a 3 m chair do not."""
+    objects = [o for _, _, layout in judged for o in layout.report.objects]
+    things = [o for o in objects if o.cls in ("door", "window", "table", "chair", "sofa")]
+    assert sum(o.plausible for o in things) >= 0.95 * len(things)
+    assert fits_class("door", (0.9, 0.1, 2.05), 0.0)
+    assert not fits_class("door", (0.15, 0.05, 1.9), 0.0)  # too narrow
+    assert not fits_class("door", (0.9, 0.1, 0.6), 1.2)  # off the floor
+    assert not fits_class("table", (1.2, 0.8, 0.05), 2.0)
+    assert not fits_class("chair", (3.0, 0.5, 0.9), 0.0)  # a bench, not a chair
+    assert fits_class("clutter", (30.0, 0.01, 0.01), 5.0)  # any shape
+    counts = judged[0][2].report.counts()
+    layout = judged[0][2].report.model_copy(deep=True)
+    layout.objects[0].plausible = False
+    changed = layout.counts()
+    assert changed.get("fragments", 0) == counts.get("fragments", 0) + 1
+    assert sum(changed.values()) == sum(counts.values())
+
+
 def test_bad_input_gives_empty_sections_and_a_reason() -> None:
     rng = np.random.default_rng(0)
     wall = np.c_[rng.uniform(0, 4, 2000), np.zeros(2000), rng.uniform(0, 2.5, 2000)]
@@ -167,7 +188,7 @@ def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(
     assert validation_errors(model) == []
     assert entity_counts(model) == counts
     assert counts["IfcSpace"] == len(layout.rooms) and counts["IfcWall"] == len(layout.walls)
-    kinds = [o.cls for o in layout.objects]
+    kinds = [o.cls for o in layout.objects if o.plausible]  # fragments are proxies
     assert counts["IfcDoor"] == kinds.count("door")
     assert counts["IfcWindow"] == kinds.count("window")
     furniture = sum(kinds.count(k) for k in ("table", "chair", "sofa", "bookcase"))
