@@ -111,8 +111,8 @@ class LayoutReport(BaseModel):
         """
         if body.get("rooms") is None:
             raise JobStateError(
-                "this run has no objects or rooms (objects.enabled was off, or the scan was "
-                "processed in tiles, which do not find objects yet)"
+                "this run has no objects or rooms: objects.enabled was off in its config, or "
+                "it ran before jointseg found them; run `jointseg objects` on its result"
             )
         return cls(objects=body["objects"], **body["rooms"])
 
