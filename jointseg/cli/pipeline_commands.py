@@ -183,7 +183,9 @@ def _write_objects(
     if objects_out is None and ifc is None:
         return
     from jointseg.cli.objects_command import layout_from_report, write_layout
+    from jointseg.memory import release_memory
 
+    release_memory()  # the run's freed arrays go back first: the IFC model does not add on top
     typer.echo(write_layout(layout_from_report(done.report), objects_out, ifc, name), err=True)
 
 
