@@ -96,23 +96,8 @@ def room_grid(
         return grid
     lo = np.quantile(plan[used], 0.0005, axis=0) - 2 * cell
     hi = np.quantile(plan[used], 0.9995, axis=0) + 2 * cell
-    shape = tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1)
-    grid = RoomGrid(np.zeros((0, 0), np.int64), lo, cell, yaw)
-
-    def count_cells(mask: np.ndarray) -> np.ndarray:
-        ij = np.floor((plan[mask] - lo) / cell).astype(np.int64)
-        ok = (ij >= 0).all(axis=1) & (ij[:, 0] < shape[0]) & (ij[:, 1] < shape[1])
-        flat = np.ravel_multi_index((ij[ok, 0], ij[ok, 1]), shape)
-        return np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
-
-    def raster(mask: np.ndarray) -> np.ndarray:
-        return count_cells(mask) > 0
-
-    # walls closed across door-wide gaps along the grid's rows and columns (openings would
-    # join rooms, or let a room's inside leak out through a door to the outside)
-    walls = raster(barrier)
-    span = max(int(round(DOOR_GAP / cell)), 1) | 1
-    runs = [walls, walls]  # the barrier cells of walls running along grid axis 0, axis 1
+    cells = _Cells(plan, lo, cell, tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1))
+    runs = None
     if barrier_normals is not None:
         n_plan = np.abs(grid.plan_xy(barrier_normals))
         rows = np.flatnonzero((labels == WALL) | (labels == DOOR))
@@ -120,21 +105,62 @@ def room_grid(
         for axis in (0, 1):  # a wall (or a door in it) runs along the axis its normal is across
             mask = np.zeros(len(labels), dtype=bool)
             mask[rows] = n_plan[:, 1 - axis] > 0.85
-            votes.append(count_cells(barrier & mask))
-        # a cell runs the way most of its points face: a stray point (a corner, a sill, an
-        # open door's leaf) facing across a corridor must not close the corridor
-        runs = [votes[0] > votes[1], votes[1] > votes[0]]
-        # only wall lines bridge a gap, not a door's jamb or a wall's end seen edge-on; a
-        # far wall seen at a grazing angle is a dotted line: its dots join first
-        line = max(int(round(LINE_MIN / cell)), 1)
-        dots = max(int(round(DOTS / cell)), 1) | 1
-        for axis in (0, 1):
-            size, near = [1, 1], [1, 1]
-            size[axis], near[axis] = line, dots
-            joined = ndimage.binary_closing(
-                np.pad(runs[axis], dots), structure=np.ones(near, bool)
-            )[dots:-dots, dots:-dots]
-            runs[axis] = ndimage.binary_opening(joined, structure=np.ones(size, bool))
+            votes.append(cells.count(barrier & mask))
+        runs = wall_lines(votes, cell)
+    closed = close_walls(cells.count(barrier) > 0, runs, cell)
+    seen = ndimage.binary_closing(
+        (cells.count(floor) > 0) | (cells.count(stands) > 0), iterations=2
+    )
+    return RoomGrid(_regions(closed, seen, cell, params), lo, cell, yaw)
+
+
+@dataclass(frozen=True)
+class _Cells:
+    """Points' plan coordinates on the room grid: how many of a set fall in each cell."""
+
+    plan: np.ndarray
+    lo: np.ndarray
+    cell: float
+    shape: tuple[int, int]
+
+    def count(self, mask: np.ndarray) -> np.ndarray:
+        ij = np.floor((self.plan[mask] - self.lo) / self.cell).astype(np.int64)
+        ok = (ij >= 0).all(axis=1) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
+        flat = np.ravel_multi_index((ij[ok, 0], ij[ok, 1]), self.shape)
+        return np.bincount(flat, minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
+
+
+def wall_lines(votes: list[np.ndarray], cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """The cells of walls running along grid axis 0 and along axis 1, from the counts of
+    wall points facing across each axis.
+
+    A cell runs the way most of its points face: a stray point (a corner, a sill, an open
+    door's leaf) facing across a corridor must not close the corridor. Only lines of
+    ``LINE_MIN`` or more count, not a door's jamb or a wall's end seen edge-on; a far wall
+    seen at a grazing angle is a dotted line, whose dots join first.
+    """
+    runs = [votes[0] > votes[1], votes[1] > votes[0]]
+    line = max(int(round(LINE_MIN / cell)), 1)
+    dots = max(int(round(DOTS / cell)), 1) | 1
+    for axis in (0, 1):
+        size, near = [1, 1], [1, 1]
+        size[axis], near[axis] = line, dots
+        joined = ndimage.binary_closing(np.pad(runs[axis], dots), structure=np.ones(near, bool))
+        runs[axis] = ndimage.binary_opening(
+            joined[dots:-dots, dots:-dots], structure=np.ones(size, bool)
+        )
+    return runs[0], runs[1]
+
+
+def close_walls(
+    walls: np.ndarray, runs: tuple[np.ndarray, np.ndarray] | None, cell: float
+) -> np.ndarray:
+    """The wall cells with their door-wide gaps closed (openings would join rooms, or let a
+    room's inside leak out through a door): along each wall line (``runs``), from it to the
+    next cell of any wall (a door by a corner), never between two walls across it (the two
+    sides of a corridor); corners hidden on both walls completed. Without ``runs``, every wall
+    cell is closed along both grid axes."""
+    span = max(int(round(DOOR_GAP / cell)), 1) | 1
 
     def close(mask: np.ndarray, axis: int) -> np.ndarray:
         size = [1, 1]
@@ -143,17 +169,20 @@ def room_grid(
         return ndimage.binary_closing(padded, np.ones(size, bool))[span:-span, span:-span]
 
     closed = walls.copy()
-    for axis in (0, 1):
-        if runs[0] is runs[1]:
+    if runs is None:
+        for axis in (0, 1):
             closed |= close(walls, axis)
-            continue
-        # a gap is closed along a wall line, from it to the next cell of any wall (a door by a
-        # corner); not between two walls across it (the two sides of a corridor)
+        return closed
+    for axis in (0, 1):
         across = close(runs[1 - axis], axis) & ~runs[1 - axis]
         closed |= close(runs[axis] | runs[1 - axis], axis) & ~across
-    if runs[0] is not runs[1]:
-        closed |= complete_corners(closed & runs[0], closed & runs[1], span)
-    seen = ndimage.binary_closing(raster(floor) | raster(stands), iterations=2)
+    return closed | complete_corners(closed & runs[0], closed & runs[1], span)
+
+
+def _regions(closed: np.ndarray, seen: np.ndarray, cell: float, params: ObjectParams) -> np.ndarray:
+    """A room id per cell (-1 none): the footprint (seen floor, or walled in) cut by the
+    thickened walls into regions with enough seen floor, each filled to its orthogonal hull
+    and given the wall-face cells beside it."""
     footprint = seen | walled_in(closed)
     thick = ndimage.binary_dilation(closed, iterations=1)
     regions, count = ndimage.label(footprint & ~thick)
@@ -174,7 +203,7 @@ def room_grid(
         distance, (ii, jj) = ndimage.distance_transform_edt(rooms < 0, return_indices=True)
         near = footprint & thick & (rooms < 0) & (distance <= HAND_CELLS)
         rooms = np.where(near, rooms[ii, jj], rooms)
-    return RoomGrid(rooms, lo, cell, yaw)
+    return rooms
 
 
 def complete_corners(along0: np.ndarray, along1: np.ndarray, span: int) -> np.ndarray:
