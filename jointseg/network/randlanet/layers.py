@@ -1,7 +1,9 @@
 """RandLA-Net building blocks (Hu et al., CVPR 2020), knowing nothing of datasets.
 
-Tensors keep the (B, C, N, K) layout of the reference implementation so that 1x1 convolutions
-act as shared MLPs over points (N) and neighbours (K).
+Tensors are channels-last, (B, N, K, C) and (B, N, C): a shared MLP over points and
+neighbours is then one matrix product over the last axis, several times faster on a CPU than
+the reference's 1x1 convolution over (B, C, N, K) (8x on the first layers). The parameters
+keep the reference's shapes (a 1x1 ``Conv2d``, ``BatchNorm2d``), so checkpoints do not change.
 """
 
 from __future__ import annotations
@@ -14,12 +16,25 @@ from torch import nn
 BN_MOMENTUM = 0.1
 
 
+def batch_norm_last(x: torch.Tensor, bn: nn.BatchNorm2d) -> torch.Tensor:
+    """``bn`` over the last axis of a channels-last tensor: the same statistics over every
+    other axis, and the same running averages, as the reference's ``BatchNorm2d``."""
+    flat = x.reshape(-1, x.shape[-1])
+    training = bn.training or bn.running_mean is None
+    momentum = 0.0 if bn.momentum is None else bn.momentum
+    out = nn.functional.batch_norm(
+        flat, bn.running_mean, bn.running_var, bn.weight, bn.bias, training, momentum, bn.eps
+    )
+    return out.reshape(x.shape)
+
+
 class SharedMLP(nn.Module):
-    """1x1 convolution, optional batch norm and LeakyReLU, shared by all points.
+    """A point-wise linear map (stored as a 1x1 convolution), optional batch norm and
+    LeakyReLU, shared by all points and neighbours.
 
     Shapes
     ------
-    input (B, C_in, N, K) -> output (B, C_out, N, K)
+    input (..., C_in) -> output (..., C_out)
     """
 
     def __init__(
@@ -31,9 +46,22 @@ class SharedMLP(nn.Module):
         self.bn = nn.BatchNorm2d(out_channels, eps=1e-6, momentum=BN_MOMENTUM) if bn else None
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.conv(x)
-        if self.bn is not None:
-            x = self.bn(x)
+        weight = self.conv.weight.view(self.out_channels, self.in_channels)
+        bias = self.conv.bias
+        bn = self.bn
+        if bn is not None and not bn.training and bn.running_var is not None:
+            # inference: the batch norm folded into the linear map, one pass instead of two
+            assert bn.running_mean is not None and bias is not None
+            scale = torch.rsqrt(bn.running_var + bn.eps)
+            if bn.weight is not None:
+                scale = scale * bn.weight
+            shift = bn.bias if bn.bias is not None else torch.zeros_like(scale)
+            weight = weight * scale[:, None]
+            bias = (bias - bn.running_mean) * scale + shift
+            bn = None
+        x = nn.functional.linear(x, weight, bias)
+        if bn is not None:
+            x = batch_norm_last(x, bn)
         if self.slope is not None:
             x = nn.functional.leaky_relu(x, self.slope)
         return x
@@ -47,13 +75,15 @@ def gather_neighbours(values: torch.Tensor, neighbours: torch.Tensor) -> torch.T
 
     Shapes
     ------
-    values (B, N, C), neighbours (B, M, K) int64 -> (B, C, M, K)
+    values (B, N, C), neighbours (B, M, K) int64 -> (B, M, K, C)
     """
     b, m, k = neighbours.shape
-    c = values.shape[2]
-    flat = neighbours.reshape(b, m * k, 1).expand(b, m * k, c)
-    picked = torch.gather(values, 1, flat)  # (B, M*K, C)
-    return picked.reshape(b, m, k, c).permute(0, 3, 1, 2)
+    n, c = values.shape[1], values.shape[2]
+    # rows of the flattened batch: one index per neighbour, not one per channel as gather's
+    rows = neighbours.reshape(b, m * k)
+    if b > 1:
+        rows = rows + (torch.arange(b, device=rows.device) * n)[:, None]
+    return values.reshape(b * n, c).index_select(0, rows.reshape(-1)).reshape(b, m, k, c)
 
 
 def relative_position_encoding(coords: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
@@ -61,14 +91,14 @@ def relative_position_encoding(coords: torch.Tensor, neighbours: torch.Tensor) -
 
     Shapes
     ------
-    coords (B, N, 3), neighbours (B, N, K) -> (B, 10, N, K)
+    coords (B, N, 3), neighbours (B, N, K) -> (B, N, K, 10)
     """
     k = neighbours.shape[2]
     neighbour_xyz = gather_neighbours(coords, neighbours)
-    centre = coords.transpose(1, 2).unsqueeze(-1).expand(-1, -1, -1, k)
+    centre = coords.unsqueeze(2).expand(-1, -1, k, -1)
     offset = centre - neighbour_xyz
-    distance = torch.sqrt(torch.sum(offset * offset, dim=1, keepdim=True))
-    return torch.cat([distance, offset, centre, neighbour_xyz], dim=1)
+    distance = torch.sqrt(torch.sum(offset * offset, dim=3, keepdim=True))
+    return torch.cat([distance, offset, centre, neighbour_xyz], dim=3)
 
 
 class AttentivePooling(nn.Module):
@@ -76,7 +106,7 @@ class AttentivePooling(nn.Module):
 
     Shapes
     ------
-    input (B, C_in, N, K) -> output (B, C_out, N, 1)
+    input (B, N, K, C_in) -> output (B, N, C_out)
     """
 
     def __init__(self, in_channels: int, out_channels: int) -> None:
@@ -85,11 +115,8 @@ class AttentivePooling(nn.Module):
         self.mlp = SharedMLP(in_channels, out_channels)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        # The Linear's weights applied as a 1x1 convolution: same parameters (and checkpoints)
-        # as the reference, without permuting the (B, C, N, K) tensor there and back.
-        weight = self.score.weight[:, :, None, None]
-        scores = torch.softmax(nn.functional.conv2d(x, weight, self.score.bias), dim=3)
-        return self.mlp(torch.sum(scores * x, dim=-1, keepdim=True))
+        scores = torch.softmax(self.score(x), dim=2)
+        return self.mlp(torch.sum(scores * x, dim=2))
 
 
 class DilatedResidualBlock(nn.Module):
@@ -98,7 +125,7 @@ class DilatedResidualBlock(nn.Module):
 
     Shapes
     ------
-    coords (B, N, 3), features (B, C_in, N, 1), neighbours (B, N, K) -> (B, 2 * d_out, N, 1)
+    coords (B, N, 3), features (B, N, C_in), neighbours (B, N, K) -> (B, N, 2 * d_out)
     """
 
     def __init__(self, in_channels: int, d_out: int) -> None:
@@ -118,11 +145,9 @@ class DilatedResidualBlock(nn.Module):
     ) -> torch.Tensor:
         x = self.mlp_in(features)
         geometry = self.encode1(relative_position_encoding(coords, neighbours))
-        x = torch.cat([gather_neighbours(x.squeeze(3).transpose(1, 2), neighbours), geometry], 1)
-        x = self.pool1(x)
+        x = self.pool1(torch.cat([gather_neighbours(x, neighbours), geometry], 3))
         geometry = self.encode2(geometry)
-        x = torch.cat([gather_neighbours(x.squeeze(3).transpose(1, 2), neighbours), geometry], 1)
-        x = self.pool2(x)
+        x = self.pool2(torch.cat([gather_neighbours(x, neighbours), geometry], 3))
         return nn.functional.leaky_relu(self.mlp_out(x) + self.shortcut(features), 0.01)
 
     def extra_repr(self) -> str:
@@ -134,10 +159,9 @@ def random_pool(features: torch.Tensor, pool: torch.Tensor) -> torch.Tensor:
 
     Shapes
     ------
-    features (B, C, N, 1), pool (B, N', K) -> (B, C, N', 1)
+    features (B, N, C), pool (B, N', K) -> (B, N', C)
     """
-    gathered = gather_neighbours(features.squeeze(3).transpose(1, 2), pool)
-    return gathered.max(dim=3, keepdim=True).values
+    return gather_neighbours(features, pool).max(dim=2).values
 
 
 def nearest_upsample(features: torch.Tensor, nearest: torch.Tensor) -> torch.Tensor:
@@ -145,8 +169,6 @@ def nearest_upsample(features: torch.Tensor, nearest: torch.Tensor) -> torch.Ten
 
     Shapes
     ------
-    features (B, C, N', 1), nearest (B, N, 1) -> (B, C, N, 1)
+    features (B, N', C), nearest (B, N, 1) -> (B, N, C)
     """
-    b, c = features.shape[:2]
-    idx = nearest.reshape(b, 1, -1).expand(b, c, -1)
-    return torch.gather(features.squeeze(3), 2, idx).unsqueeze(3)
+    return gather_neighbours(features, nearest)[:, :, 0, :]

@@ -10,6 +10,7 @@ from jointseg.network.randlanet.layers import (
     BN_MOMENTUM,
     DilatedResidualBlock,
     SharedMLP,
+    batch_norm_last,
     nearest_upsample,
     random_pool,
 )
@@ -75,8 +76,7 @@ class RandLANet(nn.Module):
         pools: list[torch.Tensor],
         upsamples: list[torch.Tensor],
     ) -> torch.Tensor:
-        x = self.stem(features).transpose(1, 2).unsqueeze(3)
-        x = nn.functional.leaky_relu(self.stem_bn(x), 0.2)
+        x = nn.functional.leaky_relu(batch_norm_last(self.stem(features), self.stem_bn), 0.2)
         skips = []
         for i, block in enumerate(self.encoder):
             x = block(coords[i], x, neighbours[i])
@@ -87,8 +87,8 @@ class RandLANet(nn.Module):
         x = self.bottleneck(x)
         for i, layer in enumerate(self.decoder):
             up = nearest_upsample(x, upsamples[-i - 1])
-            x = layer(torch.cat([skips[-i - 2], up], dim=1))
-        return self.head(x).squeeze(3).transpose(1, 2)
+            x = layer(torch.cat([skips[-i - 2], up], dim=2))
+        return self.head(x)
 
     def extra_repr(self) -> str:
         c = self.config
