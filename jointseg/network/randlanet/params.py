@@ -25,3 +25,10 @@ class RandLANetParams(BaseModel):
         description="A class on more cells than this is never taken as absent (about 3 m² of "
         "surface at the 4 cm grid), so a real small object on a whole floor keeps its class.",
     )
+    views: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="Test-time views of every crop averaged (turned about the up axis, odd ones "
+        "mirrored): 1 is the plain network; the best quality preset takes 4.",
+    )

@@ -40,6 +40,7 @@ from jointseg.network.randlanet.crops import Batch, build_batch
 from jointseg.network.randlanet.device import add_outputs, device_batches
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
+from jointseg.network.randlanet.views import in_view
 from jointseg.network.results import CellSums, NetworkResult
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -124,15 +125,18 @@ class RandLANetPredictor(NetworkPredictor):
         source = self._batches(cloud, plan, np.asarray(crops, dtype=np.int64), seed)
         with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
             for batch, done in ahead:
-                check_cancel(cancel)
                 batch = batch.to(self.device)
-                logits = self.model(
-                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
-                )
-                probs = torch.softmax(logits.float(), dim=-1).cpu().double()
                 flat_idx = torch.from_numpy(batch.indices.reshape(-1))
-                prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
-                seen.index_add_(0, flat_idx, torch.ones(len(flat_idx), dtype=torch.float64))
+                views = self.params.views
+                for view in range(views):
+                    check_cancel(cancel)
+                    features, coords = in_view(batch.features, batch.coords, view, views)
+                    logits = self.model(
+                        features, coords, batch.neighbours, batch.pools, batch.upsamples
+                    )
+                    probs = torch.softmax(logits.float(), dim=-1).cpu().double()
+                    prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
+                    seen.index_add_(0, flat_idx, torch.ones(len(flat_idx), dtype=torch.float64))
                 report(progress, STAGE, 0.95 * done / max(len(crops), 1))
         return prob_sum.numpy(), seen.numpy()
 
@@ -162,11 +166,14 @@ class RandLANetPredictor(NetworkPredictor):
         )
         with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
             for batch, done in ahead:
-                check_cancel(cancel)
-                logits = self.model(
-                    batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
-                )
-                add_outputs(prob_sum, seen, batch, logits)
+                views = self.params.views
+                for view in range(views):
+                    check_cancel(cancel)
+                    features, coords = in_view(batch.features, batch.coords, view, views)
+                    logits = self.model(
+                        features, coords, batch.neighbours, batch.pools, batch.upsamples
+                    )
+                    add_outputs(prob_sum, seen, batch, logits)
                 report(progress, STAGE, 0.95 * done / max(len(crops), 1))
         return prob_sum, seen
 
