@@ -41,6 +41,7 @@ class JobView(BaseModel):
     timings: dict[str, float] | None = Field(None, description="Seconds per stage and total.")
     error: str | None = Field(None, description="Why the job failed or was cancelled.")
     network: str = Field(description="Network backend (randlanet, dgcnn).")
+    quality: str = Field("standard", description="Quality preset: fast, standard or best.")
     attempts: int = Field(0, description="Times a worker started the job.")
     tiles: TileCounts | None = Field(
         None,

@@ -42,14 +42,19 @@ DEVICE_HELP = (
 
 
 def _config(
-    config: Path | None, network: str | None, weights: Path | None, device: str | None
+    config: Path | None,
+    network: str | None,
+    weights: Path | None,
+    device: str | None,
+    quality: str | None = None,
 ) -> PipelineConfig:
     """The run's config: the file's, with the command line's overrides, and its device checked
     now (CUDA asked for on a machine without it fails before any reading or output)."""
     from jointseg.network.base import pick_device
     from jointseg.pipeline.config import PipelineConfig
 
-    cfg = load_params_file(config, PipelineConfig).with_network(
+    extra: dict[str, object] | None = None if quality is None else {"quality": quality}
+    cfg = load_params_file(config, PipelineConfig, extra).with_network(
         name=network, weights=weights, device=device
     )
     pick_device(cfg.network.device)
@@ -133,6 +138,12 @@ def segment_scan(
         "--colour-free",
         help="auto, on or off: the colour-free network (auto: for scans without colour).",
     ),
+    quality: str | None = typer.Option(
+        None,
+        "--quality",
+        help="fast (previews, big floors), standard (default) or best (views of every crop, "
+        "every installed network averaged); settings in --config still win.",
+    ),
 ) -> None:
     """Segment a scan semantically: network labels refined by geometric segments (the paper).
 
@@ -141,7 +152,7 @@ def segment_scan(
     """
     from jointseg.pipeline import load_predictor, segment_file
 
-    cfg = with_frame(_config(config, network, weights, device), up, units, colour_free)
+    cfg = with_frame(_config(config, network, weights, device, quality), up, units, colour_free)
     if tile_points is not None:
         cfg = cfg.model_copy(
             update={"tiles": cfg.tiles.model_copy(update={"max_points": tile_points})}

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model
+from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model, model_validator
 
 from jointseg.frame.params import FrameParams
 from jointseg.fusion import FusionParams
@@ -17,6 +17,7 @@ from jointseg.geometry import GeometryParams
 from jointseg.network.devices import DEVICE_NAMES, check_device_name
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
 from jointseg.objects.params import ObjectParams
+from jointseg.pipeline.quality import Quality, with_preset
 from jointseg.pipeline.tiled.grid import TileParams
 
 
@@ -48,6 +49,13 @@ class NetworkSettings(BaseModel):
         None,
         description="Crops (RandLA-Net) or 4 096-point blocks (DGCNN) per forward pass; default "
         "1 on the CPU (fastest there), 8 on CUDA.",
+    )
+    ensemble: bool = Field(
+        False,
+        description="Average the chosen network's class probabilities with those of every "
+        "other network whose weights are on this machine (DGCNN once pulled); the colour-free "
+        "RandLA-Net only stands in for the colour one on a scan without colour. The best "
+        "quality preset turns this on.",
     )
     colour_free: Literal["auto", "on", "off"] = Field(
         "auto",
@@ -102,6 +110,12 @@ class PipelineConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    quality: Quality = Field(
+        "standard",
+        description="fast (previews, big floors: fewer crops, coarser geometry), standard, or "
+        "best (four views of every crop, every installed network averaged): defaults under "
+        "the other settings here (jointseg.pipeline.quality).",
+    )
     frame: FrameParams = Field(
         default_factory=FrameParams,
         description="Up axis, units, stray points and colour: decided from the scan unless set.",
@@ -123,6 +137,12 @@ class PipelineConfig(BaseModel):
         description="Run the network and the geometry at the same time (two threads; both "
         "release the GIL in their heavy parts).",
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset(cls, data: Any) -> Any:
+        """The quality preset's values under the ones given."""
+        return with_preset(data) if isinstance(data, dict) else data
 
     def with_network(
         self, *, name: str | None = None, weights: Path | None = None, device: str | None = None

@@ -268,7 +268,7 @@ def _frame_stage(
     t = time.perf_counter()
     frame = decide_frame(scan, config.frame)
     work, index = work_scan(scan, frame)
-    chosen = colour_free_if_needed(predictor, config.network, frame.colour.usable)
+    chosen = network_for(predictor, config.network, frame.colour.usable)
     report(progress, "frame", 1.0)
     timings["frame"] = time.perf_counter() - t
     return frame, work, index, chosen
@@ -321,6 +321,42 @@ def colour_free_if_needed(
         )
     log.info("no usable colour: using the colour-free network %s", COLOUR_FREE_WEIGHTS.name)
     return _COLOUR_FREE[key]
+
+
+_MEMBERS: dict[tuple[str, str | None], Predictor] = {}
+
+
+def network_for(predictor: Predictor, config: NetworkConfig, usable_colour: bool) -> Predictor:
+    """The network a scan is labelled with: the colour-free one for a scan without colour
+    (:func:`colour_free_if_needed`), with every installed network averaged in when
+    ``config.ensemble`` (:func:`ensemble_of`)."""
+    chosen = colour_free_if_needed(predictor, config, usable_colour)
+    return ensemble_of(chosen, config) if config.ensemble else chosen
+
+
+def ensemble_of(predictor: Predictor, config: NetworkConfig) -> Predictor:
+    """``predictor`` with every other backend whose weights are on this machine, averaged
+    (:class:`~jointseg.network.ensemble.EnsemblePredictor`); itself when there is none. The
+    others are loaded once per process."""
+    from jointseg.network.ensemble import EnsemblePredictor
+    from jointseg.network.registry import REGISTRY, installed_backends
+
+    device = getattr(predictor, "device", config.device)
+    where = None if device is None else str(device)
+    members = [predictor]
+    for name in installed_backends():
+        if name == predictor.name:
+            continue
+        key = (name, where)
+        if key not in _MEMBERS:
+            record = REGISTRY[name]
+            options = getattr(config, name, None) if record.params is not None else None
+            _MEMBERS[key] = load(name, None, device=where, batch_size=None, params=options)
+        members.append(_MEMBERS[key])
+    if len(members) == 1:
+        log.info("ensemble: no other network has weights here; %s alone", predictor.name)
+        return predictor
+    return EnsemblePredictor(members)
 
 
 def _fusion_stage(
@@ -457,9 +493,13 @@ def _resolved_params(
         from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 
         weights = COLOUR_FREE_WEIGHTS
+    members = getattr(predictor, "members", [predictor])
     return {
+        "quality": config.quality,
         "network": {
             "name": network.name,
+            "networks": [m.name for m in members],
+            "views": getattr(getattr(members[0], "params", None), "views", 1),
             "weights": None if weights is None else str(weights),
             "colour": predictor.card.get("colour", True) is not False,
             "device": None if device is None else str(device),

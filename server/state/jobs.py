@@ -33,7 +33,10 @@ __all__ = [
 
 def _view(job: Job, counts: TileCounts | None = None) -> JobView:
     view = JobView.model_validate(job)
-    return view if counts is None else view.model_copy(update={"tiles": counts})
+    update: dict[str, object] = {"quality": (job.config or {}).get("quality", "standard")}
+    if counts is not None:
+        update["tiles"] = counts
+    return view.model_copy(update=update)
 
 
 def _views(session: Session, rows: list[Job]) -> list[JobView]:

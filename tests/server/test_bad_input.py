@@ -157,6 +157,8 @@ def test_bad_scan_gets_4xx_with_the_readers_message(locked, bad_files, case) -> 
         (json.dumps({"frame": {"up": "sideways"}}), "config.frame.up"),
         (json.dumps({"frame": {"units": "furlong"}}), "config.frame.units"),
         (json.dumps({"network": {"colour_free": "maybe"}}), "config.network.colour_free"),
+        (json.dumps({"quality": "ultra"}), "config.quality"),
+        (json.dumps({"network": {"randlanet": {"views": 0}}}), "config.network.randlanet.views"),
     ],
 )
 def test_bad_config_names_the_field(locked, scans, config, needle) -> None:

@@ -87,6 +87,7 @@ function setupUpload() {
     const form = new FormData();
     form.append("file", file, file.name);
     form.append("config", JSON.stringify({
+      quality: $("quality").value,
       network: { name: $("network").value },
       frame: { up: $("up").value, units: $("units").value },
     }));
@@ -237,7 +238,8 @@ function renderJob(job) {
   cell(row, "created").textContent = new Date(job.created_at).toLocaleString();
   cell(row, "file").textContent = job.filename;
   cell(row, "points").textContent = job.points == null ? "" : job.points.toLocaleString();
-  cell(row, "network").textContent = job.network;
+  cell(row, "network").textContent =
+    job.quality && job.quality !== "standard" ? `${job.network}, ${job.quality}` : job.network;
   const status = cell(row, "status");
   status.textContent = job.status;
   status.className = `status status-${job.status}`;

@@ -32,3 +32,11 @@ class RandLANetParams(BaseModel):
         description="Test-time views of every crop averaged (turned about the up axis, odd ones "
         "mirrored): 1 is the plain network; the best quality preset takes 4.",
     )
+    coverage: float = Field(
+        0.5,
+        gt=0,
+        le=2,
+        description="Crops are added until every sub-sampled point's possibility (1 - d²/r² "
+        "summed over the crops that hold it) reaches this: 0.5 covers each point about three "
+        "times; the fast quality preset takes 0.2 (fewer crops).",
+    )

@@ -83,14 +83,13 @@ class RandLANetPredictor(NetworkPredictor):
         device: str | None = None,
         batch_size: int = 1,
         num_points: int | None = None,
-        min_possibility: float = 0.5,
         params: RandLANetParams | None = None,
         device_path: bool | None = None,
     ) -> None:
         super().__init__(model, card, device=device, batch_size=batch_size, device_path=device_path)
         self.num_points = num_points or model.config.num_points
-        self.min_possibility = min_possibility
         self.params = params or RandLANetParams()
+        self.min_possibility = self.params.coverage
 
     def _batches(
         self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int

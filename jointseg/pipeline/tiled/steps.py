@@ -24,7 +24,7 @@ from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.network.backends import Predictor
 from jointseg.objects.records import LayoutReport, report_sections
 from jointseg.pipeline.config import PipelineConfig
-from jointseg.pipeline.stages import colour_free_if_needed
+from jointseg.pipeline.stages import network_for
 from jointseg.pipeline.tiled import frame
 from jointseg.pipeline.tiled.merge import MergedScan, merge
 from jointseg.pipeline.tiled.objects import TiledLayout, chunk_inputs, tiled_layout
@@ -121,7 +121,7 @@ def plan(
     decided, bulk = frame.decide(source, config.frame, max_points)
     log.info("%s", decided["summary"])
     stream = frame.StreamFrame(decided, bulk)
-    predictor = colour_free_if_needed(predictor, config.network, stream.colour_usable)
+    predictor = network_for(predictor, config.network, stream.colour_usable)
     with open_chunks(source, max_points=max_points) as chunks:
         tracked = frame.Tracked(iter(chunks.chunks(CHUNK_POINTS)), stream)
         return prepare(
