@@ -1,0 +1,152 @@
+"""Quality presets (issue 34): what fast, standard and best cost and give.
+
+Speed: ``jointseg segment`` on the 1 M-point room (``jointseg synth --seed 1501 --points
+1000000``) as a user types it, each in a fresh process: whole-process seconds (median of
+--repeats) and peak resident memory, for every preset and for the old code (``--baseline-ref``,
+checked out into a temporary git worktree) run in the same command; speed is its ratio to
+the old code's.
+
+Accuracy: network and fused mIoU of each preset (``jointseg.pipeline.run``) on the judging
+scans, which no preset was tuned on: the first 10 S3DIS Area_6 rooms in name-hash order
+(bench/helpers/scans.py's split) and ScanNet's scene0002, 0005 and 0007; the tuning scans are
+printed apart. best averages in DGCNN only where its weights are on this machine (``jointseg
+models pull``, or JOINTSEG_DGCNN_WEIGHTS); the table says which networks ran.
+
+    .venv/bin/python bench/presets.py [--part speed|accuracy|all] [--presets fast,standard,best]
+        [--repeats 3] [--baseline-ref 9a93392] [--splits judging|tuning|all]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+DATA = ROOT.parent / "shared" / "data"
+#: Runs a command and prints the peak RSS (KiB) of that child.
+PEAK = (
+    "import resource, subprocess, sys; code = subprocess.run(sys.argv[1:]).returncode; "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
+    "sys.exit(code)"
+)
+SCANNET_JUDGES = ("scene0002", "scene0005", "scene0007")
+
+
+def _segment(code: Path, room: Path, out: Path, quality: str | None) -> tuple[float, float]:
+    """Whole-process seconds and peak GB of ``jointseg segment`` from the tree ``code``."""
+    cmd = [sys.executable, "-c", PEAK, sys.executable, "-m", "jointseg", "segment", str(room)]
+    cmd += ["-o", str(out)] + ([] if quality is None else ["--quality", quality])
+    env = {**os.environ, "PYTHONPATH": str(code)}
+    t = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    wall = time.perf_counter() - t
+    if done.returncode != 0:
+        raise SystemExit(f"{code}: jointseg segment failed:\n{done.stderr[-2000:]}")
+    return wall, int(done.stderr.strip().splitlines()[-1]) / 1024**2
+
+
+def speed_part(presets: list[str], repeats: int, ref: str) -> None:
+    with tempfile.TemporaryDirectory(prefix="jointseg-presets-") as tmp:
+        folder = Path(tmp)
+        room = folder / "room.ply"
+        subprocess.run(
+            [sys.executable, "-m", "jointseg", "synth", "--seed", "1501", "--points", "1000000",
+             "-o", str(room)], check=True, capture_output=True,
+        )  # fmt: skip
+        old = folder / "old"
+        subprocess.run(
+            ["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(old), ref], check=True
+        )
+        try:
+            runs: dict[str, list[tuple[float, float]]] = {}
+            for _ in range(repeats):  # interleaved, so a slow spell of the machine hits all
+                runs.setdefault("old", []).append(_segment(old, room, folder / "o.ply", None))
+                for name in presets:
+                    runs.setdefault(name, []).append(_segment(ROOT, room, folder / "o.ply", name))
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)])
+    base = statistics.median(w for w, _ in runs["old"])
+    print(f"\nSpeed: jointseg segment, 1 M-point room, median of {repeats}, {os.cpu_count()} CPUs,"
+          f" old code = {ref}\n")  # fmt: skip
+    print("| code | whole process s | vs old | peak GB |\n|---|---|---|---|")
+    for name, rows in runs.items():
+        wall = statistics.median(w for w, _ in rows)
+        peak = max(p for _, p in rows)
+        label = f"old ({ref})" if name == "old" else name
+        print(f"| {label} | {wall:.2f} | {wall / base:.2f}x | {peak:.2f} |")
+
+
+def _scans(split: str) -> dict[str, list[Path]]:
+    from jointseg.network.training.data import stable_order
+
+    out: dict[str, list[Path]] = {}
+    area6 = sorted((DATA / "s3dis_area6").glob("*.ply"))
+    judged = set(stable_order([p.stem for p in area6])[:10])
+    scannet = sorted((DATA / "scannet").glob("*.ply"))
+    for name, judging in (("judging", True), ("tuning", False)):
+        if split not in (name, "all"):
+            continue
+        out[f"S3DIS Area_6 {name}"] = [p for p in area6 if (p.stem in judged) == judging]
+        judged_sn = [p for p in scannet if p.stem.startswith(SCANNET_JUDGES) == judging]
+        out[f"ScanNet {name}"] = judged_sn
+    return {k: v for k, v in out.items() if v}
+
+
+def accuracy_part(presets: list[str], split: str) -> None:
+    from jointseg.io import read_scan
+    from jointseg.pipeline import PipelineConfig, load_predictor, run
+
+    sets = _scans(split)
+    if not sets:
+        print("(../shared/data absent: no accuracy rows)")
+        return
+    print("\nAccuracy: mean mIoU over the scans (network -> fused), and the networks that ran\n")
+    print("| preset | scans | network mIoU | fused mIoU | networks | views | s per scan |")
+    print("|---|---|---|---|---|---|---|")
+    scans = {name: [read_scan(p) for p in paths] for name, paths in sets.items()}
+    for preset in presets:
+        config = PipelineConfig.model_validate({"quality": preset})
+        predictor = load_predictor(config.network)
+        for name, items in scans.items():
+            net, fused, seconds, used = [], [], [], ""
+            for scan in items:
+                t = time.perf_counter()
+                result = run(scan, config, predictor=predictor)
+                seconds.append(time.perf_counter() - t)
+                assert result.metrics is not None
+                net.append(result.metrics["network"].miou)
+                fused.append(result.metrics["fused"].miou)
+                used = "+".join(result.params["network"]["networks"])
+            views = config.network.randlanet.views
+            print(f"| {preset} | {name} ({len(items)}) | {100 * np.mean(net):.2f} | "
+                  f"{100 * np.mean(fused):.2f} | {used} | {views} | {np.mean(seconds):.1f} |",
+                  flush=True)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=("speed", "accuracy", "all"), default="all")
+    parser.add_argument("--presets", default="fast,standard,best")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--baseline-ref", default="9a93392", help="git ref of the old code")
+    parser.add_argument("--splits", choices=("judging", "tuning", "all"), default="all")
+    args = parser.parse_args()
+    presets = [p for p in args.presets.split(",") if p]
+    print(f"# quality presets, {time.strftime('%F')}")
+    if args.part in ("speed", "all"):
+        speed_part(presets, args.repeats, args.baseline_ref)
+    if args.part in ("accuracy", "all"):
+        accuracy_part(presets, args.splits)
+
+
+if __name__ == "__main__":
+    main()
