@@ -94,6 +94,21 @@ def _check_writable(path: Path | None, what: str) -> None:
         raise ConfigError(f"{what} {path}: is a directory; give a file name")
 
 
+def _check_outputs(
+    output: Path, report: Path | None, objects_out: Path | None, ifc: Path | None
+) -> None:
+    """Refuse, before any work, an output that cannot hold the fields or any file that
+    cannot be written."""
+    if output.suffix.lower() not in FIELD_EXTENSIONS:
+        raise ConfigError(
+            f"{output}: cannot store the output fields in {output.suffix or 'no extension'!r}; "
+            f"use one of {', '.join(FIELD_EXTENSIONS)}"
+        )
+    _check_writable(output, "output")
+    for path, what in ((report, "report"), (objects_out, "objects"), (ifc, "IFC model")):
+        _check_writable(path, what)
+
+
 def _write_text(path: Path, text: str) -> None:
     with atomic_open(path) as fh:
         fh.write(text.encode())
@@ -157,14 +172,7 @@ def segment_scan(
         cfg = cfg.model_copy(
             update={"tiles": cfg.tiles.model_copy(update={"max_points": tile_points})}
         )
-    if output.suffix.lower() not in FIELD_EXTENSIONS:
-        raise ConfigError(
-            f"{output}: cannot store the output fields in {output.suffix or 'no extension'!r}; "
-            f"use one of {', '.join(FIELD_EXTENSIONS)}"
-        )
-    _check_writable(output, "output")
-    for path, what in ((report, "report"), (objects_out, "objects"), (ifc, "IFC model")):
-        _check_writable(path, what)
+    _check_outputs(output, report, objects_out, ifc)
     info = probe_scan(source, max_points=max_points)
     if work_dir is not None and not work_dir.is_dir():
         raise ConfigError(f"--work-dir {work_dir}: not a folder")
