@@ -47,7 +47,8 @@ def _segment(code: Path, room: Path, out: Path, quality: str | None) -> tuple[fl
     cmd += ["-o", str(out)] + ([] if quality is None else ["--quality", quality])
     env = {**os.environ, "PYTHONPATH": str(code)}
     t = time.perf_counter()
-    done = subprocess.run(cmd, capture_output=True, text=True, env=env, check=False)
+    # run from the tree itself: ``python -m`` puts the working folder first on sys.path
+    done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=code, check=False)
     wall = time.perf_counter() - t
     if done.returncode != 0:
         raise SystemExit(f"{code}: jointseg segment failed:\n{done.stderr[-2000:]}")
