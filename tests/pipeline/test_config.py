@@ -18,7 +18,8 @@ def test_each_backend_with_options_has_its_section() -> None:
     sections = {n for n, b in REGISTRY.items() if b.params is not None}
     assert sections == {"dgcnn", "randlanet"}
     fields = set(NetworkConfig.model_fields)
-    assert fields == {"name", "weights", "device", "batch_size", "colour_free"} | sections
+    shared = {"name", "weights", "device", "batch_size", "colour_free", "ensemble"}
+    assert fields == shared | sections
     schema = NetworkConfig.model_json_schema()
     assert "used when name is dgcnn" in schema["properties"]["dgcnn"]["description"]
     assert "used when name is randlanet" in schema["properties"]["randlanet"]["description"]
