@@ -34,14 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import cached_floor
-
-#: Runs a command and prints the peak RSS (KiB) of that child, so each run is measured alone.
-PEAK_WRAPPER = (
-    "import resource, subprocess, sys; "
-    "code = subprocess.run(sys.argv[1:]).returncode; "
-    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
-    "sys.exit(code)"
-)
+from helpers.measure import PEAK_WRAPPER
 
 
 def segment(scan: Path, out: Path, tile_points: int, ifc: bool = False) -> dict[str, float]:

@@ -28,23 +28,18 @@ import time
 from pathlib import Path
 
 import numpy as np
+from helpers.measure import PEAK_WRAPPER
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 DATA = ROOT.parent / "shared" / "data"
-#: Runs a command and prints the peak RSS (KiB) of that child.
-PEAK = (
-    "import resource, subprocess, sys; code = subprocess.run(sys.argv[1:]).returncode; "
-    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
-    "sys.exit(code)"
-)
 SCANNET_JUDGES = ("scene0002", "scene0005", "scene0007")
 
 
 def _segment(code: Path, room: Path, out: Path, quality: str | None) -> tuple[float, float]:
     """Whole-process seconds and peak GB of ``jointseg segment`` from the tree ``code``."""
-    cmd = [sys.executable, "-c", PEAK, sys.executable, "-m", "jointseg", "segment", str(room)]
-    cmd += ["-o", str(out)] + ([] if quality is None else ["--quality", quality])
+    cmd = [sys.executable, "-c", PEAK_WRAPPER, sys.executable, "-m", "jointseg", "segment"]
+    cmd += [str(room), "-o", str(out)] + ([] if quality is None else ["--quality", quality])
     env = {**os.environ, "PYTHONPATH": str(code)}
     t = time.perf_counter()
     # run from the tree itself: ``python -m`` puts the working folder first on sys.path

@@ -7,6 +7,15 @@ import resource
 import time
 from collections.abc import Callable
 
+#: ``python -c PEAK_WRAPPER cmd...``: runs ``cmd`` and prints the peak RSS (KiB) of that child
+#: alone on its last stderr line, so each run is measured by itself.
+PEAK_WRAPPER = (
+    "import resource, subprocess, sys; "
+    "code = subprocess.run(sys.argv[1:]).returncode; "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); "
+    "sys.exit(code)"
+)
+
 
 def peak_rss_mb() -> float:
     """Peak resident memory of this process so far (MB)."""

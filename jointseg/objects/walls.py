@@ -125,9 +125,9 @@ def join_door_pieces(
             keep = i0 if i0 >= 0 else i1
             rows = np.r_[r0, r1]
             ids[rows] = keep
-            if i0 >= 0 and i1 >= 0:
+            if i0 >= 0 and i1 >= 0:  # two objects: the second joins the first
                 joined += 1
-                parts.pop(i0 if keep == i1 else i1, None)
+                parts.pop(i1)
             parts[keep] = np.unique(np.r_[parts.get(keep, rows), rows])
             pieces[k] = (a0, max(b0, b1), keep, rows)
             del pieces[k + 1]

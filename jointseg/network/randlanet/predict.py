@@ -37,7 +37,7 @@ from jointseg.network.device_crops import device_plan_crops
 from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet.crops import Batch, build_batch
-from jointseg.network.randlanet.device import add_outputs, device_batches
+from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.views import in_view
@@ -105,6 +105,16 @@ class RandLANetPredictor(NetworkPredictor):
                 batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
             yield build_batch(batch_crops, self.model.config), first + len(chosen)
 
+    def _view_logits(
+        self, batch: Batch | DeviceBatch, cancel: CancelToken | None
+    ) -> Iterator[torch.Tensor]:
+        """The network's logits for a batch in each test-time view (``params.views``)."""
+        views = self.params.views
+        for view in range(views):
+            check_cancel(cancel)
+            features, coords = in_view(batch.features, batch.coords, view, views)
+            yield self.model(features, coords, batch.neighbours, batch.pools, batch.upsamples)
+
     def crop_sums(
         self,
         cloud: AnchoredCloud,
@@ -126,13 +136,7 @@ class RandLANetPredictor(NetworkPredictor):
             for batch, done in ahead:
                 batch = batch.to(self.device)
                 flat_idx = torch.from_numpy(batch.indices.reshape(-1))
-                views = self.params.views
-                for view in range(views):
-                    check_cancel(cancel)
-                    features, coords = in_view(batch.features, batch.coords, view, views)
-                    logits = self.model(
-                        features, coords, batch.neighbours, batch.pools, batch.upsamples
-                    )
+                for logits in self._view_logits(batch, cancel):
                     probs = torch.softmax(logits.float(), dim=-1).cpu().double()
                     prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
                     seen.index_add_(0, flat_idx, torch.ones(len(flat_idx), dtype=torch.float64))
@@ -165,13 +169,7 @@ class RandLANetPredictor(NetworkPredictor):
         )
         with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
             for batch, done in ahead:
-                views = self.params.views
-                for view in range(views):
-                    check_cancel(cancel)
-                    features, coords = in_view(batch.features, batch.coords, view, views)
-                    logits = self.model(
-                        features, coords, batch.neighbours, batch.pools, batch.upsamples
-                    )
+                for logits in self._view_logits(batch, cancel):
                     add_outputs(prob_sum, seen, batch, logits)
                 report(progress, STAGE, 0.95 * done / max(len(crops), 1))
         return prob_sum, seen
