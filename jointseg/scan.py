@@ -33,6 +33,8 @@ class Scan:
         unit the file declares, e.g. ``"us-ft"``) with ``units_source`` (where it says so), and
         ``las`` (a LAS/LAZ input's scales, offsets and CRS records, so an output keeps them).
 
+    Notes
+    -----
     Arrays are converted to the dtypes above and checked for shape once, here; after that every
     stage may rely on them. Inputs are copied only when a conversion is needed.
 

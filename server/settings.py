@@ -2,8 +2,8 @@
 
 Values come from (highest priority first) keyword arguments, ``JOINTSEG_*`` environment
 variables, the file named by ``JOINTSEG_CONFIG`` (``.toml``, or ``.env`` style for any other
-name) and the defaults below. :func:`settings_table` renders the README's table from the fields,
-so the documentation cannot drift from the code.
+name) and the defaults below. :func:`settings_table` renders the settings table of
+docs/guide/job-service.md from the fields, so the documentation cannot drift from the code.
 """
 
 from __future__ import annotations

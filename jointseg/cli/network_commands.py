@@ -27,6 +27,9 @@ Network = StrEnum("Network", {name: name for name in BACKENDS})  # type: ignore[
 
 
 class ImportSource(StrEnum):
+    """Where `jointseg models import` takes foreign weights from (only Open3D-ML's RandLA-Net
+    checkpoints so far)."""
+
     open3d_ml = "open3d-ml"
 
 

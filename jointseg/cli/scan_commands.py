@@ -23,6 +23,8 @@ stdout_console = Console(highlight=False)
 
 
 class RoomShape(StrEnum):
+    """The plan of a synthetic room: a rectangle, or an L (a rectangle with one corner cut out)."""
+
     box = "box"
     L = "L"
 
