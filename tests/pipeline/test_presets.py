@@ -78,7 +78,11 @@ def test_views_keep_tiled_network_labels_those_of_the_untiled_run(tmp_path: Path
     floor = make_floor(5, rooms=3, points=120_000)
     source = write_scan(floor, tmp_path / "floor.ply")
     config = PipelineConfig.model_validate(
-        {"network": {"randlanet": {"views": 2}}, "tiles": {"max_points": 50_000, "overlap": 3.5}}
+        {
+            "quality": "best",  # its views, without other networks (none may be installed)
+            "network": {"ensemble": False, "randlanet": {"views": 2}},
+            "tiles": {"max_points": 50_000, "overlap": 3.5},
+        }
     )
     predictor = load_predictor(config.network)
     untiled = run(floor, config, predictor=predictor)
@@ -86,6 +90,11 @@ def test_views_keep_tiled_network_labels_those_of_the_untiled_run(tmp_path: Path
         source, tmp_path / "tiled.ply", config, predictor=predictor, max_points=10**7
     )
     assert tiled.tiles is not None and tiled.tiles >= 2
+    # the tiled report says which preset, networks and views, as an untiled one does
+    params = tiled.report["params"]
+    assert params["quality"] == "best"
+    assert params["network"]["networks"] == ["randlanet"] and params["network"]["views"] == 2
+    assert params["network"]["views"] == untiled.params["network"]["views"]
     from jointseg.io import read_scan
 
     labels = read_scan(tmp_path / "tiled.ply").fields["network_label"]

@@ -60,9 +60,10 @@ class TiledRun:
             "timings_s": timings,
             "steps_s": {"tiles": merged.tile_timings},
             "params": {
+                "quality": config.quality,
                 "geometry": plan.geometry.model_dump(),
                 "fusion": config.fusion.model_dump(),
-                "network": config.network.model_dump(mode="json"),
+                "network": _network_params(config, plan),
                 "seed": config.seed,
             },
             "tiles": {
@@ -82,6 +83,14 @@ class TiledRun:
             else {name: m.model_dump() for name, m in merged.metrics.items()},
             **report_sections(self.layout),
         }
+
+
+def _network_params(config: PipelineConfig, plan: TilePlan) -> dict[str, Any]:
+    """The network settings with what an untiled report adds: the networks that ran (several
+    for an ensemble) and RandLA-Net's test-time views."""
+    networks = plan.networks or [config.network.name]
+    views = config.network.randlanet.views if networks[0] == "randlanet" else 1
+    return {**config.network.model_dump(mode="json"), "networks": networks, "views": views}
 
 
 class TileProgress:

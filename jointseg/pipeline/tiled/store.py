@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
@@ -92,6 +92,8 @@ class TilePlan(BaseModel):
     params: TileParams
     anchoring: Anchoring | None = None
     frame: dict[str, Any] | None = None
+    #: the networks that label the tiles (several for an ensemble), for the report
+    networks: list[str] = Field(default_factory=list)
 
 
 class _Columns:
@@ -199,6 +201,7 @@ def prepare(
         source=source, points=count, lower=_triple(lower), upper=_triple(upper),
         has_rgb=has_rgb, has_labels=has_labels, tiles=boxes, geometry=resolved, params=tiles,
         anchoring=anchoring, frame=None if frame is None else frame(),
+        networks=[m.name for m in getattr(predictor, "members", [predictor]) if m is not None],
     )  # fmt: skip
     _write_plan(workdir, plan)
     log.info("tiles: %d points in %d tiles (%s)", count, len(boxes), source)
