@@ -140,7 +140,8 @@ class _PointNetParams(BaseModel):
 
 
 def test_a_backend_is_one_module_declaring_its_record(tmp_path, monkeypatch) -> None:
-    """What the README's "Adding a backend" shows: a module with ``BACKEND`` and its loader."""
+    """What the contributing page's "Adding a backend" shows: a module with ``BACKEND`` and its
+    loader."""
     (tmp_path / "pointnet_backend.py").write_text(
         textwrap.dedent(
             """

@@ -1,4 +1,4 @@
-"""Settings: environment, JOINTSEG_CONFIG files, derived values, validation, the README table."""
+"""Settings: environment, JOINTSEG_CONFIG files, derived values, validation, the docs' table."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from server.settings import Settings, settings_table
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+SETTINGS_PAGE = Path(__file__).resolve().parents[2] / "docs" / "guide" / "job-service.md"
 
 
 @pytest.fixture(autouse=True)
@@ -74,5 +74,5 @@ def test_invalid_settings_name_the_problem(values, message) -> None:
         Settings(**values)
 
 
-def test_readme_has_the_settings_table() -> None:
-    assert settings_table() in README.read_text()
+def test_job_service_page_has_the_settings_table() -> None:
+    assert settings_table() in SETTINGS_PAGE.read_text()

@@ -4,8 +4,8 @@ and the job page's own behaviour on a real service: only networks with weights o
 service's weights cache is empty, so DGCNN has none), a failed job's long error, the empty list,
 the key in the viewer link.
 
-The screenshots land in the test artefacts (tests/artifacts or $PYTEST_ARTIFACTS); the
-README's viewer screenshot is ``service_viewer.png`` from this test.
+The screenshots land in the test artefacts (tests/artifacts or $PYTEST_ARTIFACTS); the viewer
+guide's screenshot (docs/viewer.png) is ``service_viewer.png`` from this test.
 """
 
 from __future__ import annotations
