@@ -14,6 +14,10 @@ models pull``, or JOINTSEG_DGCNN_WEIGHTS); the table says which networks ran.
 
     .venv/bin/python bench/presets.py [--part speed|accuracy|all] [--presets fast,standard,best]
         [--repeats 3] [--baseline-ref 9a93392] [--splits judging|tuning|all]
+    .venv/bin/python bench/presets.py --part fusion [--splits tuning]
+
+``--part fusion`` runs best once per scan and then its vote under other fusion settings, to
+see whether a vote suited to the ensemble's probabilities adds what best lacks on S3DIS.
 """
 
 from __future__ import annotations
@@ -128,20 +132,81 @@ def accuracy_part(presets: list[str], split: str) -> None:
                   flush=True)  # fmt: skip
 
 
+#: best's fusion settings tried on the tuning scans: does a vote made for the ensemble's
+#: smoother probabilities add what the bar asks on S3DIS?
+FUSION_TRIALS: list[dict[str, object]] = [
+    {},
+    *({"flip_threshold": v} for v in (0.45, 0.5, 0.6, 0.65, 0.7, 0.8)),
+    {"min_support": 0.2},
+    {"mode": "evidence"},
+    {"mode": "soft"},
+    {"mode": "paper"},
+]
+
+
+def fusion_part(split: str) -> None:
+    """best's network and geometry once per scan, then the vote under each trial setting, on
+    the levelled metric points as the pipeline fuses them (every point, strays included)."""
+    from jointseg.fusion import FusionParams, fuse
+    from jointseg.io import read_scan
+    from jointseg.metrics import evaluate
+    from jointseg.pipeline import PipelineConfig, load_predictor, run
+
+    sets = _scans(split)
+    if not sets:
+        print("(../shared/data absent: no fusion rows)")
+        return
+    config = PipelineConfig.model_validate({"quality": "best", "objects": {"enabled": False}})
+    predictor = load_predictor(config.network)
+    rows: dict[str, dict[str, list[float]]] = {}
+    used = ""
+    for name, paths in sets.items():
+        for path in paths:
+            scan = read_scan(path)
+            result = run(scan, config, predictor=predictor)
+            used = "+".join(result.params["network"]["networks"])
+            assert scan.labels is not None and result.frame is not None
+            xyz = result.frame.to_work(scan.xyz)
+            net, geo = result.network, result.geometry
+            rows.setdefault("network", {}).setdefault(name, []).append(
+                evaluate(scan.labels, net.labels).miou
+            )
+            for trial in FUSION_TRIALS:
+                params = FusionParams.model_validate({**config.fusion.model_dump(), **trial})
+                fused = fuse(xyz, geo.segments, net.labels, net.probs, params,
+                             main_plane=geo.main_plane)  # fmt: skip
+                key = ", ".join(f"{k} {v}" for k, v in trial.items()) or "default (learned)"
+                rows.setdefault(key, {}).setdefault(name, []).append(
+                    evaluate(scan.labels, fused.labels).miou
+                )
+    names = list(sets)
+    print(f"\nbest's vote ({used}, {config.network.randlanet.views} views): mean mIoU\n")
+    print("| fusion setting | " + " | ".join(names) + " |")
+    print("|---|" + "---|" * len(names))
+    for key, by_set in rows.items():
+        cells = " | ".join(f"{100 * np.mean(by_set[n]):.2f}" for n in names)
+        print(f"| {key} | {cells} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--part", choices=("speed", "accuracy", "all"), default="all")
+    parser.add_argument(
+        "--part", choices=("speed", "accuracy", "fusion", "all"), default="all",
+        help="fusion: best's vote settings on --splits (default tuning; not part of all)",
+    )  # fmt: skip
     parser.add_argument("--presets", default="fast,standard,best")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--baseline-ref", default="9a93392", help="git ref of the old code")
-    parser.add_argument("--splits", choices=("judging", "tuning", "all"), default="all")
+    parser.add_argument("--splits", choices=("judging", "tuning", "all"), default=None)
     args = parser.parse_args()
     presets = [p for p in args.presets.split(",") if p]
     print(f"# quality presets, {time.strftime('%F')}")
     if args.part in ("speed", "all"):
         speed_part(presets, args.repeats, args.baseline_ref)
     if args.part in ("accuracy", "all"):
-        accuracy_part(presets, args.splits)
+        accuracy_part(presets, args.splits or "all")
+    if args.part == "fusion":
+        fusion_part(args.splits or "tuning")
 
 
 if __name__ == "__main__":
