@@ -7,9 +7,9 @@ segment); a few mean-field sweeps give cell posteriors Q, and a point takes
 argmax log p_i(c) + w log Q_cell(c) among classes the network gave it at least min_support.
 Cells and not points: a room has ~10^4 cells, so a sweep is a few sparse products.
 
-It did not beat the learned vote on the tuning rooms (the fusion benchmarks, "A graph step"), so it lives
-here and not in the library. Prints mean / worst gain (mIoU points) per setting on the real
-tuning rooms labelled by each network and on the synthetic calibration rooms (bundled
+It did not beat the learned vote on the tuning rooms (CHANGELOG.md, 0.13.0, the graph step),
+so it lives here and not in the library. Prints mean / worst gain (mIoU points) per setting on
+the real tuning rooms labelled by each network and on the synthetic calibration rooms (bundled
 RandLA-Net), next to the learned vote.
 
     .venv/bin/python bench/graph_probe.py \\

@@ -21,8 +21,9 @@ GUARDED_MODES: frozenset[str] = frozenset({"guarded", "soft_guarded"})
 
 #: The default: the variant of bench/fusion_real.py that gains most on the tuning rooms of real
 #: S3DIS Area_6 with DGCNN and on synthetic calibration rooms with the bundled network while
-#: losing on none; docs/benchmarks/fusion.md has the tables (tuning and judging rooms apart). Majority modes
-#: ('paper', 'soft') overwrite a strong network's correct labels inside impure real segments.
+#: losing on none; docs/benchmarks/fusion.md has the tables (tuning and judging rooms apart).
+#: Majority modes ('paper', 'soft') overwrite a strong network's correct labels inside impure
+#: real segments.
 DEFAULT_MODE: FusionMode = "learned"
 
 

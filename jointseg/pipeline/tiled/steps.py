@@ -89,7 +89,8 @@ def _network_params(config: PipelineConfig, plan: TilePlan) -> dict[str, Any]:
     """The network settings with what an untiled report adds: the networks that ran (several
     for an ensemble) and RandLA-Net's test-time views."""
     networks = plan.networks or [config.network.name]
-    views = config.network.randlanet.views if networks[0] == "randlanet" else 1
+    section = getattr(config.network, "randlanet", None)  # a backend section (dynamic field)
+    views = getattr(section, "views", 1) if networks[0] == "randlanet" else 1
     return {**config.network.model_dump(mode="json"), "networks": networks, "views": views}
 
 
