@@ -15,6 +15,11 @@ MARKER = "<!-- openapi -->"
 METHODS = ("get", "post", "put", "patch", "delete")
 
 
+#: this build's schema, made once in ``on_files`` (which runs before any page) and reused by
+#: the page; rebuilt on every build, so ``mkdocs serve`` follows changed routes
+_built: dict[str, Any] = {}
+
+
 def _schema() -> dict[str, Any]:
     from server.api.app import create_app
 
@@ -55,6 +60,12 @@ def _limits(schema: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _described(text: str | None, schema: dict[str, Any]) -> str:
+    """A field's description with its bounds and default after it."""
+    desc, limits = _text(text), _limits(schema)
+    return f"{desc} ({limits})" if limits and desc else desc or limits
+
+
 def _operation(path: str, method: str, op: dict[str, Any]) -> list[str]:
     lines = [f"### `{method.upper()} {path}`", "", _text(op.get("description") or op["summary"])]
     if op.get("security"):
@@ -64,9 +75,7 @@ def _operation(path: str, method: str, op: dict[str, Any]) -> list[str]:
         lines += ["", "| parameter | in | type | required | description |", "|---|---|---|---|---|"]
         for p in params:
             schema = p.get("schema", {})
-            desc = _text(p.get("description") or schema.get("description"))
-            limits = _limits(schema)
-            desc = f"{desc} ({limits})" if limits and desc else desc or limits
+            desc = _described(p.get("description") or schema.get("description"), schema)
             lines.append(
                 f"| `{p['name']}` | {p['in']} | {_type(schema)} | "
                 f"{'yes' if p.get('required') else 'no'} | {desc} |"
@@ -105,11 +114,9 @@ def _component(name: str, schema: dict[str, Any]) -> list[str]:
         required = set(schema.get("required", []))
         lines += ["", "| field | type | required | description |", "|---|---|---|---|"]
         for field, prop in props.items():
-            desc = _text(prop.get("description"))
-            limits = _limits(prop)
-            desc = f"{desc} ({limits})" if limits and desc else desc or limits
             lines.append(
-                f"| `{field}` | {_type(prop)} | {'yes' if field in required else 'no'} | {desc} |"
+                f"| `{field}` | {_type(prop)} | {'yes' if field in required else 'no'} | "
+                f"{_described(prop.get('description'), prop)} |"
             )
     return lines + [""]
 
@@ -134,12 +141,13 @@ def render(schema: dict[str, Any]) -> str:
 def on_page_markdown(markdown: str, page: Any, config: Any, files: Any) -> str:
     if MARKER not in markdown:
         return markdown
-    return markdown.replace(MARKER, render(_schema()))
+    return markdown.replace(MARKER, render(_built["schema"]))
 
 
 def on_files(files: Any, config: Any) -> Any:
     from mkdocs.structure.files import File
 
-    content = json.dumps(_schema(), indent=2)
+    _built["schema"] = _schema()
+    content = json.dumps(_built["schema"], indent=2)
     files.append(File.generated(config, "reference/openapi.json", content=content))
     return files
