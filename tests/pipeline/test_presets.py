@@ -16,6 +16,7 @@ from jointseg.network.ensemble import EnsemblePredictor
 from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 from jointseg.network.registry import load
 from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file
+from jointseg.pipeline.stages import network_for
 from jointseg.synth import make_floor, make_room
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
@@ -72,6 +73,21 @@ def test_an_ensemble_averages_its_members_probabilities() -> None:
     np.testing.assert_allclose(mean.probs, (a.probs + b.probs) / 2, atol=1e-6)
     assert np.array_equal(mean.labels, mean.probs.argmax(axis=1))
     assert not np.array_equal(mean.labels, a.labels)  # the second network changed something
+
+
+def test_best_averages_only_colour_free_networks_on_a_scan_without_colour(
+    dgcnn_random_weights: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """DGCNN (trained with colour) joins best's ensemble on a coloured scan, not on one
+    without colour, where the colour-free RandLA-Net labels alone."""
+    monkeypatch.setenv("JOINTSEG_DGCNN_WEIGHTS", str(dgcnn_random_weights))
+    config = PipelineConfig.model_validate({"quality": "best"}).network
+    predictor = load_predictor(config)
+    coloured = network_for(predictor, config, usable_colour=True)
+    assert [m.name for m in getattr(coloured, "members", [])] == ["randlanet", "dgcnn"]
+    plain = network_for(predictor, config, usable_colour=False)
+    assert not hasattr(plain, "members") and plain.name == "randlanet"
+    assert plain.card.get("colour") is False
 
 
 def test_views_keep_tiled_network_labels_those_of_the_untiled_run(tmp_path: Path) -> None:
