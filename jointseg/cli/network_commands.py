@@ -103,17 +103,20 @@ def _predict_in_frame(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     """The network's labels and confidence for every point of ``scan``, run in the levelled
     metric frame (strays set aside, then given their nearest kept point's), and the stray mask."""
+    from jointseg.frame.colour import decide_colour
     from jointseg.frame.decide import decide_frame, work_scan
+    from jointseg.network.judge import crop_labeller
     from jointseg.pipeline.config import NetworkConfig
     from jointseg.pipeline.stages import colour_free_if_needed
 
-    frame = decide_frame(scan, params)
+    config = NetworkConfig(name=name, weights=weights)
+    usable = decide_colour(scan.rgb, params.colour).usable
+    chosen = colour_free_if_needed(predictor, config, usable)
+    frame = decide_frame(scan, params, judge=crop_labeller(chosen))
     typer.echo(frame.summary(), err=True)
     for warning in frame.warnings:
         typer.echo(f"warning: {warning}", err=True)
     work, index = work_scan(scan, frame)
-    config = NetworkConfig(name=name, weights=weights)
-    chosen = colour_free_if_needed(predictor, config, frame.colour.usable)
     result = chosen.predict(work, progress=progress, seed=seed)
     labels, confidence = result.labels, result.confidence
     if index is not None:

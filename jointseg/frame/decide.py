@@ -16,9 +16,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
-from jointseg.frame import gravity
+from jointseg.frame import gravity, weigh
+from jointseg.frame.capture import Capture, capture_kind
 from jointseg.frame.colour import ColourDecision, apply_gains, decide_colour
+from jointseg.frame.judge import LabelFn, judge_frames
 from jointseg.frame.params import FrameParams
+from jointseg.frame.sources import SIGNED_AXES, FileEvidence, file_evidence
 from jointseg.frame.strays import find_strays
 from jointseg.frame.units import UNITS, UnitsDecision, units_from_scale
 from jointseg.scan import Scan
@@ -27,8 +30,8 @@ log = logging.getLogger(__name__)
 
 #: Tilts below this (degrees) are left alone: levelling a level scan would only move its labels.
 MIN_TILT_DEGREES = 1.0
-#: A scan less tall than this (m) along the up found is a slice or fragment, not a room: its
-#: up is the file's own +z.
+#: A scan less tall than this (m) along the up found is a slice or fragment, not a room: the
+#: geometry's room-shaped evidence (floor and ceiling at the extremes) counts less.
 MIN_ROOM_HEIGHT_M = 1.5
 #: Heights (m) along up outside this range are no building's: the units must be wrong.
 MIN_PLAUSIBLE_M, MAX_PLAUSIBLE_M = 0.05, 200.0
@@ -55,6 +58,7 @@ class Frame:
     levelled: bool
     identity: bool
     warnings: list[str] = field(default_factory=list)
+    evidence: dict[str, Any] = field(default_factory=dict)
 
     def to_work(self, xyz: np.ndarray) -> np.ndarray:
         """File coordinates to the working frame (z up, metres)."""
@@ -78,6 +82,7 @@ class Frame:
                 "levelled": self.levelled,
                 "how": self.up_how,
                 "confidence": round(self.up.confidence, 3),
+                "evidence": self.evidence,
             },
             "units": {
                 "unit": self.units.unit,
@@ -134,8 +139,20 @@ def rotation_to_z(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k * (1.0 / (1.0 + c))
 
 
-def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
+def decide_frame(
+    scan: Scan, params: FrameParams | None = None, judge: LabelFn | None = None
+) -> Frame:
     """Decide up, tilt, units, stray points and colour for ``scan``.
+
+    Parameters
+    ----------
+    scan : Scan
+        With its file's format and metadata (``source_format``, ``meta``), which are evidence.
+    params : FrameParams, optional
+    judge : LabelFn, optional
+        The network, to judge the most likely up axes by its labels
+        (:func:`jointseg.network.judge.crop_labeller`); without it the decision weighs the
+        file and the geometry only.
 
     Raises
     ------
@@ -146,26 +163,19 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
     rng = np.random.default_rng(0)
     centre = np.median(scan.xyz[:: max(1, len(scan) // 100_000)], axis=0)
     sample = gravity.frame_sample(scan.xyz - centre, rng)
+    colour = decide_colour(scan.rgb, params.colour)
     warnings: list[str] = []
     if params.up == "auto":
-        axis, axis_p = gravity.vertical_axis(sample)
-    else:
-        axis, axis_p = "xyz".index(params.up[1]), np.eye(3)["xyz".index(params.up[1])]
-    units = _units(scan, params, sample, axis)
-    height = sample.extent(sample.directions[axis]) * units.metres
-    if params.up == "auto" and height >= MIN_ROOM_HEIGHT_M:
-        up = gravity.estimate_up(sample, axis, axis_p, units.metres)
-        how = "scan geometry"
-    elif params.up == "auto":
-        # a slice or a fragment, not a room: floor, ceiling and furniture heights say nothing
-        up = _given(sample, "+z", False, confidence=0.5)  # nor levelled: too little to level by
-        how = f"the file's own (a partial scan, {height:.2f} m tall: too little to tell)"
+        up, how, evidence = decide_up(scan, sample, centre, params, colour, judge)
+        gravity_aligned = bool(evidence["file"]["gravity_aligned"])
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
-        how = "set by the user"
-    levelled = params.level and up.tilt_degrees >= MIN_TILT_DEGREES
+        how, evidence, gravity_aligned = "set by the user", {}, False
+    axis = "xyz".index(up.axis[1])
+    units = _units(scan, params, sample, axis)
+    height = sample.extent(sample.directions[axis]) * units.metres
+    levelled = params.level and up.tilt_degrees >= MIN_TILT_DEGREES and not gravity_aligned
     rotation = rotation_to_z(up.up if levelled else gravity.AXES[up.axis])
-    colour = decide_colour(scan.rgb, params.colour)
     work = ((scan.xyz - centre) @ rotation.T) * units.metres
     stray = find_strays(work) if params.strays else np.zeros(len(scan), dtype=bool)
     identity = bool(up.axis == "+z" and not levelled and units.metres == 1.0)
@@ -194,6 +204,7 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
         levelled=levelled,
         identity=identity,
         warnings=warnings,
+        evidence=evidence,
     )
     for w in warnings:
         log.warning("%s", w)
@@ -201,13 +212,113 @@ def decide_frame(scan: Scan, params: FrameParams | None = None) -> Frame:
     return frame
 
 
+@dataclass(frozen=True)
+class Gathered:
+    """The evidence on up before the network, and what judging a candidate needs."""
+
+    said: FileEvidence
+    capture: Capture
+    evidence: weigh.Evidence
+    directions: dict[str, np.ndarray]
+    units: list[UnitsDecision]
+
+
+def gather(scan: Scan, sample: gravity.FrameSample, params: FrameParams) -> Gathered:
+    """The file's word, the kind of capture and the geometry, per signed axis."""
+    said = file_evidence(scan)
+    capture = capture_kind(scan.xyz)
+    units = [_units(scan, params, sample, i) for i in range(3)]
+    axis_p = gravity.axis_probabilities(sample)
+    sign_p = np.array([gravity.sign_probability(sample, i, units[i].metres) for i in range(3)])
+    top = int(np.argmax(axis_p))
+    tall = sample.extent(sample.directions[top]) * units[top].metres >= MIN_ROOM_HEIGHT_M
+    evidence = weigh.Evidence(
+        file=said.prior,
+        geometry=weigh.geometry_logp(axis_p, sign_p),
+        room_like=bool(tall and capture.kind == "scan"),
+        camera_up=capture.camera_up or ("-y" if said.camera else None),
+    )
+    directions = {
+        a: _direction(sample, a, level=params.level and not said.gravity_aligned)
+        for a in SIGNED_AXES
+    }
+    return Gathered(said, capture, evidence, directions, units)
+
+
+def judge_candidates(
+    gathered: Gathered,
+    scan: Scan,
+    centre: np.ndarray,
+    colour: ColourDecision,
+    judge: LabelFn,
+    names: list[str],
+) -> dict[str, np.ndarray]:
+    """The network's features of each candidate in ``names`` (each in its own units)."""
+    units = gathered.units
+    base = units["xyz".index(names[0][1])].metres
+    rotations = {
+        a: rotation_to_z(gathered.directions[a]) * (units["xyz".index(a[1])].metres / base)
+        for a in names
+    }
+    rgb = scan.rgb if colour.usable else None
+    if rgb is not None and colour.gains is not None:
+        rgb = apply_gains(rgb, colour.gains)
+    return judge_frames(judge, (scan.xyz - centre) * base, rgb, rotations)
+
+
+def decide_up(
+    scan: Scan,
+    sample: gravity.FrameSample,
+    centre: np.ndarray,
+    params: FrameParams,
+    colour: ColourDecision,
+    judge: LabelFn | None,
+) -> tuple[gravity.UpEstimate, str, dict[str, Any]]:
+    """Weigh the file's word, the kind of capture, the geometry and the network's verdict on
+    the most likely candidates (see :mod:`jointseg.frame.weigh`)."""
+    g = gather(scan, sample, params)
+    judged: dict[str, np.ndarray] = {}
+    if judge is not None:
+        judged = judge_candidates(g, scan, centre, colour, judge, weigh.candidates(g.evidence))
+    result = weigh.weigh(g.evidence, judged)
+    name = result.best
+    up = g.directions[name]
+    tilt = float(np.degrees(np.arccos(np.clip(abs(up["xyz".index(name[1])]), -1.0, 1.0))))
+    scores = dict(zip(SIGNED_AXES, np.round(result.p, 4).tolist(), strict=True))
+    estimate = gravity.UpEstimate(up, name, tilt, result.confidence, scores)
+    used = ["the file", "the geometry"] + (["the network"] if judged else [])
+    how = f"weighed: {', '.join(used)} ({'; '.join(g.said.says)}; {g.capture.kind})"
+    report = {
+        "file": g.said.report(),
+        "capture": g.capture.report(),
+        "room_like": g.evidence.room_like,
+        "geometry": dict(
+            zip(SIGNED_AXES, np.round(np.exp(g.evidence.geometry), 4).tolist(), strict=True)
+        ),
+        **result.report(),
+    }
+    return estimate, how, report
+
+
+def _direction(sample: gravity.FrameSample, name: str, *, level: bool) -> np.ndarray:
+    """The up direction of candidate ``name``: the file axis, or the refined direction near it
+    when levelling is allowed and the tilt is real (:func:`gravity.real_tilt`)."""
+    axis = "xyz".index(name[1])
+    sign = 1.0 if name[0] == "+" else -1.0
+    if not level or not gravity.real_tilt(sample, axis):
+        return gravity.AXES[name].copy()
+    d = sample.directions[axis]
+    return d * np.sign(d[axis]) * sign
+
+
 def _given(
     sample: gravity.FrameSample, axis_name: str, level: bool, *, confidence: float
 ) -> gravity.UpEstimate:
-    """Up along the signed file axis ``axis_name``, levelled by the floor's normals."""
+    """Up along the signed file axis ``axis_name``, levelled by the floor's normals where the
+    tilt is real (the same rule as a decided axis, so ``--up +z`` on a z-up scan changes
+    nothing that ``auto`` would not)."""
     axis = "xyz".index(axis_name[1])
-    direction = sample.directions[axis] if level else np.eye(3)[axis]
-    direction = direction * np.sign(direction[axis]) * (1 if axis_name[0] == "+" else -1)
+    direction = _direction(sample, axis_name, level=level)
     tilt = float(np.degrees(np.arccos(np.clip(abs(direction[axis]), -1, 1))))
     return gravity.UpEstimate(direction, axis_name, tilt, confidence, {axis_name: confidence})
 

@@ -269,3 +269,41 @@ def estimate_up(
         scores["-" + letter] = float(axis_p[i] * (1 - pp))
     confidence = float(axis_p[axis] * max(p_plus, 1 - p_plus))
     return UpEstimate(up, name, tilt, confidence, scores)
+
+
+def axis_probabilities(sample: FrameSample) -> np.ndarray:
+    """(3,): the geometry's probability that each file axis is the vertical one, without the
+    delivery prior (the file's own evidence is weighed apart, :mod:`jointseg.frame.weigh`)."""
+    return _softmax(axis_features(sample) @ AXIS_WEIGHTS)
+
+
+def sign_probability(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
+    """The geometry's probability that +``axis`` rather than -``axis`` is up, without the
+    delivery prior."""
+    d = sample.directions[axis]
+    d = d if d[axis] >= 0 else -d
+    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS)
+    return float(1.0 / (1.0 + np.exp(-np.clip(score, -50.0, 50.0))))
+
+
+#: Normals within this angle of a direction count as a plane facing along it.
+SUPPORT_DEGREES = 5.0
+#: A levelling direction must be the facing direction of at least this share of the sample.
+MIN_SUPPORT = 0.03
+
+
+def plane_support(sample: FrameSample, direction: np.ndarray) -> float:
+    """The share of the sample's normals within :data:`SUPPORT_DEGREES` of ``±direction``:
+    how much real floor and ceiling face along it."""
+    if len(sample.normals) == 0:
+        return 0.0
+    c = np.abs(sample.normals @ (direction / np.linalg.norm(direction)))
+    return float((c >= np.cos(np.radians(SUPPORT_DEGREES))).mean())
+
+
+def real_tilt(sample: FrameSample, axis: int) -> bool:
+    """Whether the refined direction near ``axis`` is a real tilt: planes that are really there
+    face along it (at least :data:`MIN_SUPPORT` of the sample, and more than face along the
+    file axis itself). A slanted roof, a ramp or a stair never tilts a level scan."""
+    refined = plane_support(sample, sample.directions[axis])
+    return refined >= MIN_SUPPORT and refined > plane_support(sample, np.eye(3)[axis])

@@ -4,8 +4,10 @@ Reading: the header (FIELDS SIZE TYPE COUNT WIDTH HEIGHT VIEWPOINT POINTS DATA) 
 Packed ``rgb`` / ``rgba`` (float32 or uint32 bits, 0x00RRGGBB) become the colour, a ``label``
 field the labels, every other field (``normal_x``, ``curvature``, ``intensity``...) a field of
 the same name and dtype; fields with COUNT > 1 become 2-D fields and ``_`` padding fields are
-skipped. VIEWPOINT is not applied. In organised clouds (HEIGHT > 1) points with NaN coordinates
-mark missing pixels and are dropped (logged); in unorganised clouds a NaN coordinate is an error.
+skipped. VIEWPOINT is not applied; it and an organised cloud's WIDTH x HEIGHT are kept in
+``scan.meta`` for the frame stage (a depth camera's frame). In organised clouds (HEIGHT > 1)
+points with NaN coordinates mark missing pixels and are dropped (logged); in unorganised
+clouds a NaN coordinate is an error.
 
 Writing: ``DATA binary`` with ``x y z`` as double (F 8), ``rgb`` packed in a float32, ``label``
 as int32 (I 4) and every field with its own type; a 2-D field keeps its width as COUNT.
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +79,15 @@ class PcdHeader:
     data: str
     body_offset: int
     n_lines: int
+    viewpoint: tuple[float, ...] = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+
+    def meta(self) -> dict[str, object]:
+        """What the frame stage reads from the header: the sensor pose (VIEWPOINT: tx ty tz
+        qw qx qy qz) and, for an organised cloud, the sensor's image size."""
+        out: dict[str, object] = {"pcd_viewpoint": list(self.viewpoint)}
+        if self.height > 1:
+            out["organised"] = [self.width, self.height]
+        return out
 
     def dtype(self) -> np.dtype:
         """Packed little-endian record dtype (padding fields get unique private names)."""
@@ -127,10 +138,26 @@ def parse_header(head: bytes, path: Path) -> PcdHeader:
         raise ScanFormatError(
             f"{path}: PCD has no scalar {'/'.join(missing)} field (fields: {' '.join(fields)})"
         )
-    viewpoint = entries.get("VIEWPOINT")
-    if viewpoint and viewpoint != ["0", "0", "0", "1", "0", "0", "0"]:
-        logger.debug("%s: PCD VIEWPOINT %s is not applied", path, " ".join(viewpoint))
-    return PcdHeader(fields, types, counts, width, height, points, data, body_offset, data_line)
+    view = _viewpoint(entries.get("VIEWPOINT"), path)
+    return PcdHeader(
+        fields, types, counts, width, height, points, data, body_offset, data_line, view
+    )
+
+
+def _viewpoint(words: list[str] | None, path: Path) -> tuple[float, ...]:
+    """VIEWPOINT's seven numbers; the default (identity) when absent or malformed, which
+    the format allows to be ignored (it is recorded for the frame stage, never applied)."""
+    default = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+    if not words:
+        return default
+    try:
+        values = tuple(float(w) for w in words)
+    except ValueError:
+        values = ()
+    if len(values) != 7 or not all(np.isfinite(values)):
+        logger.warning("%s: PCD VIEWPOINT %r is malformed; ignored", path, " ".join(words))
+        return default
+    return values
 
 
 def _header_entries(head: bytes, path: Path) -> tuple[dict[str, list[str]], int, int]:
@@ -370,7 +397,8 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
             return f"line {first_line + int(index[i])}"
         return f"record {int(index[i])}"
 
-    return build_scan(path, "pcd", xyz, rgb, labels, fields, locate=locate)
+    scan = build_scan(path, "pcd", xyz, rgb, labels, fields, locate=locate)
+    return replace(scan, meta={**scan.meta, **header.meta()})
 
 
 def _read_records(

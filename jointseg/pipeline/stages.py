@@ -19,11 +19,13 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import numpy as np
 
 from jointseg.exceptions import Cancelled, ConfigError
+from jointseg.frame.colour import decide_colour
 from jointseg.frame.decide import Frame, decide_frame, work_scan
 from jointseg.fusion import FusionResult, fuse
 from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
+from jointseg.network.judge import crop_labeller
 from jointseg.network.registry import load, resolve_weights
 from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
@@ -263,12 +265,14 @@ def _frame_stage(
     progress: ProgressFn | None,
     timings: dict[str, float],
 ) -> tuple[Frame, Scan, np.ndarray | None, Predictor]:
-    """Decide the frame, make the work scan (and the map back to the user's points), pick the
-    colour-free network for a scan without colour; timed as ``frame``."""
+    """Pick the colour-free network for a scan without colour, decide the frame (that network
+    judging the likeliest up axes), make the work scan and the map back to the user's points;
+    timed as ``frame``."""
     t = time.perf_counter()
-    frame = decide_frame(scan, config.frame)
+    usable = decide_colour(scan.rgb, config.frame.colour).usable
+    chosen = network_for(predictor, config.network, usable)
+    frame = decide_frame(scan, config.frame, judge=crop_labeller(chosen))
     work, index = work_scan(scan, frame)
-    chosen = network_for(predictor, config.network, frame.colour.usable)
     report(progress, "frame", 1.0)
     timings["frame"] = time.perf_counter() - t
     return frame, work, index, chosen

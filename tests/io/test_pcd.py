@@ -228,3 +228,25 @@ def test_max_points(tmp_path):
     for fn in (read_scan, probe_scan):
         with pytest.raises(ScanFormatError, match=r"20 points, more than max_points=10"):
             fn(tmp_path / "b.pcd", max_points=10)
+
+
+def test_the_viewpoint_and_an_organised_size_are_kept_for_the_frame_stage(tmp_path):
+    _binary_pcd(tmp_path / "o.pcd", n=4, height=3)
+    text = (tmp_path / "o.pcd").read_bytes().replace(
+        b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0 0 0 0 1 0 0"
+    )
+    (tmp_path / "v.pcd").write_bytes(text)
+    scan = read_scan(tmp_path / "v.pcd")
+    assert scan.meta["organised"] == [4, 3]
+    assert scan.meta["pcd_viewpoint"] == [0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]
+    flat = read_scan(_ascii_pcd(tmp_path / "flat.pcd", 2, ["0 0 0", "1 1 1"]))
+    assert "organised" not in flat.meta
+    assert flat.meta["pcd_viewpoint"] == [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+
+
+def test_a_malformed_viewpoint_is_ignored_with_a_warning(tmp_path, caplog):
+    path = _ascii_pcd(tmp_path / "a.pcd", 2, ["0 0 0", "1 1 1"])
+    path.write_bytes(path.read_bytes().replace(b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0 0 x"))
+    scan = read_scan(path)
+    assert scan.meta["pcd_viewpoint"] == [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    assert "VIEWPOINT" in caplog.text and "malformed" in caplog.text

@@ -10,13 +10,15 @@ bounding-box faces) sees how far out it was, and it lands where the network has 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from jointseg.frame.colour import apply_gains
+from jointseg.frame.colour import apply_gains, decide_colour
 from jointseg.frame.decide import decide_frame
+from jointseg.frame.judge import LabelFn
 from jointseg.frame.params import FrameParams
 from jointseg.frame.strays import find_strays
 from jointseg.io.stream import open_chunks
@@ -51,11 +53,22 @@ def sample_scan(source: Any, max_points: int) -> tuple[Scan, int]:
     return Scan(np.concatenate(xyz), colour, meta=meta, source_format=fmt), count
 
 
-def decide(source: Any, params: FrameParams, max_points: int) -> tuple[dict[str, Any], np.ndarray]:
+def decide(
+    source: Any,
+    params: FrameParams,
+    max_points: int,
+    judge_for: Callable[[bool], LabelFn] | None = None,
+) -> tuple[dict[str, Any], np.ndarray]:
     """The frame of a big scan, as JSON the tile plan keeps (see :class:`StreamFrame`), and
-    the bulk's sampled points in the working frame (where strays are moved while spilling)."""
+    the bulk's sampled points in the working frame (where strays are moved while spilling).
+
+    ``judge_for(usable_colour)``: the network that judges the likeliest up axes on the sample
+    (the colour-free one for a scan without usable colour)."""
     sample, _ = sample_scan(source, max_points)
-    frame = decide_frame(sample, params.model_copy(update={"strays": False}))
+    judge = None
+    if judge_for is not None:
+        judge = judge_for(decide_colour(sample.rgb, params.colour).usable)
+    frame = decide_frame(sample, params.model_copy(update={"strays": False}), judge=judge)
     work = frame.to_work(sample.xyz)
     keep = ~find_strays(work) if params.strays else np.ones(len(work), dtype=bool)
     lo = work[keep].min(axis=0)

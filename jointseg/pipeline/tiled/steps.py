@@ -20,8 +20,10 @@ from typing import Any
 import numpy as np
 
 from jointseg.exceptions import ConfigError
+from jointseg.frame.judge import LabelFn
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.network.backends import Predictor
+from jointseg.network.judge import crop_labeller
 from jointseg.objects.records import LayoutReport, report_sections
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.stages import network_for
@@ -128,7 +130,10 @@ def plan(
     ------
     ScanFormatError, ConfigError, Cancelled
     """
-    decided, bulk = frame.decide(source, config.frame, max_points)
+    def judge_for(usable: bool) -> LabelFn:
+        return crop_labeller(network_for(predictor, config.network, usable))
+
+    decided, bulk = frame.decide(source, config.frame, max_points, judge_for)
     log.info("%s", decided["summary"])
     stream = frame.StreamFrame(decided, bulk)
     predictor = network_for(predictor, config.network, stream.colour_usable)

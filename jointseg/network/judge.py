@@ -1,0 +1,64 @@
+"""A loaded network as the frame stage's judge (:mod:`jointseg.frame.judge`): a few crops of a
+scan's subsample labelled in one batch, cheap enough to run once per candidate frame."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from jointseg.frame.judge import LabelFn
+from jointseg.network.anchored import CropPlan, anchored_cloud
+from jointseg.scan import Scan
+
+#: Crops per candidate frame, spread along the scan's longest horizontal direction.
+CROPS = 2
+#: Points labelled by a network without crops (DGCNN and others), per candidate.
+GENERIC_POINTS = 16_384
+
+
+def _cropping(predictor: Any) -> Any:
+    """The predictor, or the first member of an ensemble, that labels crops of a grid
+    sub-sample (RandLA-Net); None when there is none."""
+    for candidate in [predictor, *getattr(predictor, "members", [])]:
+        if all(hasattr(candidate, a) for a in ("crop_sums", "grid_size", "num_points")):
+            if not getattr(candidate, "on_device", False):
+                return candidate
+    return None
+
+
+def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> LabelFn:
+    """A :data:`~jointseg.frame.judge.LabelFn` from a loaded predictor."""
+    net = _cropping(predictor)
+    if net is None:
+        return _generic(predictor, seed)
+
+    def label(xyz: np.ndarray, rgb: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        lower = xyz.min(axis=0)
+        cloud = anchored_cloud([(xyz, rgb)], net.grid_size, lower)
+        m = len(cloud.xyz)
+        size = min(int(net.num_points), max(m, 1024))
+        flat = cloud.xyz[:, :2] - cloud.xyz[:, :2].mean(axis=0)
+        _, vecs = np.linalg.eigh(flat.T @ flat)
+        along = flat @ vecs[:, -1]
+        targets = np.quantile(along, (np.arange(crops) + 0.5) / crops)
+        pick = np.unique(np.abs(along[None, :] - targets[:, None]).argmin(axis=1))
+        centres = cloud.xyz[pick]
+        dist, _ = cloud.tree.query(centres, k=[min(size, m)], workers=-1)
+        plan = CropPlan(centres.astype(np.float32), np.asarray(dist, np.float32).reshape(-1), size)
+        prob_sum, seen = net.crop_sums(cloud, plan, np.arange(len(plan)), seed=seed)
+        hit = seen > 0
+        return cloud.xyz[hit] + lower, prob_sum[hit] / seen[hit, None]
+
+    return label
+
+
+def _generic(predictor: Any, seed: int) -> LabelFn:
+    def label(xyz: np.ndarray, rgb: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        rng = np.random.default_rng(seed)
+        keep = rng.choice(len(xyz), min(len(xyz), GENERIC_POINTS), replace=False)
+        part = Scan(xyz[keep], None if rgb is None else rgb[keep])
+        result = predictor.predict(part, seed=seed)
+        return part.xyz, np.asarray(result.probs, dtype=np.float64)
+
+    return label
