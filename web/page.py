@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import HTMLResponse, Response
 from pydantic import BaseModel, Field
 
+from jointseg.io import READ_EXTENSIONS
 from jointseg.network.registry import installed_backends
 
 log = logging.getLogger(__name__)
@@ -45,6 +47,15 @@ def _static(name: str) -> bytes:
     return resources.files("web").joinpath("static", name).read_bytes()
 
 
+def page_html() -> bytes:
+    """The job page, its file picker offering every extension the readers take (the list in
+    ``index.html`` is replaced by :data:`jointseg.io.READ_EXTENSIONS`, so a new format shows
+    up without editing the page)."""
+    html = _static("index.html").decode("utf-8")
+    accept = f'accept="{",".join(READ_EXTENSIONS)}"'
+    return re.sub(r'accept="[^"]*"', accept, html, count=1).encode("utf-8")
+
+
 def viewer_port(settings: Any) -> int:
     """The port the viewer listens on: what its process recorded, else the configured one."""
     recorded = Path(settings.data_dir) / VIEWER_FILE
@@ -61,7 +72,7 @@ def job_page_router() -> APIRouter:
     @router.get("/", response_class=HTMLResponse, include_in_schema=False)
     def index() -> HTMLResponse:
         """The job page."""
-        return HTMLResponse(_static("index.html"), headers={"Cache-Control": "no-cache"})
+        return HTMLResponse(page_html(), headers={"Cache-Control": "no-cache"})
 
     @router.get("/web/config.json", response_model=PageConfig, include_in_schema=False)
     def config(request: Request) -> PageConfig:

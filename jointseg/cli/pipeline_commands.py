@@ -28,6 +28,9 @@ if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands th
 #: Output formats that keep per-point fields (text formats would drop them).
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
 
+SCAN_HELP = (
+    f"Input scan ({', '.join(READ_EXTENSIONS)}; meshes are sampled to points) or S3DIS room folder."
+)
 CONFIG_HELP = "PipelineConfig as JSON: network, geometry, fusion, seed (unknown keys rejected)."
 NETWORK_HELP = f"Network backend: {', '.join(BACKENDS)} (overrides the config file)."
 WEIGHTS_HELP = (
@@ -115,7 +118,7 @@ def _write_text(path: Path, text: str) -> None:
 
 
 def segment_scan(
-    source: Path = typer.Argument(..., help="Input scan."),
+    source: Path = typer.Argument(..., help=SCAN_HELP),
     output: Path = typer.Option(
         ..., "-o", "--output", help="Output scan (.ply, .las or .laz) with the pipeline's fields."
     ),

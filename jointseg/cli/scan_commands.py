@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import time
 from enum import StrEnum
 from pathlib import Path
@@ -13,12 +14,16 @@ from rich.console import Console
 from rich.table import Table
 
 from jointseg.cli.progress_bar import progress_bar
-from jointseg.io import read_scan, write_scan
+from jointseg.io import READ_EXTENSIONS, read_scan, write_scan
 
 if TYPE_CHECKING:  # the summary loads scipy's KD-tree, which `jointseg --help` does not need
     from jointseg.summary import ScanSummary
 
 DEFAULT_MAX_POINTS = 50_000_000
+#: What an input argument accepts, from the formats table (meshes are sampled to points).
+SCAN_HELP = (
+    f"Scan file ({', '.join(READ_EXTENSIONS)}; meshes are sampled to points) or S3DIS room folder."
+)
 stdout_console = Console(highlight=False)
 
 
@@ -56,7 +61,7 @@ def synth(
 
 
 def info(
-    path: Path = typer.Argument(..., help="Scan file or S3DIS room folder."),
+    path: Path = typer.Argument(..., help=SCAN_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
 ) -> None:
@@ -81,20 +86,41 @@ def info(
 
 
 def _frame_of(scan: Any) -> dict[str, Any] | None:
-    """What the frame stage would decide for the scan (None for one too small to place)."""
+    """What the frame stage of ``jointseg segment`` would decide for the scan, the default
+    network judging the likeliest up axes as it does there (None for a scan too small to
+    place)."""
     from jointseg.exceptions import ConfigError
     from jointseg.frame.decide import decide_frame
 
     if len(scan) < 20:
         return None
     try:
-        return decide_frame(scan).report()
+        return decide_frame(scan, judge=_default_judge(scan)).report()
     except ConfigError:
         return None
 
 
+def _default_judge(scan: Any) -> Any:
+    """The default network (colour-free for a scan without usable colour) as the frame's
+    judge; None, with a log line, when it cannot be loaded (info still describes the scan)."""
+    from jointseg.exceptions import ConfigError
+    from jointseg.frame.colour import decide_colour
+    from jointseg.network.judge import crop_labeller
+    from jointseg.pipeline import PipelineConfig, load_predictor
+    from jointseg.pipeline.stages import network_for
+
+    config = PipelineConfig()
+    try:
+        predictor = load_predictor(config.network)
+    except (ConfigError, OSError) as exc:
+        logging.getLogger(__name__).info("no network to judge the up axis: %s", exc)
+        return None
+    usable = decide_colour(scan.rgb, config.frame.colour).usable
+    return crop_labeller(network_for(predictor, config.network, usable))
+
+
 def convert(
-    source: Path = typer.Argument(..., help="Input scan."),
+    source: Path = typer.Argument(..., help=SCAN_HELP),
     target: Path = typer.Argument(..., help="Output scan; the format follows the extension."),
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
 ) -> None:

@@ -1,7 +1,8 @@
 """Reading and writing scans, so every stage works on one :class:`~jointseg.scan.Scan` type.
 
 Formats (by extension): PLY, LAS/LAZ, E57 (read only), PCD, TXT/XYZ/CSV, NPY (read only), NPZ,
-and S3DIS room folders (read only). Every problem with an input file is raised as
+meshes (GLB/glTF, OBJ and PLY with faces; read only, as points sampled on the faces) and S3DIS
+room folders (read only). Every problem with an input file is raised as
 :class:`ScanFormatError` with a message naming the file and, where it can, the line, element or
 field; nothing half-read is ever returned, and writes are atomic.
 

@@ -12,7 +12,7 @@ from functools import partial
 from pathlib import Path
 
 from jointseg.exceptions import ScanFormatError, UnsupportedFormatError
-from jointseg.io import arrays, e57, las, pcd, ply, s3dis, text
+from jointseg.io import arrays, e57, las, mesh, pcd, ply, s3dis, text
 from jointseg.io.limits import ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
@@ -58,6 +58,10 @@ FORMATS: dict[str, Format] = {
     ),
     "npy": Format("npy", arrays.read_npy, arrays.probe_npy),
     "npz": Format("npz", arrays.read_npz, arrays.probe_npz, arrays.write_npz),
+    # meshes (phone scanning apps): read as points sampled on their faces, never written
+    "glb": Format("glb", mesh.read_gltf, mesh.probe_gltf),
+    "gltf": Format("gltf", mesh.read_gltf, mesh.probe_gltf),
+    "obj": Format("obj", mesh.read_obj, mesh.probe_obj),
     "s3dis": Format("s3dis", s3dis.read_s3dis_room, s3dis.probe_s3dis_room),
 }
 
@@ -83,7 +87,7 @@ def detect_format(path: str | Path) -> str:
     Returns
     -------
     str
-        One of ``ply las laz e57 pcd txt xyz csv npy npz s3dis``.
+        One of ``ply las laz e57 pcd txt xyz csv npy npz glb gltf obj s3dis``.
 
     Raises
     ------

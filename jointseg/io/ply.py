@@ -4,7 +4,10 @@ Reading takes the ``vertex`` element: ``x y z``; colour from ``red green blue``,
 ``diffuse_red diffuse_green diffuse_blue`` (uchar kept, ushort divided by 257 unless all ≤ 255,
 float 0–1 scaled); labels from ``label``, ``class``, ``classification``,
 ``scalar_Classification`` or ``scalar_label`` (case-insensitive); every other vertex property
-becomes a field of the same name and dtype. Other elements (faces, ...) are ignored.
+becomes a field of the same name and dtype. Other elements are ignored, except faces: a PLY
+whose header declares faces is a mesh, and is read as points sampled on its faces
+(:mod:`jointseg.io.mesh`). The header's ``comment`` and ``obj_info`` lines go to
+``Scan.meta["comments"]``.
 
 Writing produces binary little-endian PLY: ``x y z`` double, ``red green blue`` uchar, ``label``
 int, then every field. PLY properties are scalars, so a 2-D field ``f`` of width k is written as
@@ -15,7 +18,7 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -103,11 +106,23 @@ class PlyHeader:
     elements: list[PlyElement]
     body_offset: int
     n_lines: int
+    comments: list[str] = field(default_factory=list)
 
     @property
     def byte_order(self) -> str:
         """numpy's byte-order prefix of the body (``"<"`` or ``">"``; ``""`` for ASCII)."""
         return _FORMATS[self.encoding]
+
+    @property
+    def faces(self) -> int:
+        """Faces the header declares (0 without a ``face`` element): more than 0 is a mesh."""
+        return sum(e.count for e in self.elements if e.name == "face")
+
+    @property
+    def meta(self) -> dict[str, list[str]]:
+        """What :attr:`Scan.meta` gets from the header: its ``comment`` and ``obj_info`` lines
+        (the text after the keyword), which may say which app or scanner wrote the file."""
+        return {"comments": list(self.comments)}
 
 
 def _parse_property(words: list[str], where: str) -> PlyProperty:
@@ -172,9 +187,12 @@ def parse_header(buf: bytes, path: Path) -> PlyHeader:
         raise ScanFormatError(f"{path}: PLY header contains non-ASCII bytes") from exc
     encoding = None
     elements: list[PlyElement] = []
+    comments: list[str] = []
     lines = text.replace("\r", "").split("\n")
     for i, line in enumerate(lines[1:], start=2):
         words = line.split()
+        if words and words[0] in ("comment", "obj_info"):
+            comments.append(line.strip()[len(words[0]) :].strip())
         if not words or words[0] in ("comment", "obj_info"):
             continue
         where = f"{path}: PLY header line {i} ({line.strip()[:60]!r})"
@@ -201,7 +219,7 @@ def parse_header(buf: bytes, path: Path) -> PlyHeader:
             raise ScanFormatError(f"{where}: unknown header keyword {key!r}")
     if encoding is None:
         raise ScanFormatError(f"{path}: PLY header has no 'format' line")
-    header = PlyHeader(encoding, elements, nl + 1, len(lines))
+    header = PlyHeader(encoding, elements, nl + 1, len(lines), comments)
     _check_vertex(header, path)
     return header
 
@@ -513,6 +531,8 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     Returns
     -------
     Scan
+        ``meta["comments"]`` holds the header's comments. A PLY with faces is a mesh: its
+        points are sampled on the faces (:func:`jointseg.io.mesh.read_ply_mesh`).
 
     Raises
     ------
@@ -522,6 +542,17 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     """
     header = probe_header(path)
     vertex = vertex_element(header, path)
+    if header.faces:
+        from jointseg.io.mesh import read_ply_mesh
+
+        return read_ply_mesh(
+            path,
+            comments=header.comments,
+            vertices=vertex.count,
+            faces=header.faces,
+            max_points=max_points,
+            progress=progress,
+        )
     check_max_points(vertex.count, max_points, path)
     report(progress, "read", 0.0)
     first_line = 0
@@ -532,10 +563,12 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     xyz, rgb, labels, fields = split_vertex(data, path)
     report(progress, "read", 1.0)
     if first_line:
-        return build_scan(
+        scan = build_scan(
             path, "ply", xyz, rgb, labels, fields, locate=lambda i: f"line {first_line + i}"
         )
-    return build_scan(path, "ply", xyz, rgb, labels, fields)
+    else:
+        scan = build_scan(path, "ply", xyz, rgb, labels, fields)
+    return replace(scan, meta=header.meta)
 
 
 def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
@@ -549,6 +582,7 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     Returns
     -------
     ScanInfo
+        For a PLY with faces, the points reading samples on them (the mesh is read).
 
     Raises
     ------
@@ -557,6 +591,12 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     """
     header = probe_header(path)
     vertex = vertex_element(header, path)
+    if header.faces:
+        from jointseg.io.mesh import probe_ply_mesh
+
+        return probe_ply_mesh(
+            path, vertices=vertex.count, faces=header.faces, max_points=max_points
+        )
     check_max_points(vertex.count, max_points, path)
     if header.encoding == "ascii":
         _ascii_body(path, header)

@@ -7,9 +7,10 @@ consecutive chunks (each a :class:`~jointseg.scan.Scan`) and written from them:
 - LAS/LAZ through laspy's chunked reader and writer (LAZ with lazrs), binary PLY through
   memory maps of one chunk of vertices at a time. Memory then grows with the chunk size, not
   with the file.
-- Every other format (ASCII PLY, PCD, E57, TXT/XYZ/CSV, NPY/NPZ, S3DIS folders) falls back to
-  reading the whole scan once and handing out slices of it, and to collecting the chunks and
-  writing them at the end; :attr:`ScanChunks.streams` says which one a file gets.
+- Every other format (ASCII PLY, meshes (PLY with faces, GLB/glTF, OBJ), PCD, E57,
+  TXT/XYZ/CSV, NPY/NPZ, S3DIS folders) falls back to reading the whole scan once and handing
+  out slices of it, and to collecting the chunks and writing them at the end;
+  :attr:`ScanChunks.streams` says which one a file gets.
 
 Chunks read this way concatenate to exactly what ``read_scan`` returns, and a file written this
 way is the one ``write_scan`` would write from the concatenated chunks.
@@ -38,7 +39,7 @@ from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import laspy
 import numpy as np
@@ -306,11 +307,14 @@ class _PlyChunks(_FileChunks):
     memory) until the iteration ends.
     """
 
-    def __init__(self, path: Path, count: int, offset: int, dtype: np.dtype) -> None:
+    def __init__(
+        self, path: Path, count: int, offset: int, dtype: np.dtype, meta: dict[str, Any]
+    ) -> None:
         super().__init__(path, "ply", count)
         self._offset = offset
         self._dtype = dtype
         self._facts = VertexFacts()
+        self._meta = meta
 
     def gather_facts(self) -> VertexFacts:
         """Gather :class:`VertexFacts` (colour range, odd labels) over every vertex.
@@ -339,7 +343,8 @@ class _PlyChunks(_FileChunks):
         for start, window in self.windows(size):
             xyz, rgb, labels, fields = split_vertex(window, self.path, self._facts, start=start)
             del window
-            yield build_scan(self.path, "ply", xyz, rgb, labels, fields, start=start)
+            scan = build_scan(self.path, "ply", xyz, rgb, labels, fields, start=start)
+            yield replace(scan, meta=self._meta)
 
 
 def _ply_needs_facts(dtype: np.dtype) -> bool:
@@ -351,6 +356,8 @@ def _ply_needs_facts(dtype: np.dtype) -> bool:
 def _open_ply(path: Path, max_points: int) -> ScanChunks:
     header = probe_header(path)
     vertex = vertex_element(header, path)
+    if header.faces:  # a mesh: its points are sampled on the faces, whole
+        return _whole(path, "ply", max_points)
     check_max_points(vertex.count, max_points, path)
     if header.encoding == "ascii":
         return _whole(path, "ply", max_points)
@@ -360,7 +367,7 @@ def _open_ply(path: Path, max_points: int) -> ScanChunks:
     if vertex.count == 0:
         raise ScanFormatError(f"{path}: the scan contains no points")
     offset, dtype = block
-    chunks = _PlyChunks(path, vertex.count, offset, dtype)
+    chunks = _PlyChunks(path, vertex.count, offset, dtype, header.meta)
     if _ply_needs_facts(dtype):
         began = time.perf_counter()
         facts = chunks.gather_facts()
@@ -438,8 +445,9 @@ def open_chunks(
     - **Binary PLY**: memory maps of one chunk of vertices at a time. When the vertices have a
       label property or colour that is not 8-bit, a first pass over those columns decides as
       ``read_scan`` does (about one extra read of the file).
-    - **Everything else** (ASCII PLY, binary PLY with list elements before the vertices, PCD,
-      E57, TXT/XYZ/CSV, NPY/NPZ, S3DIS folders): ``read_scan`` once at open time, then slices
+    - **Everything else** (ASCII PLY, binary PLY with list elements before the vertices, PLY,
+      GLB/glTF and OBJ meshes, PCD, E57, TXT/XYZ/CSV, NPY/NPZ, S3DIS folders): ``read_scan``
+      once at open time (a mesh sampled to points), then slices
       of that scan; memory is that of ``read_scan`` (``streams`` is False).
 
     Parameters

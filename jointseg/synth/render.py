@@ -30,6 +30,19 @@ def split_quota(total: int, weights: np.ndarray) -> np.ndarray:
     return out
 
 
+def turn_about_centre(xyz: np.ndarray, plan: Plan, yaw_deg: float) -> np.ndarray:
+    """``xyz`` turned by ``yaw_deg`` about the vertical axis through the centre of the plan's
+    outline: how a scene built axis aligned is placed (its points, or its mesh's vertices)."""
+    if yaw_deg % 360.0 == 0.0:
+        return xyz
+    x0, y0, x1, y1 = plan.outline
+    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+    a = math.radians(yaw_deg)
+    c, s = math.cos(a), math.sin(a)
+    dx, dy = xyz[:, 0] - cx, xyz[:, 1] - cy
+    return np.stack([cx + c * dx - s * dy, cy + s * dx + c * dy, xyz[:, 2]], 1)
+
+
 def render(
     plan: Plan,
     mesh: SceneMesh,
@@ -70,16 +83,8 @@ def render(
         rng,
     )
     report(progress, STAGE, 0.95)
-    xyz = hits.xyz
-    if yaw_deg % 360.0 != 0.0:
-        x0, y0, x1, y1 = plan.outline
-        cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-        a = math.radians(yaw_deg)
-        c, s = math.cos(a), math.sin(a)
-        dx, dy = xyz[:, 0] - cx, xyz[:, 1] - cy
-        xyz = np.stack([cx + c * dx - s * dy, cy + s * dx + c * dy, xyz[:, 2]], 1)
     scan = Scan(
-        xyz=xyz,
+        xyz=turn_about_centre(hits.xyz, plan, yaw_deg),
         rgb=rgb,
         labels=mesh.label[tri],
         fields={

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -12,8 +13,8 @@ from jointseg.exceptions import ConfigError
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 from jointseg.synth.furnish import draw_flags, furnish
-from jointseg.synth.layout import Plan
-from jointseg.synth.meshes import MeshBuilder
+from jointseg.synth.layout import Occupancy, Plan
+from jointseg.synth.meshes import MeshBuilder, SceneMesh
 from jointseg.synth.params import check_count, check_points, check_seed, check_yaw
 from jointseg.synth.plans import room_plan
 from jointseg.synth.render import STAGE, render, split_quota
@@ -45,6 +46,47 @@ def _draw_room(rng: np.random.Generator, shape: str) -> tuple[float, int, bool, 
     drawn_scanners = int(rng.integers(1, 4) if shape == "box" else rng.integers(2, 4))
     windows = bool(rng.random() < 0.85)
     return drawn_yaw, drawn_scanners, windows, room_plan(rng, shape, windows)
+
+
+@dataclass(frozen=True)
+class RoomScene:
+    """A room as built before it is scanned: what :func:`make_room` and
+    :func:`jointseg.synth.export.room_mesh` share.
+
+    Attributes
+    ----------
+    plan : Plan
+    mesh : SceneMesh
+        Every triangle, in plan coordinates (axis aligned, floor at z 0).
+    occupancy : Occupancy
+        Where the furniture stands (the scanners keep clear of it).
+    drawn_yaw : float
+        The yaw the seed draws (degrees), used unless the caller gives one.
+    drawn_scanners : int
+        The scanner count the seed draws.
+    """
+
+    plan: Plan
+    mesh: SceneMesh
+    occupancy: Occupancy
+    drawn_yaw: float
+    drawn_scanners: int
+
+
+def build_room(seed: int, shape: str, progress: ProgressFn | None = None) -> RoomScene:
+    """Build the room ``seed`` and ``shape`` draw: plan, shell, openings and furniture, meshed
+    (arguments already checked)."""
+    rng = np.random.default_rng(seed)
+    drawn_yaw, drawn_scanners, windows, plan = _draw_room(rng, shape)
+    space = plan.spaces[0]
+    flags = draw_flags(rng, space.kind, at_least=4 - int(windows))
+    report(progress, STAGE, 0.02)
+    mb, ids = MeshBuilder(), Ids()
+    looks = [space_look(rng)]
+    build_shell(plan, mb, ids, looks, rng)
+    build_openings(plan, mb, ids, rng)
+    occupancy = furnish(space, plan, mb, ids, rng, looks[0], flags)
+    return RoomScene(plan, mb.build(), occupancy, drawn_yaw, drawn_scanners)
 
 
 def room_layout(seed: int, *, shape: Literal["box", "L"] = "box") -> Plan:
@@ -94,27 +136,18 @@ def make_room(
     """
     seed, points, yaw, scanners = _check_args(seed, points, shape, yaw, scanners)
     t0 = time.perf_counter()
-    rng = np.random.default_rng(seed)
-    drawn_yaw, drawn_scanners, windows, plan = _draw_room(rng, shape)
-    space = plan.spaces[0]
-    flags = draw_flags(rng, space.kind, at_least=4 - int(windows))
-    report(progress, STAGE, 0.02)
-    mb, ids = MeshBuilder(), Ids()
-    looks = [space_look(rng)]
-    build_shell(plan, mb, ids, looks, rng)
-    build_openings(plan, mb, ids, rng)
-    occ = furnish(space, plan, mb, ids, rng, looks[0], flags)
-    mesh = mb.build()
+    room = build_room(seed, shape, progress)
+    plan, mesh, space = room.plan, room.mesh, room.plan.spaces[0]
     report(progress, STAGE, 0.1)
-    n_scan = scanners if scanners is not None else drawn_scanners
-    origins = scanner_positions(space, occ, n_scan, np.random.default_rng([seed, 1]))
+    n_scan = scanners if scanners is not None else room.drawn_scanners
+    origins = scanner_positions(space, room.occupancy, n_scan, np.random.default_rng([seed, 1]))
     quotas = split_quota(points, np.ones(n_scan))
     scan = render(
         plan,
         mesh,
         origins,
         quotas,
-        drawn_yaw if yaw is None else yaw,
+        room.drawn_yaw if yaw is None else yaw,
         np.random.default_rng([seed, 2, n_scan]),
         progress,
     )

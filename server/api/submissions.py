@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
 from jointseg.io import ScanInfo, probe_scan, read_scan
+from jointseg.io.mesh import check_single_file
 from jointseg.network import published
 from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
@@ -112,12 +113,16 @@ def _check_weights(weights: Path, settings: Settings) -> None:
 def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
     """Validate the stored upload: header and point count, and every point when small enough.
 
+    An upload arrives as one file, so a glTF whose buffers or textures are files beside it is
+    refused with a message saying to upload a .glb (nor may it read other files on the server).
+
     Raises
     ------
     ScanFormatError
         With the reader's message, the temporary name replaced by the client's file name.
     """
     try:
+        check_single_file(upload.path)
         info = probe_scan(upload.path, max_points=settings.max_points)
         if upload.size <= settings.full_check_max_bytes:
             read_scan(upload.path, max_points=settings.max_points)

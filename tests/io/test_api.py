@@ -22,9 +22,21 @@ from jointseg.io import (
 def test_public_names():
     assert jio.ScanFormatError is ScanFormatError
     assert issubclass(ScanFormatError, JointsegError) and issubclass(ScanFormatError, ValueError)
-    assert {".ply", ".las", ".laz", ".e57", ".pcd", ".txt", ".xyz", ".csv", ".npy", ".npz"} == set(
-        READ_EXTENSIONS
-    )
+    assert {
+        ".ply",
+        ".las",
+        ".laz",
+        ".e57",
+        ".pcd",
+        ".txt",
+        ".xyz",
+        ".csv",
+        ".npy",
+        ".npz",
+        ".glb",
+        ".gltf",
+        ".obj",
+    } == set(READ_EXTENSIONS)
     assert set(WRITE_EXTENSIONS) <= set(READ_EXTENSIONS)
     for name in jio.__all__:
         assert hasattr(jio, name)
@@ -51,9 +63,9 @@ def test_detect_format(name, fmt, tmp_path):
 
 
 def test_unknown_extension_lists_supported(tmp_path):
-    (tmp_path / "a.obj").write_text("v 0 0 0\n")
-    with pytest.raises(ScanFormatError, match=r"unsupported file extension '.obj'.*\.ply.*\.npz"):
-        read_scan(tmp_path / "a.obj")
+    (tmp_path / "a.stl").write_text("solid a\n")
+    with pytest.raises(ScanFormatError, match=r"unsupported file extension '.stl'.*\.ply.*\.obj"):
+        read_scan(tmp_path / "a.stl")
     (tmp_path / "noext").write_text("0 0 0\n")
     with pytest.raises(ScanFormatError, match="unsupported file extension"):
         read_scan(tmp_path / "noext")
@@ -80,7 +92,9 @@ def test_directory_where_file_expected(tmp_path, ext):
         read_scan(tmp_path / f"d{ext}")
 
 
-@pytest.mark.parametrize("ext", [".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz"])
+@pytest.mark.parametrize(
+    "ext", [".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz", ".glb", ".gltf", ".obj"]
+)
 def test_wrong_content_for_extension(tmp_path, ext):
     (tmp_path / f"w{ext}").write_text("this is not a point cloud\n" * 20)
     for fn in (read_scan, probe_scan):

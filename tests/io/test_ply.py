@@ -50,13 +50,20 @@ def test_encodings(tmp_path, text, order):
     assert scan.fields["nx"].dtype == np.float32
 
 
-def test_faces_after_vertices_are_ignored(tmp_path):
+def test_faces_after_vertices_make_a_mesh_sampled_on_them(tmp_path):
+    """A PLY with faces is a mesh (issue 41): its points are sampled on the faces (the mesh
+    readers' tests are in test_mesh.py); an empty face element leaves a point cloud."""
     faces = PlyElement.describe(
         np.array([([0, 1, 2],), ([1, 2, 3],)], dtype=[("vertex_indices", "i4", (3,))]), "face"
     )
     for text in (True, False):
         path = _write(tmp_path / f"m{text}.ply", _vertex(4, []), text=text, faces=faces)
-        assert len(read_scan(path)) == 4
+        scan = read_scan(path)
+        assert scan.meta["mesh"]["faces"] == 2 and scan.meta["mesh"]["vertices"] == 4
+        assert len(scan) == scan.meta["mesh"]["sampled_points"] > 4
+    no_faces = PlyElement.describe(np.zeros(0, dtype=[("vertex_indices", "i4", (3,))]), "face")
+    path = _write(tmp_path / "cloud.ply", _vertex(4, []), faces=no_faces)
+    assert len(read_scan(path)) == 4 and "mesh" not in read_scan(path).meta
 
 
 @pytest.mark.parametrize(
@@ -284,13 +291,15 @@ def test_large_binary_reads_fast(tmp_path, make_scan):
 
 
 def test_list_element_before_vertices(tmp_path):
-    faces = PlyElement.describe(
-        np.array([([0, 1, 2],)], dtype=[("vertex_indices", "i4", (3,))]), "face"
+    """A list element other than faces before the vertices hides their offset: plyfile finds
+    them (faces there would make the file a mesh)."""
+    grid = PlyElement.describe(
+        np.array([([0, 1, 2],)], dtype=[("vertex_indices", "i4", (3,))]), "range_grid"
     )
     vertex = PlyElement.describe(_vertex(5, []), "vertex")
-    PlyData([faces, vertex], text=False).write(str(tmp_path / "fv.ply"))
+    PlyData([grid, vertex], text=False).write(str(tmp_path / "fv.ply"))
     assert len(read_scan(tmp_path / "fv.ply")) == 5
-    PlyData([faces, vertex], text=True).write(str(tmp_path / "fva.ply"))
+    PlyData([grid, vertex], text=True).write(str(tmp_path / "fva.ply"))
     assert len(read_scan(tmp_path / "fva.ply")) == 5
 
 

@@ -15,6 +15,9 @@ from service_process import post_scan, scan_file
 
 from jointseg.io import READ_EXTENSIONS
 
+#: Extensions whose files are tried with plain text in them (text formats would parse it).
+WRONG_CONTENT = (".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz", ".glb", ".gltf", ".obj")
+
 
 def _ply_binary(path: Path, xyz: np.ndarray) -> Path:
     """A binary PLY written with plyfile (jointseg's writer refuses non-finite points)."""
@@ -32,7 +35,7 @@ def _bad_files(folder: Path, scans: Path) -> dict[str, tuple[Path, int, str]]:
         empty = folder / f"empty{ext}"
         empty.write_bytes(b"")
         cases[f"empty{ext}"] = (empty, 422, "empty")
-    for ext in (".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz"):
+    for ext in WRONG_CONTENT:
         wrong = folder / f"wrong{ext}"
         wrong.write_text("this is not a point cloud\n" * 20)
         cases[f"wrong-content{ext}"] = (wrong, 422, f"wrong{ext}")
@@ -107,7 +110,7 @@ def _json_error(response: httpx.Response, status: int) -> str:
 @pytest.mark.parametrize(
     "case",
     [f"empty{ext}" for ext in READ_EXTENSIONS]
-    + [f"wrong-content{ext}" for ext in (".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz")]
+    + [f"wrong-content{ext}" for ext in WRONG_CONTENT]
     + [
         "truncated-ply",
         "ply-header-without-end",
