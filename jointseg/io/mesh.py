@@ -8,10 +8,16 @@ vertex colours, face colours, texture or material. The points stay in the file's
 coordinates: glTF's y-up convention and metre unit are recorded in ``Scan.meta`` for the frame
 stage, never applied here.
 
+A PLY mesh whose vertex element has labels (``label``, ``class``, ... as :func:`read_ply
+<jointseg.io.ply.read_ply>` recognises them; e.g. ScanNet's ``*_vh_clean_2.labels.ply``) keeps
+them: each sampled point takes the label of its triangle's nearest vertex, and so the values
+of the vertex's other scalar properties as fields (coordinates, colours and normals aside).
+
 ``Scan.meta`` of a mesh holds ``comments`` (PLY ``comment``/``obj_info`` lines, the OBJ's
 leading ``#`` lines, glTF's ``generator``/``copyright``), ``mesh`` (vertices, faces, area,
-sampled points, spacing, colour kind) and, for glTF, ``up_convention``, ``units`` and
-``units_source``. A file with vertices but no triangles (an OBJ point cloud) is read as points.
+sampled points, spacing, colour kind, and ``labels: "nearest vertex"`` when labels were
+carried) and, for glTF, ``up_convention``, ``units`` and ``units_source``. A file with vertices
+but no triangles (an OBJ point cloud) is read as points.
 """
 
 from __future__ import annotations
@@ -30,12 +36,15 @@ from jointseg.io.gltf import GltfFacts, check_neighbours, embedded_only, gltf_fa
 from jointseg.io.limits import ScanInfo, check_input_file, check_max_points
 from jointseg.io.mesh_sample import (
     MeshPiece,
+    MeshSamples,
     PieceColour,
     SamplePlan,
+    carried_fields,
     main_colour_kind,
     plan_samples,
     sample_pieces,
 )
+from jointseg.io.ply import split_vertex, vertex_columns
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -46,6 +55,11 @@ GLTF_UP = {"axis": "+y", "source": "glTF 2.0 (y up by specification)"}
 GLTF_UNITS = {"units": "m", "units_source": "glTF 2.0 (metres by specification)"}
 #: At most this many leading ``#`` lines of an OBJ file are kept as comments.
 MAX_OBJ_COMMENTS = 50
+#: PLY vertex properties (lower case) never carried to sampled points, besides the coordinates
+#: and the colour channels: normals, and colour's alpha.
+NOT_CARRIED = frozenset({"nx", "ny", "nz", "normal_x", "normal_y", "normal_z", "alpha"})
+#: What ``Scan.meta["mesh"]["labels"]`` says when a PLY mesh's vertex labels were carried.
+LABELS_CARRIED = "nearest vertex"
 
 
 @dataclass
@@ -177,6 +191,74 @@ def _checked_piece(path: Path, geometry: Any, name: str) -> MeshPiece:
     return MeshPiece(vertices, faces, piece_colour(geometry))
 
 
+def _ply_records(geometry: Any) -> np.ndarray | None:
+    """The PLY vertex element trimesh read for ``geometry``, as one structured array.
+
+    trimesh keeps the parsed elements in ``metadata["_ply_raw"]``: a structured array from a
+    binary file, a dict of (V, 1) columns from an ASCII one. None when neither is there.
+    """
+    raw = geometry.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+    if isinstance(raw, np.ndarray) and raw.dtype.names:
+        return raw
+    if not isinstance(raw, dict) or not raw:
+        return None
+    columns = {str(k): np.asarray(v) for k, v in raw.items()}
+    rows = {c.shape[0] for c in columns.values()}
+    if len(rows) != 1 or any(c.ndim > 2 or c[:1].size > 1 for c in columns.values()):
+        return None
+    records = np.empty(rows.pop(), dtype=[(k, c.dtype) for k, c in columns.items()])
+    for name, column in columns.items():
+        records[name] = column.reshape(-1)
+    return records
+
+
+def _file_vertices(vertices: np.ndarray, file_xyz: np.ndarray) -> np.ndarray | None:
+    """For each of a piece's vertices, the index of the file's vertex it came from.
+
+    trimesh keeps the file's vertices as they are, except that a PLY with per-face texture
+    coordinates has its vertices split by UV (copies of file vertices): those are found by
+    their exact coordinates. None when some vertex matches none of the file's.
+    """
+    if vertices.shape == file_xyz.shape and np.array_equal(vertices, file_xyz):
+        return np.arange(len(vertices))
+    both = np.concatenate([file_xyz, vertices])
+    _, first, inverse = np.unique(both, axis=0, return_index=True, return_inverse=True)
+    index = first[inverse.reshape(-1)[len(file_xyz) :]]
+    return index if (index < len(file_xyz)).all() else None
+
+
+def _carried_names(names: list[str]) -> list[str]:
+    """The vertex properties read for carrying: all but colour channels, alpha and normals."""
+    colour, _ = vertex_columns(names)
+    skip = {n.lower() for n in colour or ()} | NOT_CARRIED
+    return [n for n in names if n.lower() not in skip]
+
+
+def _with_vertex_values(path: Path, piece: MeshPiece, geometry: Any) -> MeshPiece:
+    """``piece`` with the labels and other scalar numeric properties of its PLY vertices.
+
+    Read as :func:`jointseg.io.ply.read_ply` reads a point cloud's (labels as S3DIS classes,
+    the raw values kept as field ``raw_label`` when some are no class). A piece whose vertex
+    element has no label property is returned as it is.
+    """
+    records = _ply_records(geometry)
+    if records is None:
+        logger.debug("%s: trimesh kept no PLY vertex element; nothing carried", path)
+        return piece
+    names = [n for n in records.dtype.names or () if records.dtype[n].kind in "iuf"]
+    if vertex_columns(names)[1] is None:
+        return piece
+    xyz, _, labels, fields = split_vertex(records[_carried_names(names)], path)
+    index = _file_vertices(piece.vertices, xyz)
+    if index is None or labels is None:
+        logger.warning(
+            "%s: the mesh's vertices do not match its PLY vertex element; labels not carried",
+            path,
+        )
+        return piece
+    return replace(piece, labels=labels[index], fields={k: v[index] for k, v in fields.items()})
+
+
 def _bare_points(clouds: list[Any]) -> tuple[np.ndarray, np.ndarray | None]:
     """The vertices of a file without triangles, with their colours when all have them."""
     xyz = np.concatenate([np.asarray(c.vertices, dtype=np.float64) for c in clouds])
@@ -213,6 +295,8 @@ def load_mesh(path: Path, fmt: str) -> LoadedMesh:
     pieces = [
         _checked_piece(path, g, str(g.metadata.get("name", "")) if several else "") for g in meshes
     ]
+    if fmt == "ply":
+        pieces = [_with_vertex_values(path, p, g) for p, g in zip(pieces, meshes, strict=True)]
     if pieces:
         return LoadedMesh(
             pieces,
@@ -253,14 +337,15 @@ def mesh_scan(
     ``meta`` and the ``mesh`` record added."""
     if mesh.points is not None:
         check_max_points(len(mesh.points), max_points, path)
-        xyz, rgb = mesh.points, mesh.points_rgb
-        plan = SamplePlan(len(xyz), 0.0, 0.0)
-        kind = "none" if rgb is None else "vertex"
+        samples = MeshSamples(mesh.points, mesh.points_rgb)
+        plan = SamplePlan(len(samples.xyz), 0.0, 0.0)
+        kind = "none" if samples.rgb is None else "vertex"
     else:
         plan = _plan(path, mesh, max_points)
-        xyz, rgb = sample_pieces(mesh.pieces, plan.points)
+        samples = sample_pieces(mesh.pieces, plan.points)
         kind = main_colour_kind(mesh.pieces)
-    record = {
+    xyz = samples.xyz
+    record: dict[str, Any] = {
         "vertices": mesh.vertices,
         "faces": mesh.faces,
         "area_m2_or_units2": plan.area,
@@ -268,6 +353,8 @@ def mesh_scan(
         "spacing": plan.spacing,
         "colour": kind,
     }
+    if samples.labels is not None:
+        record["labels"] = LABELS_CARRIED
     logger.info(
         "%s: %d vertices, %d triangles, area %.4g: %d points at a %.3g spacing (colour: %s)",
         path,
@@ -278,12 +365,13 @@ def mesh_scan(
         plan.spacing,
         kind,
     )
-    scan = build_scan(path, fmt, xyz, rgb)
+    scan = build_scan(path, fmt, xyz, samples.rgb, samples.labels, samples.fields)
     return replace(scan, meta={**meta, "mesh": record})
 
 
 def mesh_info(path: Path, fmt: str, mesh: LoadedMesh, max_points: int) -> ScanInfo:
-    """What reading the mesh will give (its point count, colour) without sampling it."""
+    """What reading the mesh will give (its point count, colour, labels and fields) without
+    sampling it."""
     if mesh.points is not None:
         check_max_points(len(mesh.points), max_points, path)
         return ScanInfo(
@@ -294,7 +382,14 @@ def mesh_info(path: Path, fmt: str, mesh: LoadedMesh, max_points: int) -> ScanIn
         )
     plan = _plan(path, mesh, max_points)
     coloured = main_colour_kind(mesh.pieces) != "none"
-    return ScanInfo(path=str(path), format=fmt, n_points=plan.points, has_rgb=coloured)
+    return ScanInfo(
+        path=str(path),
+        format=fmt,
+        n_points=plan.points,
+        has_rgb=coloured,
+        has_labels=any(piece.labels is not None for piece in mesh.pieces),
+        fields=tuple(carried_fields(mesh.pieces)),
+    )
 
 
 # --- glTF / GLB ------------------------------------------------------------------------------
@@ -525,7 +620,11 @@ def read_ply_mesh(
     -------
     Scan
         Colour from vertex colours, face colours or a texture (``comment TextureFile``).
-        Labels and other vertex properties are not carried onto the sampled points.
+        When the vertex element has labels, each point takes the label of its triangle's
+        nearest vertex, and that vertex's other scalar numeric properties as fields
+        (coordinates, colours, alpha and normals aside; ``raw_label`` when some label values
+        are no S3DIS class, as :func:`jointseg.io.ply.read_ply` does); ``meta["mesh"]`` then
+        says ``"labels": "nearest vertex"``. Without labels, no vertex property is carried.
 
     Raises
     ------

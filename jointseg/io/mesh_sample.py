@@ -5,18 +5,22 @@ and sub-samples every input to its 4 cm grid (:mod:`jointseg.network.randlanet.p
 mesh is turned into points clearly finer than that grid: a mean spacing of
 :data:`SAMPLE_SPACING`. Sampling is area-weighted and stratified (every triangle gets its share
 of the points give or take one) and seeded, so the same file always gives the same points.
-Pure numpy: the trimesh side (reading files, materials) is in :mod:`jointseg.io.mesh`.
+A piece whose vertices carry labels or other values (a PLY mesh's vertex properties) hands
+each point those of its triangle's nearest corner (the largest barycentric weight). Pure
+numpy: the trimesh side (reading files, materials) is in :mod:`jointseg.io.mesh`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
+
+from jointseg.classes import UNLABELLED
 
 logger = logging.getLogger(__name__)
 
@@ -93,11 +97,17 @@ class MeshPiece:
     faces : ndarray (F, 3) int64
         Checked to index ``vertices``.
     colour : PieceColour
+    labels : ndarray (V,) int32, optional
+        Ground-truth label of each vertex (S3DIS classes, -1 unlabelled).
+    fields : dict of str to ndarray (V,) or (V, k)
+        Other values of each vertex, carried to the points like ``labels``.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     colour: PieceColour
+    labels: np.ndarray | None = None
+    fields: dict[str, np.ndarray] = field(default_factory=dict)
 
     def areas(self) -> np.ndarray:
         """Area of each triangle."""
@@ -145,10 +155,81 @@ def plan_samples(area: float, max_points: int, path: Path) -> SamplePlan:
     return SamplePlan(max_points, spacing, area)
 
 
-def sample_pieces(
-    pieces: list[MeshPiece], n: int, *, seed: int = SAMPLE_SEED
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """``n`` points on the pieces' triangles, area-weighted and stratified, with their colours.
+@dataclass(frozen=True)
+class MeshSamples:
+    """Points sampled on a mesh and what each point carries.
+
+    Attributes
+    ----------
+    xyz : ndarray (n, 3) float64
+    rgb : ndarray (n, 3) uint8, optional
+        None when no piece has colour.
+    labels : ndarray (n,) int32, optional
+        The label of each point's nearest triangle corner; None when no piece has labels
+        (points of a piece without labels are -1).
+    fields : dict of str to ndarray
+        The fields every piece carries (:func:`carried_fields`), nearest corner's value.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    fields: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def carried_fields(pieces: list[MeshPiece]) -> dict[str, np.ndarray]:
+    """The vertex fields sampled points carry: those every piece has, with one shape per row.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Name to an empty array of the points' dtype and row shape, in the first piece's order.
+    """
+    if not pieces:
+        return {}
+    carried: dict[str, np.ndarray] = {}
+    for name, values in pieces[0].fields.items():
+        columns = [piece.fields.get(name) for piece in pieces]
+        if any(c is None or c.shape[1:] != values.shape[1:] for c in columns):
+            continue
+        dtype = np.result_type(*[c.dtype for c in columns if c is not None])
+        carried[name] = np.empty((0, *values.shape[1:]), dtype=dtype)
+    return carried
+
+
+def _carry(
+    pieces: list[MeshPiece], corner: list[np.ndarray], runs: list[slice], n: int
+) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """Labels and fields of the points: each from the vertex ``corner`` names in its piece.
+
+    Parameters
+    ----------
+    pieces : list of MeshPiece
+    corner : list of ndarray of int64
+        Per piece, the vertex (of that piece) nearest to each of its points.
+    runs : list of slice
+        Per piece, where its points are among the ``n``.
+    n : int
+        All points.
+    """
+    labels = None
+    if any(piece.labels is not None for piece in pieces):
+        labels = np.full(n, UNLABELLED, dtype=np.int32)
+    fields = {
+        name: np.empty((n, *like.shape[1:]), like.dtype)
+        for name, like in carried_fields(pieces).items()
+    }
+    for piece, vertex, run in zip(pieces, corner, runs, strict=True):
+        if labels is not None and piece.labels is not None:
+            labels[run] = piece.labels[vertex]
+        for name, values in fields.items():
+            values[run] = piece.fields[name][vertex]
+    return labels, fields
+
+
+def sample_pieces(pieces: list[MeshPiece], n: int, *, seed: int = SAMPLE_SEED) -> MeshSamples:
+    """``n`` points on the pieces' triangles, area-weighted and stratified, with their colours,
+    and the labels and fields of the pieces' vertices (nearest corner).
 
     The points are stratified along the triangles in file order (point k falls at a jittered
     position k + u of n on the cumulative area), so every triangle gets its share of ``n``
@@ -165,8 +246,7 @@ def sample_pieces(
 
     Returns
     -------
-    xyz : ndarray (n, 3) float64
-    rgb : ndarray (n, 3) uint8, or None when no piece has colour
+    MeshSamples
     """
     rng = np.random.default_rng(seed)
     areas = [piece.areas() for piece in pieces]
@@ -177,19 +257,23 @@ def sample_pieces(
     r1, r2 = rng.random(n), rng.random(n)
     root = np.sqrt(r1)
     bary = np.stack([1.0 - root, root * (1.0 - r2), root * r2], axis=1)
+    nearest = bary.argmax(axis=1)  # the corner with the largest weight is the nearest one
     offsets = np.cumsum([0] + [a.size for a in areas])
     bounds = np.searchsorted(face, offsets)  # samples are sorted by face, so pieces are runs
     xyz = np.empty((n, 3), dtype=np.float64)
     coloured = any(piece.colour.kind != "none" for piece in pieces)
     rgb = np.empty((n, 3), dtype=np.uint8) if coloured else None
-    for i, piece in enumerate(pieces):
-        run = slice(int(bounds[i]), int(bounds[i + 1]))
+    runs = [slice(int(bounds[i]), int(bounds[i + 1])) for i in range(len(pieces))]
+    corner: list[np.ndarray] = []
+    for i, (piece, run) in enumerate(zip(pieces, runs, strict=True)):
         local = face[run] - offsets[i]
         corners = piece.vertices[piece.faces[local]]
         xyz[run] = np.einsum("kc,kcd->kd", bary[run], corners)
+        corner.append(piece.faces[local, nearest[run]])
         if rgb is not None:
             rgb[run] = piece.colour.at(piece.faces, local, bary[run])
-    return xyz, rgb
+    labels, fields = _carry(pieces, corner, runs, n)
+    return MeshSamples(xyz, rgb, labels, fields)
 
 
 def main_colour_kind(pieces: list[MeshPiece]) -> ColourKind:

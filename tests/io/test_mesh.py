@@ -250,13 +250,109 @@ def test_ply_mesh_is_sampled_with_its_comments(tmp_path: Path, binary: bool) -> 
     assert scan.source_format == "ply" and len(scan) == PER_M2
     assert (scan.rgb == RED).all() and scan.meta["mesh"]["colour"] == "vertex"
     assert scan.meta["comments"] == ["Created by Polycam", "up axis: y", "scanned 2025"]
-    assert scan.labels is None and not scan.fields  # sampled points carry no vertex labels
+    assert set(np.unique(scan.labels)) == {2, 7} and not scan.fields  # the vertices' labels
+    assert scan.meta["mesh"]["labels"] == "nearest vertex"
     assert probe_scan(path).n_points == PER_M2
     with open_chunks(path) as chunks:  # a mesh is read whole, then sliced
         assert not chunks.streams and chunks.count == PER_M2
         np.testing.assert_array_equal(
             np.concatenate([c.xyz for c in chunks.chunks(1000)]), scan.xyz
         )
+
+
+#: A rhombus of two equilateral triangles (ABC, BDC) on z = 0: in an equilateral triangle the
+#: corner with the largest barycentric weight is the nearest one, and no point of one triangle
+#: is nearer to the other's far corner, so a point's nearest vertex of all four is the nearest
+#: corner of its triangle.
+RHOMBUS_V = np.array(
+    [[0, 0, 0], [1, 0, 0], [0.5, math.sqrt(3) / 2, 0], [1.5, math.sqrt(3) / 2, 0]], dtype=float
+)
+RHOMBUS_F = np.array([[0, 1, 2], [1, 3, 2]])
+RHOMBUS_LABELS = np.array([3, 7, 3, 7])
+RHOMBUS_INTENSITY = np.array([10.0, 20.0, 30.0, 40.0])
+
+
+def _labelled_rhombus(
+    path: Path, label: str | None, *, binary: bool = True, texcoord: bool = False
+) -> None:
+    """The rhombus as a PLY mesh with colour, alpha, normals, ``intensity`` and (under the name
+    ``label``, when given) the vertex labels 3 and 7; ``texcoord``: per-face UVs that differ at
+    the shared vertices, so trimesh splits those vertices."""
+    props = [(a, "f4") for a in ("x", "y", "z", "nx", "ny", "nz")]
+    props += [(c, "u1") for c in ("red", "green", "blue", "alpha")] + [("intensity", "f4")]
+    vertex = np.zeros(4, dtype=props + ([(label, "u2")] if label else []))
+    for i, axis in enumerate("xyz"):
+        vertex[axis] = RHOMBUS_V[:, i]
+    vertex["nz"], vertex["red"], vertex["alpha"] = 1.0, 255, 255
+    vertex["intensity"] = RHOMBUS_INTENSITY
+    if label:
+        vertex[label] = RHOMBUS_LABELS
+    face_props: list[Any] = [("vertex_indices", "i4", (3,))]
+    face = np.zeros(2, dtype=face_props + ([("texcoord", "f4", (6,))] if texcoord else []))
+    face["vertex_indices"] = RHOMBUS_F
+    if texcoord:
+        face["texcoord"] = [[0, 0, 0.5, 0, 0, 0.5], [0.5, 0.5, 1, 1, 0.5, 1]]
+    elements = [PlyElement.describe(vertex, "vertex"), PlyElement.describe(face, "face")]
+    PlyData(elements, text=not binary).write(str(path))
+
+
+def _nearest_vertex(xyz: np.ndarray) -> np.ndarray:
+    """Index of the rhombus vertex nearest to each point (from the geometry alone)."""
+    return np.linalg.norm(xyz[:, None, :] - RHOMBUS_V[None], axis=2).argmin(axis=1)
+
+
+@pytest.mark.parametrize(
+    ("label", "binary", "texcoord"),
+    [
+        ("label", True, False),
+        ("label", False, False),
+        ("scalar_Classification", True, False),
+        ("CLASS", False, True),
+    ],
+)
+def test_ply_mesh_vertex_labels_and_properties_go_to_the_nearest_points(
+    tmp_path: Path, label: str, binary: bool, texcoord: bool
+) -> None:
+    """ScanNet's ``*_vh_clean_2.labels.ply`` is such a mesh: its labels are the ground truth."""
+    path = tmp_path / "labelled.ply"
+    _labelled_rhombus(path, label, binary=binary, texcoord=texcoord)
+    if texcoord:  # the case where trimesh's vertices are not the file's
+        assert len(trimesh.load(path, process=False).vertices) > 4
+    scan = read_scan(path)
+    nearest = _nearest_vertex(scan.xyz)
+    assert len(np.unique(nearest)) == 4  # every corner has points
+    np.testing.assert_array_equal(scan.labels, RHOMBUS_LABELS[nearest])
+    assert scan.labels.dtype == np.int32 and set(np.unique(scan.labels)) == {3, 7}
+    assert set(scan.fields) == {"intensity"}  # no normals, no alpha
+    np.testing.assert_array_equal(scan.fields["intensity"], RHOMBUS_INTENSITY[nearest])
+    assert scan.fields["intensity"].dtype == np.float32
+    assert texcoord or (scan.rgb == RED).all()  # (UVs without an image: trimesh's grey)
+    assert scan.meta["mesh"]["labels"] == "nearest vertex"
+    info = probe_scan(path)
+    assert (info.has_labels, info.fields, info.n_points) == (True, ("intensity",), len(scan))
+
+
+def test_ply_mesh_without_labels_carries_nothing(tmp_path: Path) -> None:
+    path = tmp_path / "unlabelled.ply"
+    _labelled_rhombus(path, None)
+    scan = read_scan(path)
+    assert scan.labels is None and scan.fields == {}
+    assert "labels" not in scan.meta["mesh"]
+    assert not probe_scan(path).has_labels
+
+
+def test_ply_mesh_labels_that_are_no_class_keep_their_raw_values(tmp_path: Path) -> None:
+    """ScanNet's labels are NYU40 ids: as read_ply does, those outside the classes are -1, and
+    the raw value of the nearest vertex is kept as ``raw_label``."""
+    path = tmp_path / "nyu40.ply"
+    _labelled_rhombus(path, "label")
+    data = PlyData.read(str(path), mmap=False)
+    data["vertex"].data["label"] = (3, 7, 3, 39)
+    data.write(str(path))
+    scan = read_scan(path)
+    nearest = _nearest_vertex(scan.xyz)
+    np.testing.assert_array_equal(scan.labels, np.array([3, 7, 3, -1])[nearest])
+    np.testing.assert_array_equal(scan.fields["raw_label"], np.array([3, 7, 3, 39])[nearest])
 
 
 def test_ply_face_colours(tmp_path: Path) -> None:
