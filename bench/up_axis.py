@@ -32,7 +32,8 @@ from scipy.optimize import minimize
 
 from jointseg.frame import gravity, weigh
 from jointseg.frame.colour import decide_colour
-from jointseg.frame.decide import UNSURE, gather, judge_candidates, rotation_about
+from jointseg.frame.decide import UP_UNSURE as UNSURE
+from jointseg.frame.decide import gather, judge_candidates, rotation_about
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES
 from jointseg.io import read_scan
@@ -171,7 +172,7 @@ def gather_all(items: list[Case], judge_all: bool) -> list[dict]:
                 "delivery": c.delivery,
                 "judging": c.judging,
                 "truth": c.truth,
-                "base": g.evidence.base(),
+                "evidence": g.evidence,
                 "net": judged,
                 "seconds": time.perf_counter() - t,
             }
@@ -181,41 +182,60 @@ def gather_all(items: list[Case], judge_all: bool) -> list[dict]:
     return rows
 
 
+def decided(row: dict, p: np.ndarray) -> tuple[str, float]:
+    """The axis chosen from the probabilities (the file's own axis kept on too little), and its
+    confidence."""
+    name = weigh.choose(p, row["evidence"].file_axis)
+    return name, float(p[SIGNED_AXES.index(name)])
+
+
 def decide(row: dict, base_w: np.ndarray, full_w: np.ndarray, use_net: bool) -> np.ndarray:
     """The six probabilities, as jointseg.frame.weigh gives them."""
-    base_p = weigh.softmax(row["base"] @ base_w)
+    base = row["evidence"].base()
+    base_p = weigh.softmax(base @ base_w)
     if not use_net or not row["net"]:
         return base_p
     top = np.argsort(-base_p, kind="stable")[: weigh.JUDGED]
     z = np.full(6, -np.inf)
     for i in top:
-        z[i] = np.concatenate([row["base"][i], row["net"][SIGNED_AXES[i]]]) @ full_w
+        z[i] = np.concatenate([base[i], row["net"][SIGNED_AXES[i]]]) @ full_w
     return weigh.softmax(z)
+
+
+#: How often scans arrive each way, relative to the bench's even mix: the fit weighs each case by
+#: it, so its priors are the world's, not the bench's (z up as is most; upside down and x up rare).
+DELIVERY_WEIGHT = {
+    "z up, as is": 6.0, "z up, LAS": 2.0, "z up, tilted": 2.0, "z up, 1.2 m slice": 2.0,
+    "z up, half room": 2.0, "upside down": 0.2, "x up": 0.3,
+}  # fmt: skip
 
 
 def _nll(w: np.ndarray, rows: list[dict], full: bool, base_w: np.ndarray, l2: float) -> float:
     total = 0.0
     for r in rows:
+        base = r["evidence"].base()
         if full:
-            base_p = weigh.softmax(r["base"] @ base_w)
+            base_p = weigh.softmax(base @ base_w)
             top = np.argsort(-base_p, kind="stable")[: weigh.JUDGED]
             names = [SIGNED_AXES[i] for i in top]
             if r["truth"] not in names:
                 continue
-            x = np.array([np.concatenate([r["base"][i], r["net"][SIGNED_AXES[i]]]) for i in top])
+            x = np.array(
+                [np.concatenate([base[i], r["net"][SIGNED_AXES[i]]]) for i in top]
+            )
             t = names.index(r["truth"])
         else:
-            x, t = r["base"], SIGNED_AXES.index(r["truth"])
+            x, t = base, SIGNED_AXES.index(r["truth"])
         z = x @ w
-        total += float(np.logaddexp.reduce(z) - z[t])
+        total += DELIVERY_WEIGHT.get(r["delivery"], 1.0) * float(np.logaddexp.reduce(z) - z[t])
     return total + l2 * float(w @ w)
 
 
 def fit(rows: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     known = [r for r in rows if r["truth"] is not None]
-    base = minimize(_nll, weigh.BASE_WEIGHTS * 0 + 1.0, args=(known, False, None, 0.1)).x
+    base = minimize(_nll, np.ones(len(weigh.BASE_FEATURES)), args=(known, False, None, 1.0)).x
     x0 = np.r_[base, np.zeros(len(weigh.FULL_FEATURES) - len(base))]
-    full = minimize(_nll, x0, args=(known, True, base, 0.1), method="L-BFGS-B").x
+    full = minimize(_nll, x0, args=(known, True, base, 1.0), method="L-BFGS-B").x
     return base, full
 
 
@@ -234,11 +254,11 @@ def table(rows: list[dict], base_w: np.ndarray, full_w: np.ndarray, use_net: boo
                 continue
             right = wrong = silent = warned = sure = sure_right = 0
             for r in part:
-                p = decide(r, base_w, full_w, use_net)
-                ok = SIGNED_AXES[int(np.argmax(p))] == r["truth"]
+                name, conf = decided(r, decide(r, base_w, full_w, use_net))
+                ok = name == r["truth"]
                 right += ok
                 wrong += not ok
-                if p.max() >= UNSURE:
+                if conf >= UNSURE:
                     sure += 1
                     sure_right += ok
                     silent += not ok
@@ -256,13 +276,10 @@ def by_delivery(rows: list[dict], base_w: np.ndarray, full_w: np.ndarray) -> Non
     print("|---|---|---|---|")
     for d in sorted({r["delivery"] for r in rows if r["judging"]}):
         part = [r for r in rows if r["judging"] and r["delivery"] == d]
-        ps = [decide(r, base_w, full_w, True) for r in part]
-        pairs = list(zip(part, ps, strict=True))
-        right = sum(SIGNED_AXES[int(np.argmax(p))] == r["truth"] for r, p in pairs)
-        silent = sum(
-            SIGNED_AXES[int(np.argmax(p))] != r["truth"] and p.max() >= UNSURE
-            for r, p in zip(part, ps, strict=True)
-        )
+        got = [decided(r, decide(r, base_w, full_w, True)) for r in part]
+        pairs = list(zip(part, got, strict=True))
+        right = sum(name == r["truth"] for r, (name, _) in pairs)
+        silent = sum(name != r["truth"] and conf >= UNSURE for r, (name, conf) in pairs)
         print(f"| {d} | {len(part)} | {right} | {silent} |")
 
 
@@ -271,11 +288,11 @@ def calibration(rows: list[dict], base_w: np.ndarray, full_w: np.ndarray) -> Non
     print("|---|---|---|")
     edges = [0.0, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99, 1.01]
     part = [r for r in rows if r["judging"] and r["truth"] is not None]
-    ps = [decide(r, base_w, full_w, True) for r in part]
+    got = [decided(r, decide(r, base_w, full_w, True)) for r in part]
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        sel = [(r, p) for r, p in zip(part, ps, strict=True) if lo <= p.max() < hi]
+        sel = [(r, n) for r, (n, c) in zip(part, got, strict=True) if lo <= c < hi]
         if sel:
-            ok = sum(SIGNED_AXES[int(np.argmax(p))] == r["truth"] for r, p in sel)
+            ok = sum(n == r["truth"] for r, n in sel)
             print(f"| {lo:.2f}-{min(hi, 1):.2f} | {len(sel)} | {ok / len(sel):.3f} |")
 
 
@@ -285,6 +302,10 @@ def main() -> None:
     ap.add_argument("--views", type=int, default=4, help="camera views cut from each room")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/jointseg_up_axis_cases.pkl"))
+    ap.add_argument(
+        "--regather-evidence", action="store_true",
+        help="gather the evidence before the network again, keeping the cached verdicts",
+    )  # fmt: skip
     ap.add_argument(
         "--part", choices=("decisions", "miou"), default="decisions",
         help="decisions: the tables above; miou: z-up scans' fused mIoU, auto against --up +z",
@@ -296,6 +317,12 @@ def main() -> None:
         return
     if args.cache.is_file():
         rows = pickle.loads(args.cache.read_bytes())
+        if args.regather_evidence:  # the same cases (same seed); the network's verdicts kept
+            fresh = gather_all(cases(args.views, args.seed), judge_all=False)
+            for old, new in zip(rows, fresh, strict=True):
+                assert (old["name"], old["delivery"]) == (new["name"], new["delivery"])
+                old["evidence"] = new["evidence"]
+            args.cache.write_bytes(pickle.dumps(rows))
     else:
         rows = gather_all(cases(args.views, args.seed), judge_all=True)
         args.cache.write_bytes(pickle.dumps(rows))
@@ -313,9 +340,8 @@ def main() -> None:
     print("\nother sensors, as decided:")
     for r in rows:
         if r["source"] == "other sensors":
-            p = decide(r, base_w, full_w, True)
-            name = SIGNED_AXES[int(np.argmax(p))]
-            print(f"  {r['name']}: {name} ({p.max():.2f}); truth {r['truth'] or 'unknown'}")
+            name, conf = decided(r, decide(r, base_w, full_w, True))
+            print(f"  {r['name']}: {name} ({conf:.2f}); truth {r['truth'] or 'unknown'}")
 
 
 def miou_part() -> None:

@@ -37,6 +37,9 @@ MIN_ROOM_HEIGHT_M = 1.5
 MIN_PLAUSIBLE_M, MAX_PLAUSIBLE_M = 0.05, 200.0
 #: Decisions less sure than this are reported as warnings.
 UNSURE = 0.6
+#: An up axis less probable than this is reported as a warning naming ``--up``: the lowest
+#: threshold at which 98 % of the tuning scans' decisions were right (``bench/up_axis.py``).
+UP_UNSURE = 0.7
 
 
 @dataclass(frozen=True)
@@ -179,7 +182,7 @@ def decide_frame(
     work = ((scan.xyz - centre) @ rotation.T) * units.metres
     stray = find_strays(work) if params.strays else np.zeros(len(scan), dtype=bool)
     identity = bool(up.axis == "+z" and not levelled and units.metres == 1.0)
-    if up.confidence < UNSURE:
+    if up.confidence < UP_UNSURE:
         warnings.append(
             f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
             "or set it with --up"
@@ -234,7 +237,8 @@ def gather(scan: Scan, sample: gravity.FrameSample, params: FrameParams) -> Gath
     tall = sample.extent(sample.directions[top]) * units[top].metres >= MIN_ROOM_HEIGHT_M
     evidence = weigh.Evidence(
         file=said.prior,
-        geometry=weigh.geometry_logp(axis_p, sign_p),
+        axis_p=axis_p,
+        sign_p=sign_p,
         room_like=bool(tall and capture.kind == "scan"),
         camera_up=capture.camera_up or ("-y" if said.camera else None),
     )
@@ -293,7 +297,7 @@ def decide_up(
         "capture": g.capture.report(),
         "room_like": g.evidence.room_like,
         "geometry": dict(
-            zip(SIGNED_AXES, np.round(np.exp(g.evidence.geometry), 4).tolist(), strict=True)
+            zip(SIGNED_AXES, np.round(g.evidence.geometry, 4).tolist(), strict=True)
         ),
         **result.report(),
     }

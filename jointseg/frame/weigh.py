@@ -20,49 +20,104 @@ from typing import Any
 import numpy as np
 
 from jointseg.frame import judge
-from jointseg.frame.sources import SIGNED_AXES
+from jointseg.frame.sources import SIGNED_AXES, STRONG
 
-#: Feature names of one candidate; the network's come last and exist only for judged ones.
-BASE_FEATURES: tuple[str, ...] = ("file", "geometry_room", "geometry_view", "camera")
+#: Feature names of one candidate; the network's come last and exist only for judged ones. The
+#: geometry's axis step and sign step count apart (the sign is the less sure of the two), and
+#: apart for room-like scans and for single views or slices.
+BASE_FEATURES: tuple[str, ...] = (
+    "file",
+    "axis_room",
+    "sign_room",
+    "axis_view",
+    "sign_view",
+    "camera",
+    "upside_down",
+)
 FULL_FEATURES: tuple[str, ...] = BASE_FEATURES + tuple(f"net_{f}" for f in judge.FEATURES)
 #: Candidates the network judges.
 JUDGED = 3
-#: Geometry log-probabilities are floored here (a certain model is never quite certain).
-MIN_P = 1e-4
+#: A file's own axis (its format's, its writer's, or a plain file's z up) is kept unless another
+#: axis is at least this probable; an upside-down reading of it needs :data:`KEEP_UPSIDE_DOWN`.
+#: Turning a scan that arrived right is worse than not turning one that arrived wrong.
+KEEP, KEEP_UPSIDE_DOWN = 0.6, 0.95
+#: The geometry's probabilities are floored here: a fitted model sure of a wrong axis (a narrow,
+#: tall room taken as lying on its side) must not outvote everything else.
+MIN_P = 0.02
 
 MODEL_FILE = Path(__file__).with_name("up_model.json")
 _MODEL = json.loads(MODEL_FILE.read_text()) if MODEL_FILE.is_file() else {}
+_FITTED = _MODEL.get("weigh", {})
+_FITS = _FITTED.get("features") == list(FULL_FEATURES)
 #: Fitted weights: without the network (``base``) and with it (``full``).
-BASE_WEIGHTS = np.array(_MODEL.get("weigh", {}).get("base", [1.0, 1.0, 0.3, 2.0]))
+BASE_WEIGHTS = np.array(_FITTED["base"] if _FITS else [1.0] * len(BASE_FEATURES))
 FULL_WEIGHTS = np.array(
-    _MODEL.get("weigh", {}).get("full", [1.0, 1.0, 0.3, 2.0, 10.0, 3.0, -3.0, 1.0, -1.0, 2.0])
+    _FITTED["full"] if _FITS else [1.0] * len(BASE_FEATURES) + [5.0, 2.0, -2.0, 1.0, -1.0, 2.0]
 )
 
 
 @dataclass(frozen=True)
 class Evidence:
-    """Per-candidate evidence before the network (arrays over :data:`SIGNED_AXES`)."""
+    """The evidence on up before the network.
+
+    Attributes
+    ----------
+    file : ndarray of shape (6,)
+        The file's log-prior per signed axis (:data:`SIGNED_AXES`).
+    axis_p, sign_p : ndarray of shape (3,)
+        The geometry's probability that file axis i is the vertical one, and that +i rather
+        than -i is up.
+    room_like : bool
+        A scan of a room (tall enough, not one camera's view).
+    camera_up : str, optional
+        The up of a single camera view by its convention.
+    """
 
     file: np.ndarray
-    geometry: np.ndarray  # log-probability of each signed axis from the geometry alone
+    axis_p: np.ndarray
+    sign_p: np.ndarray
     room_like: bool
     camera_up: str | None
 
+    @property
+    def file_axis(self) -> str | None:
+        """The axis the delivery itself says is up: the file's (its format's or writer's, or a
+        plain file's z), except that a single camera view in a plain file is in the camera's
+        frame, whose convention says up; None when neither says anything."""
+        best = int(np.argmax(self.file))
+        if self.file[best] <= 0:
+            return self.camera_up
+        if self.camera_up is not None and self.file[best] < STRONG:
+            return self.camera_up
+        return SIGNED_AXES[best]
+
+    @property
+    def geometry(self) -> np.ndarray:
+        """(6,): the geometry's probability of each signed axis."""
+        return _signed(self.axis_p) * _signs(self.sign_p)
+
     def base(self) -> np.ndarray:
         """(6, len(BASE_FEATURES)) features of the six candidates."""
+        axis = np.log(np.clip(_signed(self.axis_p), MIN_P, 1.0))
+        sign = np.log(np.clip(_signs(self.sign_p), MIN_P, 1.0))
+        zero = np.zeros(6)
         camera = np.array([float(a == self.camera_up) for a in SIGNED_AXES])
-        room = self.geometry if self.room_like else np.zeros(6)
-        view = np.zeros(6) if self.room_like else self.geometry
-        return np.column_stack([self.file, room, view, camera])
+        upside = np.array([float(a == "-z") for a in SIGNED_AXES])
+        room = (axis, sign, zero, zero) if self.room_like else (zero, zero, axis, sign)
+        return np.column_stack([self.file, *room, camera, upside])
 
 
-def geometry_logp(axis_p: np.ndarray, sign_p: np.ndarray) -> np.ndarray:
-    """Log-probability of each signed axis from the axis step's (3,) and the sign step's (3,)
-    probabilities (``sign_p[i]``: +i rather than -i is up)."""
+def _signed(per_axis: np.ndarray) -> np.ndarray:
+    """(3,) per file axis to (6,) per signed axis, each value twice."""
+    return np.repeat(np.asarray(per_axis, dtype=np.float64), 2)
+
+
+def _signs(sign_p: np.ndarray) -> np.ndarray:
+    """(3,) probabilities of +i to (6,) of +i and -i."""
     p = np.empty(6)
-    p[0::2] = axis_p * sign_p
-    p[1::2] = axis_p * (1.0 - sign_p)
-    return np.log(np.clip(p, MIN_P, 1.0))
+    p[0::2] = sign_p
+    p[1::2] = 1.0 - np.asarray(sign_p)
+    return p
 
 
 def softmax(z: np.ndarray) -> np.ndarray:
@@ -84,13 +139,16 @@ class Weighed:
     base_p: np.ndarray
     judged: dict[str, np.ndarray]
 
+    file_axis: str | None = None
+
     @property
     def best(self) -> str:
-        return SIGNED_AXES[int(np.argmax(self.p))]
+        """The most probable axis, unless it overturns the file's own axis on too little."""
+        return choose(self.p, self.file_axis)
 
     @property
     def confidence(self) -> float:
-        return float(self.p.max())
+        return float(self.p[SIGNED_AXES.index(self.best)])
 
     def report(self) -> dict[str, Any]:
         """The ``frame.up.evidence`` probabilities for report.json."""
@@ -107,6 +165,18 @@ class Weighed:
         }
 
 
+def choose(p: np.ndarray, file_axis: str | None) -> str:
+    """The decision from the candidates' probabilities ``p``: the most probable, but the file's
+    own axis wins unless the other is at least :data:`KEEP` probable (its opposite at least
+    :data:`KEEP_UPSIDE_DOWN`)."""
+    best = SIGNED_AXES[int(np.argmax(p))]
+    if file_axis is None or best == file_axis:
+        return best
+    opposite = best[1] == file_axis[1]
+    needed = KEEP_UPSIDE_DOWN if opposite else KEEP
+    return best if p.max() >= needed else file_axis
+
+
 def candidates(evidence: Evidence, k: int = JUDGED) -> list[str]:
     """The ``k`` most likely signed axes before the network."""
     base_p = softmax(evidence.base() @ BASE_WEIGHTS)
@@ -118,10 +188,11 @@ def weigh(evidence: Evidence, judged: dict[str, np.ndarray] | None = None) -> We
     candidates when the network judged some."""
     base = evidence.base()
     base_p = softmax(base @ BASE_WEIGHTS)
+    file_axis = evidence.file_axis
     if not judged:
-        return Weighed(base_p, base_p, {})
+        return Weighed(base_p, base_p, {}, file_axis)
     z = np.full(6, -np.inf)
     for name, feats in judged.items():
         i = SIGNED_AXES.index(name)
         z[i] = np.concatenate([base[i], feats]) @ FULL_WEIGHTS
-    return Weighed(softmax(z), base_p, dict(judged))
+    return Weighed(softmax(z), base_p, dict(judged), file_axis)

@@ -11,7 +11,7 @@ import pytest
 
 from jointseg.frame import gravity
 from jointseg.frame.capture import capture_kind
-from jointseg.frame.decide import UNSURE, decide_frame, rotation_about, rotation_to_z
+from jointseg.frame.decide import UP_UNSURE, decide_frame, rotation_about, rotation_to_z
 from jointseg.frame.judge import FEATURES, net_features
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES, file_evidence
@@ -118,7 +118,7 @@ def test_a_level_scan_is_not_levelled_by_a_slanted_surface(room) -> None:
 def test_a_clean_z_up_room_is_kept_as_it_is(room, judge) -> None:
     frame = decide_frame(room, judge=judge)
     assert frame.up.axis == "+z" and frame.identity
-    assert frame.up.confidence >= UNSURE and not frame.warnings
+    assert frame.up.confidence >= UP_UNSURE and not frame.warnings
     evidence = frame.report()["up"]["evidence"]
     assert set(evidence) >= {"file", "capture", "geometry", "network", "probabilities"}
     assert "+z" in evidence["network"]
@@ -139,7 +139,7 @@ def test_the_network_judges_a_room_delivered_another_way(room, judge, up) -> Non
 def test_a_y_up_export_is_read_y_up(room, judge, source_format, meta) -> None:
     frame = decide_frame(turned(room, "+y", source_format=source_format, meta=meta), judge=judge)
     assert frame.up.axis == "+y"
-    assert frame.up.confidence >= UNSURE
+    assert frame.up.confidence >= UP_UNSURE
 
 
 @needs_weights
