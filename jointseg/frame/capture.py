@@ -24,6 +24,10 @@ MIN_CONE_DEGREES, MAX_CONE_DEGREES = 20.0, 78.0
 #: ... and the nearest points between these shares of the median range: the camera does not
 #: sit inside the cloud, and it sees near and far (a distant room is a narrow shell of ranges).
 MIN_NEAR_SHARE, MAX_NEAR_SHARE = 0.05, 0.9
+#: ... and it sees one surface along each ray (a depth image): at most this share of its
+#: pixels (:data:`PIXEL_DEGREES` across) hold points more than :data:`LAYER_GAP` of their
+#: range apart. A room seen from outside its own corner is hit twice along most rays.
+MAX_LAYERED, PIXEL_DEGREES, LAYER_GAP = 0.33, 1.0, 0.15
 #: Points the test looks at.
 SAMPLE = 50_000
 
@@ -73,8 +77,32 @@ def capture_kind(xyz: np.ndarray) -> Capture:
             in_front >= IN_FRONT
             and MIN_CONE_DEGREES <= cone <= MAX_CONE_DEGREES
             and MIN_NEAR_SHARE <= near <= MAX_NEAR_SHARE
+            and layered(p * sign, r) <= MAX_LAYERED
         ):
             return Capture("camera view", name, in_front, cone)
         if in_front > best.in_front:
             best = Capture("scan", None, in_front, cone)
     return best
+
+
+def layered(p: np.ndarray, r: np.ndarray) -> float:
+    """The share of a depth image's pixels (rays from the origin, looking along +z) whose
+    points lie at ranges more than :data:`LAYER_GAP` of their own apart."""
+    front = p[:, 2] > 0
+    p, r = p[front], r[front]
+    if len(p) < 20:
+        return 1.0
+    step = np.tan(np.radians(PIXEL_DEGREES))
+    u = np.floor(p[:, 0] / p[:, 2] / step).astype(np.int64)
+    v = np.floor(p[:, 1] / p[:, 2] / step).astype(np.int64)
+    pixel = (u - u.min()) * (int(v.max() - v.min()) + 1) + (v - v.min())
+    order = np.argsort(pixel, kind="stable")
+    pixel, r = pixel[order], r[order]
+    starts = np.flatnonzero(np.r_[True, pixel[1:] != pixel[:-1]])
+    counts = np.diff(np.r_[starts, len(pixel)])
+    lo = np.minimum.reduceat(r, starts)
+    hi = np.maximum.reduceat(r, starts)
+    several = counts >= 2
+    if not several.any():
+        return 0.0
+    return float(((hi - lo) > LAYER_GAP * lo)[several].mean())

@@ -41,6 +41,8 @@ JUDGED = 3
 #: axis is at least this probable; an upside-down reading of it needs :data:`KEEP_UPSIDE_DOWN`.
 #: Turning a scan that arrived right is worse than not turning one that arrived wrong.
 KEEP, KEEP_UPSIDE_DOWN = 0.6, 0.95
+#: ... while the file's own axis is itself at least this probable (not when all else rules it out).
+KEEP_FLOOR = 0.2
 #: The geometry's probabilities are floored here: a fitted model sure of a wrong axis (a narrow,
 #: tall room taken as lying on its side) must not outvote everything else.
 MIN_P = 0.02
@@ -170,7 +172,7 @@ def choose(p: np.ndarray, file_axis: str | None) -> str:
     own axis wins unless the other is at least :data:`KEEP` probable (its opposite at least
     :data:`KEEP_UPSIDE_DOWN`)."""
     best = SIGNED_AXES[int(np.argmax(p))]
-    if file_axis is None or best == file_axis:
+    if file_axis is None or best == file_axis or p[SIGNED_AXES.index(file_axis)] < KEEP_FLOOR:
         return best
     opposite = best[1] == file_axis[1]
     needed = KEEP_UPSIDE_DOWN if opposite else KEEP

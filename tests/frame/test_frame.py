@@ -61,28 +61,40 @@ def moved(room: Scan, r: np.ndarray, scale: float = 1.0) -> Scan:
 
 
 def test_the_up_direction_of_synthetic_rooms_is_found_from_any_axis_and_tilt() -> None:
+    """Without the network: the five ways a room arrives other than upside down are found;
+    an upside-down file (rare, and worse to read wrongly) is turned only on strong evidence, and
+    is otherwise kept with a warning or read right."""
     rng = np.random.default_rng(7)
-    right, cases, tilt_errors = 0, 0, []
+    right, cases, tilt_errors, upside = 0, 0, [], []
     for seed in (3201, 3202, 3203, 3204):
         scan = make_room(seed, points=40_000, shape="L" if seed % 2 else "box")
         for up in gravity.AXES:
             tilt = rotation_about(np.array([*rng.normal(size=2), 0.0]), rng.uniform(0, 15))
             r = delivered(up) @ tilt
             frame = decide_frame(moved(scan, r), FrameParams(strays=False))
+            if up == "-z":
+                upside.append(frame.up.axis == up or bool(frame.warnings))
+                continue
             cases += 1
             if frame.up.axis == up:
                 right += 1
                 true_up = r @ np.array([0.0, 0.0, 1.0])
                 tilt_errors.append(np.degrees(np.arccos(np.clip(frame.up.up @ true_up, -1, 1))))
-    assert right >= 0.8 * cases, (right, cases)
+    assert right >= 0.85 * cases, (right, cases)
     assert np.median(tilt_errors) < 1.5, tilt_errors
+    assert sum(upside) >= 3, upside
 
 
 @needs_weights
 @pytest.mark.parametrize("up", ["+y", "-y", "+x", "-z"])
 def test_another_up_axis_gives_the_level_labels(room, predictor, level, up) -> None:
     result = run(moved(room, delivered(up)), PipelineConfig(), predictor=predictor)
-    assert result.frame is not None and result.frame.up.axis == up
+    assert result.frame is not None
+    if up == "-z" and result.frame.up.axis == "+z":
+        # upside down needs strong evidence to overturn the file's own z: kept, it must say so
+        assert any("--up" in w for w in result.frame.warnings), result.frame.report()["up"]
+        return
+    assert result.frame.up.axis == up
     agree = np.mean(result.fused_labels == level.fused_labels)
     assert agree >= 0.9, (up, agree)
 
@@ -305,8 +317,8 @@ def test_a_slice_of_a_room_keeps_the_files_up(room) -> None:
     # the bottom metre of a room (like the S3DIS fragment): no ceiling, no storey to read
     low = room.subset(room.xyz[:, 2] < room.xyz[:, 2].min() + 1.0)
     frame = decide_frame(low)
-    assert frame.up.axis == "+z" and "partial" in frame.up_how
-    assert any("up axis unsure" in w for w in frame.warnings)
+    assert frame.up.axis == "+z" and not frame.levelled
+    assert not frame.report()["up"]["evidence"]["room_like"]
 
 
 def test_millimetres_forced_as_metres_give_labels_and_a_warning(room, predictor) -> None:

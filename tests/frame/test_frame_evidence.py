@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from jointseg.frame import gravity
+from jointseg.frame import gravity, weigh
 from jointseg.frame.capture import capture_kind
 from jointseg.frame.decide import UP_UNSURE, decide_frame, rotation_about, rotation_to_z
 from jointseg.frame.judge import FEATURES, net_features
@@ -125,10 +125,21 @@ def test_a_clean_z_up_room_is_kept_as_it_is(room, judge) -> None:
 
 
 @needs_weights
-@pytest.mark.parametrize("up", ["-z", "+y", "+x"])
+@pytest.mark.parametrize("up", ["+y", "-y", "+x"])
 def test_the_network_judges_a_room_delivered_another_way(room, judge, up) -> None:
     frame = decide_frame(turned(room, up), judge=judge)
     assert frame.up.axis == up, frame.report()["up"]
+
+
+@needs_weights
+def test_an_upside_down_file_is_turned_only_on_strong_evidence(room, judge) -> None:
+    frame = decide_frame(turned(room, "-z"), judge=judge)
+    p = frame.report()["up"]["evidence"]["probabilities"]
+    if frame.up.axis == "-z":  # strong evidence for it, or next to none for the file's z
+        assert p["-z"] >= weigh.KEEP_UPSIDE_DOWN or p["+z"] < weigh.KEEP_FLOOR
+    else:  # kept as the file has it, and said so
+        assert frame.up.axis == "+z" and p["-z"] < weigh.KEEP_UPSIDE_DOWN
+        assert any("--up" in w for w in frame.warnings)
 
 
 @needs_weights
