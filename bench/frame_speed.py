@@ -1,5 +1,6 @@
 """Whole-process time of `jointseg segment` with the frame stage against the code before it,
-in the same command (issue 31's bar: a 1 M-point room no slower than 1.1x).
+in the same command (issue 31's bar: a 1 M-point room no slower than 1.1x; issue 41's: the
+frame stage itself, the network judging included, at most 1 s).
 
 The baseline is a git worktree of ``--baseline`` (default: the last commit before the frame
 stage) run with the same Python; the runs alternate (old, new, old, new, ...) so that load on
@@ -38,12 +39,28 @@ def timed_segment(code: Path, scan: Path, out: Path) -> tuple[float, dict]:
     return time.perf_counter() - t, json.loads(report.read_text())
 
 
+def turn_y_up(path: Path) -> None:
+    """Rewrite the scan at ``path`` turned y up ((x, y, z) -> (x, z, -y)), as glTF and many
+    exports deliver."""
+    from dataclasses import replace
+
+    from jointseg.io import read_scan, write_scan
+
+    scan = read_scan(path)
+    xyz = scan.xyz[:, [0, 2, 1]] * [1.0, 1.0, -1.0]
+    write_scan(replace(scan, xyz=xyz), path)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--seed", type=int, default=1501)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--baseline", default="0ae0b2e")
+    ap.add_argument(
+        "--deliver", default="+z", choices=("+z", "+y"),
+        help="+y: the room turned y up first (a plain y-up export: the network judges)",
+    )  # fmt: skip
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -59,8 +76,11 @@ def main() -> None:
                  "--points", str(args.points), "-o", str(scan)],
                 check=True, cwd=ROOT, capture_output=True,
             )  # fmt: skip
+            if args.deliver == "+y":
+                turn_y_up(scan)
             rows: dict[str, list[float]] = {"before": [], "frame stage": []}
             frame_s: list[float] = []
+            old_frame_s: list[float] = []
             labels_same = []
             for i in range(args.repeats):
                 a, old_report = timed_segment(old, scan, work / f"old{i}.ply")
@@ -68,6 +88,7 @@ def main() -> None:
                 rows["before"].append(a)
                 rows["frame stage"].append(b)
                 frame_s.append(new_report["timings_s"].get("frame", float("nan")))
+                old_frame_s.append(old_report["timings_s"].get("frame", float("nan")))
                 labels_same.append(
                     old_report["metrics"]["fused"]["miou"] == new_report["metrics"]["fused"]["miou"]
                 )
@@ -84,7 +105,8 @@ def main() -> None:
     print(f"| before ({args.baseline}) | {before:.2f} | 1.00 |")
     print(f"| with the frame stage | {after:.2f} | {after / before:.3f} |")
     same = f"{sum(labels_same)} of {len(labels_same)}"
-    print(f"frame stage itself: median {statistics.median(frame_s):.2f} s; "
+    print(f"frame stage itself: median {statistics.median(frame_s):.2f} s "
+          f"(before: {statistics.median(old_frame_s):.2f} s); "
           f"same fused mIoU as before in {same} runs")  # fmt: skip
 
 

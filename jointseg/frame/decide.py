@@ -282,7 +282,8 @@ def decide_up(
     the most likely candidates (see :mod:`jointseg.frame.weigh`)."""
     g = gather(scan, sample, params)
     judged: dict[str, np.ndarray] = {}
-    if judge is not None:
+    asked = judge is not None and weigh.needs_judge(g.evidence)
+    if judge is not None and asked:
         judged = judge_candidates(g, scan, centre, colour, judge, weigh.candidates(g.evidence))
     result = weigh.weigh(g.evidence, judged)
     name = result.best
@@ -291,11 +292,14 @@ def decide_up(
     scores = dict(zip(SIGNED_AXES, np.round(result.p, 4).tolist(), strict=True))
     estimate = gravity.UpEstimate(up, name, tilt, result.confidence, scores)
     used = ["the file", "the geometry"] + (["the network"] if judged else [])
+    if judge is not None and not asked:
+        used.append("agreeing: the network not asked")
     how = f"weighed: {', '.join(used)} ({'; '.join(g.said.says)}; {g.capture.kind})"
     report = {
         "file": g.said.report(),
         "capture": g.capture.report(),
         "room_like": g.evidence.room_like,
+        "network_asked": bool(judged),
         "geometry": dict(
             zip(SIGNED_AXES, np.round(g.evidence.geometry, 4).tolist(), strict=True)
         ),
