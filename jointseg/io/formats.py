@@ -33,7 +33,7 @@ class Format:
 
 
 FORMATS: dict[str, Format] = {
-    "ply": Format("ply", ply.read_ply, ply.probe_ply, ply.write_ply),
+    "ply": Format("ply", mesh.read_ply_file, mesh.probe_ply_file, ply.write_ply),
     "las": Format("las", las.read_las, las.probe_las, partial(las.write_las, compress=False)),
     "laz": Format("laz", las.read_las, las.probe_las, partial(las.write_las, compress=True)),
     "e57": Format("e57", e57.read_e57, e57.probe_e57),

@@ -44,7 +44,14 @@ from jointseg.io.mesh_sample import (
     plan_samples,
     sample_pieces,
 )
-from jointseg.io.ply import split_vertex, vertex_columns
+from jointseg.io.ply import (
+    probe_header,
+    probe_ply,
+    read_ply,
+    split_vertex,
+    vertex_columns,
+    vertex_element,
+)
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -644,3 +651,28 @@ def probe_ply_mesh(path: Path, *, vertices: int, faces: int, max_points: int) ->
     """How many points reading a PLY mesh gives (the mesh read, nothing sampled)."""
     check_mesh_size(path, vertices, faces, max_points)
     return mesh_info(path, "ply", load_mesh(path, "ply"), max_points)
+
+
+def read_ply_file(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+    """Read any PLY: a mesh (its header declares faces) as points sampled on its faces, a point
+    cloud as :func:`jointseg.io.ply.read_ply` reads it."""
+    header = probe_header(path)
+    if not header.faces:
+        return read_ply(path, max_points=max_points, progress=progress)
+    return read_ply_mesh(
+        path,
+        comments=header.comments,
+        vertices=vertex_element(header, path).count,
+        faces=header.faces,
+        max_points=max_points,
+        progress=progress,
+    )
+
+
+def probe_ply_file(path: Path, *, max_points: int) -> ScanInfo:
+    """Probe any PLY (see :func:`read_ply_file`)."""
+    header = probe_header(path)
+    if not header.faces:
+        return probe_ply(path, max_points=max_points)
+    count = vertex_element(header, path).count
+    return probe_ply_mesh(path, vertices=count, faces=header.faces, max_points=max_points)

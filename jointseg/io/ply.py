@@ -4,9 +4,9 @@ Reading takes the ``vertex`` element: ``x y z``; colour from ``red green blue``,
 ``diffuse_red diffuse_green diffuse_blue`` (uchar kept, ushort divided by 257 unless all ≤ 255,
 float 0–1 scaled); labels from ``label``, ``class``, ``classification``,
 ``scalar_Classification`` or ``scalar_label`` (case-insensitive); every other vertex property
-becomes a field of the same name and dtype. Other elements are ignored, except faces: a PLY
-whose header declares faces is a mesh, and is read as points sampled on its faces
-(:mod:`jointseg.io.mesh`). The header's ``comment`` and ``obj_info`` lines go to
+becomes a field of the same name and dtype. Other elements are ignored here; a PLY whose header
+declares faces is a mesh, which :func:`jointseg.io.mesh.read_ply_file` reads as points sampled
+on its faces. The header's ``comment`` and ``obj_info`` lines go to
 ``Scan.meta["comments"]``.
 
 Writing produces binary little-endian PLY: ``x y z`` double, ``red green blue`` uchar, ``label``
@@ -531,8 +531,9 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     Returns
     -------
     Scan
-        ``meta["comments"]`` holds the header's comments. A PLY with faces is a mesh: its
-        points are sampled on the faces (:func:`jointseg.io.mesh.read_ply_mesh`).
+        ``meta["comments"]`` holds the header's comments. The vertices only: a PLY with faces
+        is read as a mesh by :func:`jointseg.io.mesh.read_ply_file`, which
+        :func:`jointseg.io.read_scan` calls.
 
     Raises
     ------
@@ -542,17 +543,6 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     """
     header = probe_header(path)
     vertex = vertex_element(header, path)
-    if header.faces:
-        from jointseg.io.mesh import read_ply_mesh
-
-        return read_ply_mesh(
-            path,
-            comments=header.comments,
-            vertices=vertex.count,
-            faces=header.faces,
-            max_points=max_points,
-            progress=progress,
-        )
     check_max_points(vertex.count, max_points, path)
     report(progress, "read", 0.0)
     first_line = 0
@@ -582,7 +572,7 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     Returns
     -------
     ScanInfo
-        For a PLY with faces, the points reading samples on them (the mesh is read).
+        Of the vertices (:func:`jointseg.io.mesh.probe_ply_file` probes a mesh).
 
     Raises
     ------
@@ -591,12 +581,6 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     """
     header = probe_header(path)
     vertex = vertex_element(header, path)
-    if header.faces:
-        from jointseg.io.mesh import probe_ply_mesh
-
-        return probe_ply_mesh(
-            path, vertices=vertex.count, faces=header.faces, max_points=max_points
-        )
     check_max_points(vertex.count, max_points, path)
     if header.encoding == "ascii":
         _ascii_body(path, header)

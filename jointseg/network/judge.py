@@ -27,10 +27,14 @@ def _cropping(predictor: Any) -> Any:
     return None
 
 
-def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> LabelFn:
-    """A :data:`~jointseg.frame.judge.LabelFn` from a loaded predictor."""
+def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> LabelFn | None:
+    """A :data:`~jointseg.frame.judge.LabelFn` from a loaded predictor; None for one that is
+    no loaded network (no ``model``: a remote or stand-in predictor), which the frame stage
+    cannot ask cheaply and without a way to cancel it."""
     net = _cropping(predictor)
     if net is None:
+        if getattr(predictor, "model", None) is None:
+            return None
         return _generic(predictor, seed)
 
     def label(xyz: np.ndarray, rgb: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:

@@ -121,7 +121,18 @@ def test_a_clean_z_up_room_is_kept_as_it_is(room, judge) -> None:
     assert frame.up.confidence >= UP_UNSURE and not frame.warnings
     evidence = frame.report()["up"]["evidence"]
     assert set(evidence) >= {"file", "capture", "geometry", "network", "probabilities"}
-    assert "+z" in evidence["network"]
+    # the file and the geometry agree surely: the network is spared
+    assert not evidence["network_asked"] and evidence["network"] == {}
+    assert "network not asked" in frame.up_how
+
+
+@needs_weights
+def test_the_network_is_asked_when_the_file_and_the_geometry_disagree(room, judge) -> None:
+    frame = decide_frame(turned(room, "+y"), judge=judge)  # a plain file, z up by default
+    evidence = frame.report()["up"]["evidence"]
+    assert evidence["network_asked"] and "+y" in evidence["network"]
+    assert set(evidence["network"]["+y"]) == set(FEATURES)
+    assert frame.up.axis == "+y"
 
 
 @needs_weights

@@ -57,7 +57,7 @@ def decide(
     source: Any,
     params: FrameParams,
     max_points: int,
-    judge_for: Callable[[bool], LabelFn] | None = None,
+    judge_for: Callable[[bool], LabelFn | None] | None = None,
 ) -> tuple[dict[str, Any], np.ndarray]:
     """The frame of a big scan, as JSON the tile plan keeps (see :class:`StreamFrame`), and
     the bulk's sampled points in the working frame (where strays are moved while spilling).

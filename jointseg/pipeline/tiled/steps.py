@@ -130,7 +130,7 @@ def plan(
     ------
     ScanFormatError, ConfigError, Cancelled
     """
-    def judge_for(usable: bool) -> LabelFn:
+    def judge_for(usable: bool) -> LabelFn | None:
         return crop_labeller(network_for(predictor, config.network, usable))
 
     decided, bulk = frame.decide(source, config.frame, max_points, judge_for)
