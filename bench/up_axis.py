@@ -193,9 +193,11 @@ def decide(row: dict, base_w: np.ndarray, full_w: np.ndarray, use_net: bool) -> 
     """The six probabilities, as jointseg.frame.weigh gives them."""
     base = row["evidence"].base()
     base_p = weigh.softmax(base @ base_w)
-    if not use_net or not row["net"]:
+    best = SIGNED_AXES[int(np.argmax(base_p))]
+    sure = best == row["evidence"].file_axis and base_p.max() >= weigh.SURE_WITHOUT_NETWORK
+    if not use_net or not row["net"] or sure:  # the network is not asked (weigh.needs_judge)
         return base_p
-    top = np.argsort(-base_p, kind="stable")[: weigh.JUDGED]
+    top = [SIGNED_AXES.index(a) for a in weigh.candidates(row["evidence"])]  # as weigh asks
     z = np.full(6, -np.inf)
     for i in top:
         z[i] = np.concatenate([base[i], row["net"][SIGNED_AXES[i]]]) @ full_w
@@ -215,9 +217,8 @@ def _nll(w: np.ndarray, rows: list[dict], full: bool, base_w: np.ndarray, l2: fl
     for r in rows:
         base = r["evidence"].base()
         if full:
-            base_p = weigh.softmax(base @ base_w)
-            top = np.argsort(-base_p, kind="stable")[: weigh.JUDGED]
-            names = [SIGNED_AXES[i] for i in top]
+            names = weigh.candidates(r["evidence"])
+            top = [SIGNED_AXES.index(a) for a in names]
             if r["truth"] not in names:
                 continue
             x = np.array(

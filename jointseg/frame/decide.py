@@ -9,6 +9,7 @@ the input scan plus fields, so they stay bit-exact.
 from __future__ import annotations
 
 import logging
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -168,8 +169,9 @@ def decide_frame(
     sample = gravity.frame_sample(scan.xyz - centre, rng)
     colour = decide_colour(scan.rgb, params.colour)
     warnings: list[str] = []
+    ahead = StraysAhead(scan, centre, params.strays)
     if params.up == "auto":
-        up, how, evidence = decide_up(scan, sample, centre, params, colour, judge)
+        up, how, evidence = decide_up(scan, sample, centre, params, colour, judge, ahead)
         gravity_aligned = bool(evidence["file"]["gravity_aligned"])
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
@@ -177,10 +179,8 @@ def decide_frame(
     axis = "xyz".index(up.axis[1])
     units = _units(scan, params, sample, axis)
     height = sample.extent(sample.directions[axis]) * units.metres
-    levelled = params.level and up.tilt_degrees >= MIN_TILT_DEGREES and not gravity_aligned
-    rotation = rotation_to_z(up.up if levelled else gravity.AXES[up.axis])
-    work = ((scan.xyz - centre) @ rotation.T) * units.metres
-    stray = find_strays(work) if params.strays else np.zeros(len(scan), dtype=bool)
+    levelled, rotation = placement(up, params.level, gravity_aligned)
+    stray = ahead.result(rotation, units.metres)
     identity = bool(up.axis == "+z" and not levelled and units.metres == 1.0)
     if up.confidence < UP_UNSURE:
         warnings.append(
@@ -270,6 +270,56 @@ def judge_candidates(
     return judge_frames(judge, (scan.xyz - centre) * base, rgb, rotations)
 
 
+class StraysAhead:
+    """The stray points of the work scan, found in a thread while the network judges (both
+    release the GIL in their heavy parts) for the frame the evidence before it favours; used
+    when the decision lands there, found again when it does not."""
+
+    def __init__(self, scan: Scan, centre: np.ndarray, enabled: bool) -> None:
+        self.scan, self.centre, self.enabled = scan, centre, enabled
+        self.key: tuple[bytes, float] | None = None
+        self.pool: ThreadPoolExecutor | None = None
+        self.future: Future[np.ndarray] | None = None
+
+    def _find(self, rotation: np.ndarray, metres: float) -> np.ndarray:
+        return find_strays(((self.scan.xyz - self.centre) @ rotation.T) * metres)
+
+    def start(self, rotation: np.ndarray, metres: float) -> None:
+        """Start finding the strays of the frame ``rotation`` (file axes to work) and scale."""
+        if not self.enabled:
+            return
+        self.key = (np.round(rotation, 12).tobytes(), metres)
+        self.pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="strays")
+        self.future = self.pool.submit(self._find, rotation, metres)
+
+    def result(self, rotation: np.ndarray, metres: float) -> np.ndarray:
+        """The stray mask in the frame decided (all False when strays are not set aside)."""
+        if not self.enabled:
+            return np.zeros(len(self.scan), dtype=bool)
+        ahead = None
+        if self.future is not None and self.pool is not None:
+            ahead = self.future.result()
+            self.pool.shutdown()
+        if ahead is not None and self.key == (np.round(rotation, 12).tobytes(), metres):
+            return ahead
+        return self._find(rotation, metres)
+
+
+def placement(
+    up: gravity.UpEstimate, level: bool, gravity_aligned: bool
+) -> tuple[bool, np.ndarray]:
+    """Whether the scan is levelled, and the rotation taking the file's axes to z up."""
+    levelled = level and up.tilt_degrees >= MIN_TILT_DEGREES and not gravity_aligned
+    return levelled, rotation_to_z(up.up if levelled else gravity.AXES[up.axis])
+
+
+def _estimate(g: Gathered, name: str, p: np.ndarray, confidence: float) -> gravity.UpEstimate:
+    up = g.directions[name]
+    tilt = float(np.degrees(np.arccos(np.clip(abs(up["xyz".index(name[1])]), -1.0, 1.0))))
+    scores = dict(zip(SIGNED_AXES, np.round(p, 4).tolist(), strict=True))
+    return gravity.UpEstimate(up, name, tilt, confidence, scores)
+
+
 def decide_up(
     scan: Scan,
     sample: gravity.FrameSample,
@@ -277,20 +327,24 @@ def decide_up(
     params: FrameParams,
     colour: ColourDecision,
     judge: LabelFn | None,
+    ahead: StraysAhead | None = None,
 ) -> tuple[gravity.UpEstimate, str, dict[str, Any]]:
     """Weigh the file's word, the kind of capture, the geometry and the network's verdict on
-    the most likely candidates (see :mod:`jointseg.frame.weigh`)."""
+    the most likely candidates (see :mod:`jointseg.frame.weigh`); ``ahead`` starts on the
+    stray points of the frame favoured before the network while the network judges."""
     g = gather(scan, sample, params)
     judged: dict[str, np.ndarray] = {}
     asked = judge is not None and weigh.needs_judge(g.evidence)
     if judge is not None and asked:
+        if ahead is not None:
+            before = weigh.weigh(g.evidence)
+            guess = _estimate(g, before.best, before.p, before.confidence)
+            _, rotation = placement(guess, params.level, g.said.gravity_aligned)
+            ahead.start(rotation, g.units["xyz".index(guess.axis[1])].metres)
         judged = judge_candidates(g, scan, centre, colour, judge, weigh.candidates(g.evidence))
     result = weigh.weigh(g.evidence, judged)
     name = result.best
-    up = g.directions[name]
-    tilt = float(np.degrees(np.arccos(np.clip(abs(up["xyz".index(name[1])]), -1.0, 1.0))))
-    scores = dict(zip(SIGNED_AXES, np.round(result.p, 4).tolist(), strict=True))
-    estimate = gravity.UpEstimate(up, name, tilt, result.confidence, scores)
+    estimate = _estimate(g, name, result.p, result.confidence)
     used = ["the file", "the geometry"] + (["the network"] if judged else [])
     if judge is not None and not asked:
         used.append("agreeing: the network not asked")

@@ -36,7 +36,7 @@ BASE_FEATURES: tuple[str, ...] = (
 )
 FULL_FEATURES: tuple[str, ...] = BASE_FEATURES + tuple(f"net_{f}" for f in judge.FEATURES)
 #: Candidates the network judges.
-JUDGED = 3
+JUDGED = 2
 #: The network is not asked when the evidence before it already agrees with the file's own
 #: axis at least this surely: on the bench's 550 cases, asking it changed none of the 279
 #: such decisions (``bench/up_axis.py``), and it costs most of the stage's time.
