@@ -182,6 +182,16 @@ def gather_all(items: list[Case], judge_all: bool) -> list[dict]:
     return rows
 
 
+def regather_network(rows: list[dict], items: list[Case], over: int) -> None:
+    """The network's verdicts again for the cases of more than ``over`` points."""
+    big = [i for i, c in enumerate(items) if len(c.scan) > over]
+    logging.info("judging %d cases of more than %d points again", len(big), over)
+    fresh = gather_all([items[i] for i in big], judge_all=True)
+    for i, new in zip(big, fresh, strict=True):
+        assert (rows[i]["name"], rows[i]["delivery"]) == (new["name"], new["delivery"])
+        rows[i]["net"] = new["net"]
+
+
 def decided(row: dict, p: np.ndarray) -> tuple[str, float]:
     """The axis chosen from the probabilities (the file's own axis kept on too little), and its
     confidence."""
@@ -308,6 +318,10 @@ def main() -> None:
         help="gather the evidence before the network again, keeping the cached verdicts",
     )  # fmt: skip
     ap.add_argument(
+        "--regather-network-over", type=int, default=0, metavar="N",
+        help="judge again the cases of more than N points (after a change of the judge's sample)",
+    )  # fmt: skip
+    ap.add_argument(
         "--part", choices=("decisions", "miou"), default="decisions",
         help="decisions: the tables above; miou: z-up scans' fused mIoU, auto against --up +z",
     )  # fmt: skip
@@ -323,6 +337,9 @@ def main() -> None:
             for old, new in zip(rows, fresh, strict=True):
                 assert (old["name"], old["delivery"]) == (new["name"], new["delivery"])
                 old["evidence"] = new["evidence"]
+            args.cache.write_bytes(pickle.dumps(rows))
+        if args.regather_network_over:  # the verdicts of the scans the judge subsamples
+            regather_network(rows, cases(args.views, args.seed), args.regather_network_over)
             args.cache.write_bytes(pickle.dumps(rows))
     else:
         rows = gather_all(cases(args.views, args.seed), judge_all=True)

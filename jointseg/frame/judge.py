@@ -34,7 +34,7 @@ FEATURES: tuple[str, ...] = (
 CEILING, FLOOR, CLUTTER = 0, 1, 12
 FURNITURE = (7, 8, 9, 10)  # table, chair, sofa, bookcase
 #: Points the judge labels at most (a random subsample; the network grid-subsamples it).
-JUDGE_POINTS = 150_000
+JUDGE_POINTS = 60_000
 
 
 def net_features(xyz: np.ndarray, probs: np.ndarray) -> np.ndarray:
