@@ -102,21 +102,31 @@ def _frame_of(scan: Any) -> dict[str, Any] | None:
 
 def _default_judge(scan: Any) -> Any:
     """The default network (colour-free for a scan without usable colour) as the frame's
-    judge; None, with a log line, when it cannot be loaded (info still describes the scan)."""
-    from jointseg.exceptions import ConfigError
+    judge, loaded only when the frame stage asks it (a scan whose file and geometry agree
+    never loads torch); None, with a log line, when its weights are not installed."""
     from jointseg.frame.colour import decide_colour
-    from jointseg.network.judge import crop_labeller
-    from jointseg.pipeline import PipelineConfig, load_predictor
-    from jointseg.pipeline.stages import network_for
+    from jointseg.network.registry import resolve_weights
+    from jointseg.pipeline import PipelineConfig
 
     config = PipelineConfig()
-    try:
-        predictor = load_predictor(config.network)
-    except (ConfigError, OSError) as exc:
-        logging.getLogger(__name__).info("no network to judge the up axis: %s", exc)
+    weights = resolve_weights(config.network.name, config.network.weights)
+    if weights is None or not weights.is_file():
+        logging.getLogger(__name__).info("no network to judge the up axis (%s)", weights)
         return None
     usable = decide_colour(scan.rgb, config.frame.colour).usable
-    return crop_labeller(network_for(predictor, config.network, usable))
+    loaded: list[Any] = []
+
+    def label(xyz: Any, rgb: Any) -> Any:
+        if not loaded:
+            from jointseg.network.judge import crop_labeller
+            from jointseg.pipeline import load_predictor
+            from jointseg.pipeline.stages import network_for
+
+            predictor = load_predictor(config.network)
+            loaded.append(crop_labeller(network_for(predictor, config.network, usable)))
+        return loaded[0](xyz, rgb)
+
+    return label
 
 
 def convert(
