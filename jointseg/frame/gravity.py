@@ -3,9 +3,9 @@
 Indoor scans are built of planes at right angles (floors, ceilings, walls), so the normals of a
 scan cluster around three orthogonal directions (a Manhattan frame), each within a few degrees
 of one of the file's axes for any scan that was delivered with an axis up (tilts of up to
-:data:`MAX_TILT_DEGREES` are searched). Which of the three is up, and its sign, is decided in
-two steps, each a logistic score of a few features fitted on tuning rooms (``bench/up_axis.py``
-fits and judges them):
+:data:`MAX_TILT_DEGREES` are searched). The geometry's evidence on which of the three is up,
+and its sign, comes in two steps, each a logistic score of a few features fitted on tuning
+rooms; :mod:`jointseg.frame.weigh` weighs them with the file's word and the network's:
 
 - the axis: the vertical one is the one whose facing points (floor, ceiling) sit at the two
   extremes of its extent rather than inside it, and along which the scan is shortest;
@@ -38,20 +38,12 @@ LAYER = 0.08
 #: Height profiles: bins across the extent along a direction.
 PROFILE_BINS = 10
 #: Logistic weights of the axis step and of the sign step (see :func:`axis_features` and
-#: :func:`sign_features`), fitted by ``bench/up_axis.py --fit`` on the tuning rooms.
+#: :func:`sign_features`), fitted in issue 31 on its tuning rooms (``bench/up_axis.py --fit`` at
+#: commit 586b150; today's bench fits the weighing over them, ``up_model.json``'s ``weigh``).
 MODEL_FILE = Path(__file__).with_name("up_model.json")
 _MODEL = json.loads(MODEL_FILE.read_text()) if MODEL_FILE.is_file() else {}
 AXIS_WEIGHTS = np.array(_MODEL.get("axis_weights", np.zeros(3 * PROFILE_BINS + 3)))
 SIGN_WEIGHTS = np.array(_MODEL.get("sign_weights", np.zeros(3 * PROFILE_BINS + 4)))
-#: How scans arrive, as prior log-odds added to the fitted scores: z up most (scanners, LAS,
-#: E57, S3DIS), y up often (glTF, game engines, many phone exports), x up rarely; upside down
-#: rarely. P(+z, -z, +y, -y, +x, -x) = 0.60, 0.04, 0.25, 0.05, 0.03, 0.03.
-DELIVERY = {"+z": 0.60, "-z": 0.04, "+y": 0.25, "-y": 0.05, "+x": 0.03, "-x": 0.03}
-#: The prior's weight against the fitted evidence (chosen on the tuning rooms by the
-#: delivery-weighted accuracy of ``bench/up_axis.py --prior-scale``).
-PRIOR_SCALE = 0.5
-AXIS_PRIOR = PRIOR_SCALE * np.log([DELIVERY[f"+{a}"] + DELIVERY[f"-{a}"] for a in "xyz"])
-SIGN_PRIOR = PRIOR_SCALE * np.log([DELIVERY[f"+{a}"] / DELIVERY[f"-{a}"] for a in "xyz"])
 
 AXES: dict[str, np.ndarray] = {
     "+x": np.array([1.0, 0.0, 0.0]),
@@ -237,49 +229,14 @@ def _softmax(z: np.ndarray) -> np.ndarray:
     return e / e.sum()
 
 
-def vertical_axis(sample: FrameSample) -> tuple[int, np.ndarray]:
-    """The file axis (0, 1, 2) nearest to the vertical, and the probabilities of the three."""
-    p = _softmax(axis_features(sample) @ AXIS_WEIGHTS + AXIS_PRIOR)
-    return int(np.argmax(p)), p
-
-
-def up_sign(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
-    """Probability that the refined direction near ``axis`` (pointing along +axis) is up."""
-    d = sample.directions[axis]
-    d = d if d[axis] >= 0 else -d
-    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS) + SIGN_PRIOR[axis]
-    return float(1.0 / (1.0 + np.exp(-score)))
-
-
-def estimate_up(
-    sample: FrameSample, axis: int, axis_p: np.ndarray, metres_per_unit: float
-) -> UpEstimate:
-    """Combine both steps into the up vector and its confidence."""
-    p_plus = up_sign(sample, axis, metres_per_unit)
-    d = sample.directions[axis]
-    d = d if d[axis] >= 0 else -d
-    positive = p_plus >= 0.5
-    up = d if positive else -d
-    name = ("+" if positive else "-") + "xyz"[axis]
-    tilt = float(np.degrees(np.arccos(np.clip(abs(up[axis]), -1.0, 1.0))))
-    scores = {}
-    for i, letter in enumerate("xyz"):
-        pp = p_plus if i == axis else 0.5
-        scores["+" + letter] = float(axis_p[i] * pp)
-        scores["-" + letter] = float(axis_p[i] * (1 - pp))
-    confidence = float(axis_p[axis] * max(p_plus, 1 - p_plus))
-    return UpEstimate(up, name, tilt, confidence, scores)
-
-
 def axis_probabilities(sample: FrameSample) -> np.ndarray:
-    """(3,): the geometry's probability that each file axis is the vertical one, without the
-    delivery prior (the file's own evidence is weighed apart, :mod:`jointseg.frame.weigh`)."""
+    """(3,): the geometry's probability that each file axis is the vertical one (the file's own
+    evidence is weighed apart, :mod:`jointseg.frame.weigh`)."""
     return _softmax(axis_features(sample) @ AXIS_WEIGHTS)
 
 
 def sign_probability(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
-    """The geometry's probability that +``axis`` rather than -``axis`` is up, without the
-    delivery prior."""
+    """The geometry's probability that +``axis`` rather than -``axis`` is up."""
     d = sample.directions[axis]
     d = d if d[axis] >= 0 else -d
     score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS)
