@@ -200,18 +200,13 @@ def decided(row: dict, p: np.ndarray) -> tuple[str, float]:
 
 
 def decide(row: dict, base_w: np.ndarray, full_w: np.ndarray, use_net: bool) -> np.ndarray:
-    """The six probabilities, as jointseg.frame.weigh gives them."""
-    base = row["evidence"].base()
-    base_p = weigh.softmax(base @ base_w)
-    best = SIGNED_AXES[int(np.argmax(base_p))]
-    sure = best == row["evidence"].file_axis and base_p.max() >= weigh.SURE_WITHOUT_NETWORK
-    if not use_net or not row["net"] or sure:  # the network is not asked (weigh.needs_judge)
-        return base_p
-    top = [SIGNED_AXES.index(a) for a in weigh.candidates(row["evidence"])]  # as weigh asks
-    z = np.full(6, -np.inf)
-    for i in top:
-        z[i] = np.concatenate([base[i], row["net"][SIGNED_AXES[i]]]) @ full_w
-    return weigh.softmax(z)
+    """The six probabilities, as jointseg.frame.decide weighs them, with these weights: the
+    network's verdicts (all six cached) on the candidates it would judge, when it is asked."""
+    evidence = row["evidence"]
+    if not use_net or not row["net"] or not weigh.needs_judge(evidence, base_w):
+        return weigh.weigh(evidence, base_weights=base_w).p
+    judged = {a: row["net"][a] for a in weigh.candidates(evidence, base_weights=base_w)}
+    return weigh.weigh(evidence, judged, base_weights=base_w, full_weights=full_w).p
 
 
 #: How often scans arrive each way, relative to the bench's even mix: the fit weighs each case by
@@ -227,7 +222,7 @@ def _nll(w: np.ndarray, rows: list[dict], full: bool, base_w: np.ndarray, l2: fl
     for r in rows:
         base = r["evidence"].base()
         if full:
-            names = weigh.candidates(r["evidence"])
+            names = weigh.candidates(r["evidence"], base_weights=base_w)
             top = [SIGNED_AXES.index(a) for a in names]
             if r["truth"] not in names:
                 continue

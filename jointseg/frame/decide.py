@@ -335,7 +335,7 @@ def decide_up(
     g = gather(scan, sample, params)
     judged: dict[str, np.ndarray] = {}
     asked = judge is not None and weigh.needs_judge(g.evidence)
-    if judge is not None and asked:
+    if judge is not None and asked:  # (judge named again for the type checker)
         if ahead is not None:
             before = weigh.weigh(g.evidence)
             guess = _estimate(g, before.best, before.p, before.confidence)

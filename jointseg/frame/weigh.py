@@ -183,30 +183,45 @@ def choose(p: np.ndarray, file_axis: str | None) -> str:
     return best if p.max() >= needed else file_axis
 
 
-def needs_judge(evidence: Evidence) -> bool:
+def _base_p(evidence: Evidence, base_weights: np.ndarray | None) -> np.ndarray:
+    weights = BASE_WEIGHTS if base_weights is None else base_weights
+    return softmax(evidence.base() @ weights)
+
+
+def needs_judge(evidence: Evidence, base_weights: np.ndarray | None = None) -> bool:
     """Whether the network should judge: unless the evidence before it agrees with the file's
     own axis at least :data:`SURE_WITHOUT_NETWORK` surely."""
-    p = softmax(evidence.base() @ BASE_WEIGHTS)
+    p = _base_p(evidence, base_weights)
     best = SIGNED_AXES[int(np.argmax(p))]
     return not (best == evidence.file_axis and p.max() >= SURE_WITHOUT_NETWORK)
 
 
-def candidates(evidence: Evidence, k: int = JUDGED) -> list[str]:
+def candidates(
+    evidence: Evidence, k: int = JUDGED, base_weights: np.ndarray | None = None
+) -> list[str]:
     """The ``k`` most likely signed axes before the network."""
-    base_p = softmax(evidence.base() @ BASE_WEIGHTS)
+    base_p = _base_p(evidence, base_weights)
     return [SIGNED_AXES[i] for i in np.argsort(-base_p, kind="stable")[:k]]
 
 
-def weigh(evidence: Evidence, judged: dict[str, np.ndarray] | None = None) -> Weighed:
+def weigh(
+    evidence: Evidence,
+    judged: dict[str, np.ndarray] | None = None,
+    *,
+    base_weights: np.ndarray | None = None,
+    full_weights: np.ndarray | None = None,
+) -> Weighed:
     """The candidates' probabilities: the base model alone, or the full model over the judged
-    candidates when the network judged some."""
+    candidates when the network judged some (weights: the fitted ones unless given, as the
+    bench gives its own while it fits)."""
     base = evidence.base()
-    base_p = softmax(base @ BASE_WEIGHTS)
+    base_p = _base_p(evidence, base_weights)
     file_axis = evidence.file_axis
     if not judged:
         return Weighed(base_p, base_p, {}, file_axis)
+    weights = FULL_WEIGHTS if full_weights is None else full_weights
     z = np.full(6, -np.inf)
     for name, feats in judged.items():
         i = SIGNED_AXES.index(name)
-        z[i] = np.concatenate([base[i], feats]) @ FULL_WEIGHTS
+        z[i] = np.concatenate([base[i], feats]) @ weights
     return Weighed(softmax(z), base_p, dict(judged), file_axis)
