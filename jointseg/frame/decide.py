@@ -264,10 +264,7 @@ def judge_candidates(
         a: rotation_to_z(gathered.directions[a]) * (units["xyz".index(a[1])].metres / base)
         for a in names
     }
-    rgb = scan.rgb if colour.usable else None
-    if rgb is not None and colour.gains is not None:
-        rgb = apply_gains(rgb, colour.gains)
-    return judge_frames(judge, (scan.xyz - centre) * base, rgb, rotations)
+    return judge_frames(judge, (scan.xyz - centre) * base, work_colour(scan, colour), rotations)
 
 
 class StraysAhead:
@@ -398,14 +395,18 @@ def _units(
     return units_from_scale(sample.extent(sample.directions[axis]))
 
 
+def work_colour(scan: Scan, colour: ColourDecision) -> np.ndarray | None:
+    """The colour the network sees: none when it is unusable, corrected when it has gains
+    (``scan.rgb`` itself when neither)."""
+    if not colour.usable or scan.rgb is None:
+        return None
+    return scan.rgb if colour.gains is None else apply_gains(scan.rgb, colour.gains)
+
+
 def work_scan(scan: Scan, frame: Frame) -> tuple[Scan, np.ndarray | None]:
     """The scan the network and the geometry see, and, when strays were set aside, the
     index of each original point's stand-in among the work scan's points (None: one to one)."""
-    rgb = scan.rgb
-    if not frame.colour.usable:
-        rgb = None
-    elif frame.colour.gains is not None and rgb is not None:
-        rgb = apply_gains(rgb, frame.colour.gains)
+    rgb = work_colour(scan, frame.colour)
     keep = ~frame.stray
     if frame.identity and rgb is scan.rgb and keep.all():
         return scan, None
