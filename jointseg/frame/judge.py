@@ -29,9 +29,11 @@ FEATURES: tuple[str, ...] = (
     "furniture",
     "clutter",
     "floor_low",
+    "wall",
+    "ceiling_high",
 )
 #: S3DIS class indices.
-CEILING, FLOOR, CLUTTER = 0, 1, 12
+CEILING, FLOOR, WALL, CLUTTER = 0, 1, 2, 12
 FURNITURE = (7, 8, 9, 10)  # table, chair, sofa, bookcase
 #: Points the judge labels at most (a random subsample; the network grid-subsamples it).
 JUDGE_POINTS = 60_000
@@ -39,22 +41,27 @@ JUDGE_POINTS = 60_000
 
 def net_features(xyz: np.ndarray, probs: np.ndarray) -> np.ndarray:
     """(len(FEATURES),): mean top probability, the shares labelled floor, ceiling, furniture and
-    clutter, and the share of floor-labelled points in the lowest tenth of the height."""
+    clutter, the share of floor-labelled points in the lowest tenth of the height, the share
+    labelled wall, and the share of ceiling-labelled points in the highest tenth."""
     if len(probs) == 0:
         return np.zeros(len(FEATURES))
     labels = probs.argmax(axis=1)
     h = xyz[:, 2]
     lo, hi = np.quantile(h, [0.01, 0.99])
     low = h <= lo + 0.1 * max(hi - lo, 1e-9)
+    high = h >= hi - 0.1 * max(hi - lo, 1e-9)
     floor = labels == FLOOR
+    ceiling = labels == CEILING
     return np.array(
         [
             float(probs.max(axis=1).mean()),
             float(floor.mean()),
-            float((labels == CEILING).mean()),
+            float(ceiling.mean()),
             float(np.isin(labels, FURNITURE).mean()),
             float((labels == CLUTTER).mean()),
             float((floor & low).sum() / max(int(low.sum()), 1)),
+            float((labels == WALL).mean()),
+            float((ceiling & high).sum() / max(int(high.sum()), 1)),
         ]
     )
 

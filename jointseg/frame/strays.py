@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from jointseg.voxels import voxel_index
-
 #: Histogram bins (m) and the empty gap (m) that cuts a stretch of points off the bulk.
 BIN_M = 0.1
 GAP_M = 1.0
@@ -55,25 +53,20 @@ def bulk_mask(values: np.ndarray) -> np.ndarray:
 
 
 def isolated_mask(xyz: np.ndarray) -> np.ndarray:
-    """Points with fewer than :data:`MIN_NEIGHBOURS` points in their 27 surrounding cells."""
-    inverse, _ = voxel_index(xyz, CELL_M)
-    cells = np.floor((xyz - xyz.min(axis=0)) / CELL_M).astype(np.int64)
-    first = np.unique(inverse, return_index=True)[1]
-    keys_xyz = cells[first]
-    counts = np.bincount(inverse)
-    dims = keys_xyz.max(axis=0) + 3
-    key = _key(keys_xyz + 1, dims)
-    order = np.argsort(key)
-    key_sorted, counts_sorted = key[order], counts[order]
-    total = np.zeros(len(keys_xyz), dtype=np.int64)
+    """Points with fewer than :data:`MIN_NEIGHBOURS` points in their 27 surrounding cells
+    (one sort of the points' cell keys; each occupied cell's 26 neighbours looked up in it)."""
+    cells = np.floor((xyz - xyz.min(axis=0)) / CELL_M).astype(np.int64) + 1
+    dims = cells.max(axis=0) + 2
+    keys, inverse, counts = np.unique(_key(cells, dims), return_inverse=True, return_counts=True)
+    keys_xyz = np.stack(np.unravel_index(keys, tuple(dims)), axis=1)
+    total = np.zeros(len(keys), dtype=np.int64)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
             for dz in (-1, 0, 1):
-                k = _key(keys_xyz + 1 + np.array([dx, dy, dz]), dims)
-                pos = np.clip(np.searchsorted(key_sorted, k), 0, len(key_sorted) - 1)
-                hit = key_sorted[pos] == k
-                total += np.where(hit, counts_sorted[pos], 0)
-    return (total < MIN_NEIGHBOURS)[inverse]
+                k = _key(keys_xyz + np.array([dx, dy, dz]), dims)
+                pos = np.clip(np.searchsorted(keys, k), 0, len(keys) - 1)
+                total += np.where(keys[pos] == k, counts[pos], 0)
+    return (total < MIN_NEIGHBOURS)[inverse.reshape(-1)]
 
 
 def _key(cells: np.ndarray, dims: np.ndarray) -> np.ndarray:
@@ -87,14 +80,17 @@ def find_strays(xyz: np.ndarray) -> np.ndarray:
     stray = np.zeros(len(xyz), dtype=bool)
     if len(xyz) < 100:
         return stray
+    columns = np.ascontiguousarray(xyz.T)  # the axes' values, each read several times
     for axis in range(3):
-        stray |= ~bulk_mask(xyz[:, axis])
+        stray |= ~bulk_mask(columns[axis])
     if stray.mean() > MAX_SHARE:
         stray[:] = False
     lonely = isolated_mask(xyz)
-    if lonely.mean() <= MAX_SHARE and (~(stray | lonely)).any():
+    rest = ~(stray | lonely)
+    if lonely.mean() <= MAX_SHARE and rest.any():
         # a lonely point inside the box of the rest moves no normalisation: leave it be
-        rest = xyz[~(stray | lonely)]
-        lo, hi = rest.min(axis=0) - BOX_TOLERANCE_M, rest.max(axis=0) + BOX_TOLERANCE_M
-        stray |= lonely & np.any((xyz < lo) | (xyz > hi), axis=1)
+        lo = np.min(columns, axis=1, where=rest, initial=np.inf) - BOX_TOLERANCE_M
+        hi = np.max(columns, axis=1, where=rest, initial=-np.inf) + BOX_TOLERANCE_M
+        idx = np.flatnonzero(lonely)
+        stray[idx[np.any((xyz[idx] < lo) | (xyz[idx] > hi), axis=1)]] = True
     return stray

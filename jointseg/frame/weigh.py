@@ -57,9 +57,8 @@ _FITTED = _MODEL.get("weigh", {})
 _FITS = _FITTED.get("features") == list(FULL_FEATURES)
 #: Fitted weights: without the network (``base``) and with it (``full``).
 BASE_WEIGHTS = np.array(_FITTED["base"] if _FITS else [1.0] * len(BASE_FEATURES))
-FULL_WEIGHTS = np.array(
-    _FITTED["full"] if _FITS else [1.0] * len(BASE_FEATURES) + [5.0, 2.0, -2.0, 1.0, -1.0, 2.0]
-)
+_NET_GUESS = [5.0, 2.0, -2.0, 1.0, -1.0, 2.0, 1.0, 1.0]  # placeholders, one per judge feature
+FULL_WEIGHTS = np.array(_FITTED["full"] if _FITS else [1.0] * len(BASE_FEATURES) + _NET_GUESS)
 
 
 @dataclass(frozen=True)

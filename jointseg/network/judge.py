@@ -12,7 +12,7 @@ from jointseg.network.anchored import CropPlan, anchored_cloud
 from jointseg.scan import Scan
 
 #: Crops per candidate frame, spread along the scan's longest horizontal direction.
-CROPS = 2
+CROPS = 1
 #: Points labelled by a network without crops (DGCNN and others), per candidate.
 GENERIC_POINTS = 16_384
 
@@ -42,12 +42,7 @@ def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> Label
         cloud = anchored_cloud([(xyz, rgb)], net.grid_size, lower)
         m = len(cloud.xyz)
         size = min(int(net.num_points), max(m, 1024))
-        flat = cloud.xyz[:, :2] - cloud.xyz[:, :2].mean(axis=0)
-        _, vecs = np.linalg.eigh(flat.T @ flat)
-        along = flat @ vecs[:, -1]
-        targets = np.quantile(along, (np.arange(crops) + 0.5) / crops)
-        pick = np.unique(np.abs(along[None, :] - targets[:, None]).argmin(axis=1))
-        centres = cloud.xyz[pick]
+        centres = cloud.xyz[np.unique(cloud.tree.query(_targets(cloud.xyz, crops))[1])]
         dist, _ = cloud.tree.query(centres, k=[min(size, m)], workers=-1)
         plan = CropPlan(centres.astype(np.float32), np.asarray(dist, np.float32).reshape(-1), size)
         prob_sum, seen = net.crop_sums(cloud, plan, np.arange(len(plan)), seed=seed)
@@ -55,6 +50,21 @@ def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> Label
         return cloud.xyz[hit] + lower, prob_sum[hit] / seen[hit, None]
 
     return label
+
+
+def _targets(xyz: np.ndarray, crops: int) -> np.ndarray:
+    """(crops, 3) crop centres at mid-height, spread along the longest horizontal direction:
+    a crop around a floor point would see no ceiling, and one around a point nearest to the
+    same middle holds nearly the same points in every candidate frame, so the frames differ mostly
+    in how they are turned."""
+    lo, hi = np.quantile(xyz[:, 2], [0.01, 0.99])
+    mid = np.median(xyz[:, :2], axis=0)
+    flat = xyz[:, :2] - mid
+    _, vecs = np.linalg.eigh(flat.T @ flat)
+    along = flat @ vecs[:, -1]
+    offsets = np.quantile(along, (np.arange(crops) + 0.5) / crops) if crops > 1 else np.zeros(1)
+    horizontal = mid[None, :] + offsets[:, None] * vecs[:, -1][None, :]
+    return np.column_stack([horizontal, np.full(len(offsets), (lo + hi) / 2)])
 
 
 def _generic(predictor: Any, seed: int) -> LabelFn:
