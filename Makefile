@@ -6,7 +6,7 @@ TORCH  ?= torch==2.13.0
 DEMO   ?= demo
 PORT   ?= 8000
 
-.PHONY: setup system run serve test lint typecheck pytest docs docs-build clean
+.PHONY: setup system run serve test lint typecheck pytest docs docs-build clean gpu-pack gpu-train
 
 setup: system $(VENV)/.installed
 
@@ -47,6 +47,25 @@ docs: setup
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve --dev-addr 127.0.0.1:8001
 
 test: lint pytest docs-build
+
+# the prepared GPU run (docs/guide/gpu.md): gpu-pack here (wheels for the GPU machine's Python and
+# the training data, into the ignored .gpu/), then on the lent machine, with .gpu carried:
+# make gpu-train MINUTES=8 (writes into $$OUT)
+GPU_WHEELS := pydantic==2.14.3 pydantic_core==2.50.4 annotated-types==0.8.0 \
+	typing-inspection==0.4.5 laspy==2.7.0 lazrs==0.8.2 plyfile==1.1.5
+MINUTES ?= 8
+SHARED  ?= ../shared/data
+
+gpu-pack: setup
+	$(BIN)/pip download -q --no-deps --only-binary=:all: --python-version 3.12 \
+		--implementation cp --platform manylinux_2_28_x86_64 --platform manylinux2014_x86_64 \
+		-d .gpu/wheels $(GPU_WHEELS)
+	rm -rf .gpu/data
+	$(BIN)/python -m jointseg.network.training.prepared pack --shared $(SHARED) --out .gpu/data
+	du -sh .gpu
+
+gpu-train:
+	bash scripts/gpu_train.sh $(MINUTES)
 
 clean:
 	rm -rf $(VENV) $(DEMO) site .pytest_cache .ruff_cache .mypy_cache

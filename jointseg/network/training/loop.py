@@ -140,6 +140,29 @@ class TrainConfig(BaseModel):
         "on CUDA devices, where they are faster than the workers' KD-trees)",
     )
     device: str | None = Field(None, description="'cpu' or 'cuda' (default: cuda when present)")
+    minutes: float | None = Field(
+        None,
+        gt=0,
+        description="stop stepping this many minutes after the run started (data loading "
+        "included); the epoch is then validated and written",
+    )
+    save_minutes: float | None = Field(
+        None, gt=0, description="also write the checkpoint this often within an epoch"
+    )
+    packed_copy: Path | None = Field(
+        None, description="after every checkpoint, a packed copy (float16, gzip) here"
+    )
+    teacher: Path | None = Field(
+        None,
+        description="distil from these weights: the loss adds the KL divergence to the "
+        "teacher's softened outputs on the same crops",
+    )
+    distill_weight: float = Field(0.5, ge=0, le=1, description="the teacher's share of the loss")
+    distill_temperature: float = Field(2.0, gt=0)
+    sliced_init: Path | None = Field(
+        None,
+        description="start a narrower network from the leading channels of these weights",
+    )
     command: str | None = Field(
         None, description="the command line that started the run, kept in the model card"
     )
@@ -318,6 +341,7 @@ def train(
     -------
     Path of the last checkpoint.
     """
+    started = time.monotonic()
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
@@ -351,7 +375,7 @@ def train(
         maker, workers=cfg.workers, prefetch=cfg.prefetch, pin=run.device.type == "cuda"
     )
     with stream as batches:
-        _train_epochs(cfg, run, loss_fn, batches, data, progress, cancel)
+        _train_epochs(cfg, run, loss_fn, batches, data, _Clock(cfg, started), (progress, cancel))
     return cfg.out
 
 
@@ -365,6 +389,7 @@ class TrainingRun:
     scheduler: torch.optim.lr_scheduler.LRScheduler
     start_epoch: int
     history: list[dict]
+    teacher: RandLANet | None = None
 
 
 def _start(cfg: TrainConfig) -> TrainingRun:
@@ -382,6 +407,8 @@ def _start(cfg: TrainConfig) -> TrainingRun:
         model, _, _ = load_checkpoint(cfg.init)
     else:
         model = RandLANet(_model_config(cfg))
+        if cfg.sliced_init is not None:
+            sliced_init(model, load_checkpoint(cfg.sliced_init)[0])
     device = pick_device(cfg.device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"device {cfg.device!r}: this machine's torch sees no CUDA device")
@@ -391,7 +418,31 @@ def _start(cfg: TrainConfig) -> TrainingRun:
     if body is not None and "optimizer" in body:
         optimiser.load_state_dict(body["optimizer"])
         scheduler.load_state_dict(body["scheduler"])
-    return TrainingRun(model, device, optimiser, scheduler, start_epoch, history)
+    teacher = None
+    if cfg.teacher is not None:
+        teacher = load_checkpoint(cfg.teacher)[0].to(device).eval()
+        for p in teacher.parameters():
+            p.requires_grad_(False)
+    return TrainingRun(model, device, optimiser, scheduler, start_epoch, history, teacher)
+
+
+def sliced_init(student: RandLANet, teacher: RandLANet) -> None:
+    """Copy into each of the student's tensors the leading slice of the teacher's (the same
+    layers, fewer channels): a narrow network that starts from what the wide one learnt rather
+    than from noise."""
+    source = teacher.state_dict()
+    target = student.state_dict()
+    for name, tensor in target.items():
+        src = source.get(name)
+        if src is None or src.dim() != tensor.dim():
+            raise ConfigError(f"sliced init: the teacher has no tensor like {name!r}")
+        if tensor.dim() == 0:
+            target[name] = src.clone()
+            continue
+        if any(t > s for t, s in zip(tensor.shape, src.shape, strict=True)):
+            raise ConfigError(f"sliced init: {name!r} is wider in the student than the teacher")
+        target[name] = src[tuple(slice(0, n) for n in tensor.shape)].clone()
+    student.load_state_dict(target)
 
 
 def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
@@ -452,33 +503,29 @@ def _train_epochs(
     loss_fn: torch.nn.Module,
     batches: Iterator[Batch | CropBatch],
     data: TrainingData,
-    progress: ProgressFn | None,
-    cancel: CancelToken | None,
+    clock: _Clock,
+    hooks: tuple[ProgressFn | None, CancelToken | None],
 ) -> None:
-    """The epochs from the run's start: steps on ``batches``, validation, checkpoints."""
+    """The epochs from the run's start: steps on ``batches``, validation, checkpoints; within
+    ``cfg.minutes`` when given (the last epoch cut short), a checkpoint every
+    ``cfg.save_minutes`` besides the one after each epoch."""
     total_steps = cfg.epochs * cfg.steps_per_epoch
-    model, optimiser = run.model, run.optimiser
+    progress, cancel = hooks
     for epoch in range(run.start_epoch, cfg.epochs):
         started, losses, hits, seen = time.perf_counter(), [], 0, 0
         for step in range(cfg.steps_per_epoch):
             check_cancel(cancel)
-            batch = device_batch(next(batches), run)
-            logits = model(
-                batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
-            )
-            assert batch.labels is not None
-            loss = loss_fn(logits.reshape(-1, NUM_CLASSES), batch.labels.reshape(-1))
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            losses.append(float(loss.detach()))
-            known = batch.labels >= 0
-            hits += int((logits.detach().argmax(-1) == batch.labels)[known].sum())
-            seen += int(known.sum())
+            loss, step_hits, step_seen = _step(run, loss_fn, device_batch(next(batches), run), cfg)
+            losses.append(loss)
+            hits, seen = hits + step_hits, seen + step_seen
             report(progress, STAGE, (epoch * cfg.steps_per_epoch + step + 1) / total_steps)
+            if clock.out_of_time():
+                break
+            if clock.save_due():
+                _save(cfg, run, data, epoch, validated=False)
         train_seconds = time.perf_counter() - started
         run.scheduler.step()
-        miou, per_source = validate_sources(model, data.sources, cfg)
+        miou, per_source = validate_sources(run.model, data.sources, cfg)
         run.history.append(
             {
                 "epoch": epoch + 1,
@@ -487,22 +534,82 @@ def _train_epochs(
                 "val_miou": miou,
                 "val_by_source": per_source,
                 "seconds": time.perf_counter() - started,
-                "steps_per_second": cfg.steps_per_epoch / max(train_seconds, 1e-9),
+                "steps_per_second": len(losses) / max(train_seconds, 1e-9),
             }
         )
         log.info(
             "epoch %d loss %.3f train accuracy %.3f val mIoU %s %s",
-            epoch + 1,
-            np.mean(losses),
-            hits / max(seen, 1),
-            miou,
-            per_source,
-        )
+            epoch + 1, np.mean(losses), hits / max(seen, 1), miou, per_source,
+        )  # fmt: skip
         _save(cfg, run, data, epoch + 1)
+        clock.saved()
+        if clock.out_of_time():
+            log.info("time budget of %s minutes spent after epoch %d", cfg.minutes, epoch + 1)
+            break
 
 
-def _save(cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int) -> None:
-    """The last checkpoint, and the best one when this epoch's validation is the best yet."""
+class _Clock:
+    """The run's time budget and the timed checkpoints."""
+
+    def __init__(self, cfg: TrainConfig, started: float) -> None:
+        self.start, self.last_save = started, time.monotonic()
+        self.budget = None if cfg.minutes is None else 60.0 * cfg.minutes
+        self.every = None if cfg.save_minutes is None else 60.0 * cfg.save_minutes
+
+    def out_of_time(self) -> bool:
+        return self.budget is not None and time.monotonic() - self.start >= self.budget
+
+    def save_due(self) -> bool:
+        if self.every is None or time.monotonic() - self.last_save < self.every:
+            return False
+        self.saved()
+        return True
+
+    def saved(self) -> None:
+        self.last_save = time.monotonic()
+
+
+def _step(
+    run: TrainingRun, loss_fn: torch.nn.Module, batch: Batch, cfg: TrainConfig
+) -> tuple[float, int, int]:
+    """One optimiser step: the loss, and the right and labelled points of the batch."""
+    model, optimiser = run.model, run.optimiser
+    logits = model(batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples)
+    assert batch.labels is not None
+    loss = loss_fn(logits.reshape(-1, NUM_CLASSES), batch.labels.reshape(-1))
+    if run.teacher is not None:
+        with torch.no_grad():
+            taught = run.teacher(
+                batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples
+            )
+        loss = (1 - cfg.distill_weight) * loss + cfg.distill_weight * distillation_loss(
+            logits, taught, cfg.distill_temperature
+        )
+    optimiser.zero_grad()
+    loss.backward()
+    optimiser.step()
+    known = batch.labels >= 0
+    hits = int((logits.detach().argmax(-1) == batch.labels)[known].sum())
+    return float(loss.detach()), hits, int(known.sum())
+
+
+def distillation_loss(
+    student: torch.Tensor, teacher: torch.Tensor, temperature: float
+) -> torch.Tensor:
+    """KL(teacher || student) of the outputs softened by ``temperature``, times its square
+    (Hinton et al. 2015), so its gradients keep their scale whatever the temperature."""
+    t = temperature
+    log_p = torch.log_softmax(student.reshape(-1, NUM_CLASSES) / t, dim=-1)
+    q = torch.softmax(teacher.reshape(-1, NUM_CLASSES) / t, dim=-1)
+    return torch.nn.functional.kl_div(log_p, q, reduction="batchmean") * t * t
+
+
+def _save(
+    cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int, *, validated: bool = True
+) -> None:
+    """The last checkpoint, and the best one when this epoch's validation is the best yet (a
+    timed save within an epoch, ``validated=False``, only the last); packed copies of both
+    when ``cfg.packed_copy`` is set."""
     card = {
         "architecture": "RandLA-Net (Hu et al. 2020), S3DIS configuration",
         "classes": list(CLASS_NAMES),
@@ -524,7 +631,13 @@ def _save(cfg: TrainConfig, run: TrainingRun, data: TrainingData, epochs: int) -
         "epoch": epochs,
     }
     save_checkpoint(cfg.out, run.model, card, extra=extra)
+    packed = {**card, "weights_dtype": "float16"}
+    if cfg.packed_copy is not None:
+        save_checkpoint(cfg.packed_copy, run.model, packed, half=True, compress=True)
     scores = [h["val_miou"] for h in run.history if h.get("val_miou") is not None]
-    latest = run.history[-1].get("val_miou")
+    latest = run.history[-1].get("val_miou") if validated and run.history else None
     if latest is not None and latest >= max(scores):
         save_checkpoint(best_path(cfg.out), run.model, {**card, "best_of_run": True}, extra=extra)
+        if cfg.packed_copy is not None:
+            best = {**packed, "best_of_run": True}
+            save_checkpoint(best_path(cfg.packed_copy), run.model, best, half=True, compress=True)

@@ -1,0 +1,267 @@
+"""The prepared GPU run: one command that, on a machine lent for a few minutes, trains the
+colour network, the colour-free one and a smaller student distilled from the colour network,
+at once, and leaves packed checkpoints where the lease hands files back.
+
+A lent GPU machine has torch but not the rest of jointseg's dependencies, no ``../shared`` and a
+15-minute budget, so everything is made here beforehand (``pack``): the training scans as
+compact arrays (every real labelled scan of ``../shared/data`` but the judging ones, plus
+synthetic rooms, which cannot be made there) and a manifest of where they came from. ``run``
+then trains the three networks side by side on the one device, each within the minutes given,
+writing ``NAME.pt`` (the latest, packed) every ``save_minutes`` and ``NAME.best.pt`` (the best
+by validation) into the output folder, and at the end ``train.log`` and a ``summary.json`` of
+the three: eight files, the most a lease hands back.
+
+    python -m jointseg.network.training.prepared pack --shared ../shared/data --out .gpu/data
+    python -m jointseg.network.training.prepared run --data .gpu/data --out $OUT --minutes 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import logging
+import os
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from fnmatch import fnmatch
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from jointseg.network.training.loop import TrainConfig
+
+log = logging.getLogger(__name__)
+MODULE = "jointseg.network.training.prepared"
+
+WEIGHTS = Path(__file__).resolve().parents[1] / "weights"
+COLOUR_WEIGHTS = WEIGHTS / "randlanet_indoor.pt"
+NOCOLOUR_WEIGHTS = WEIGHTS / "randlanet_indoor_nocolour.pt"
+#: The student's channel widths, as a share of the full network's.
+STUDENT_CHANNELS = 0.5
+#: Scans kept out of the carried data: the judging scans the networks are compared on.
+JUDGING = ("scene0002_", "scene0007_")
+#: Validation scans (one per source where present).
+VALIDATION = ("area6_office_4", "scene0005_*", "synth_000")
+#: Each source's share of the training crops (renormalised over the sources carried).
+SHARES = {"a6": 0.5, "scannet": 0.35, "synth": 0.15}
+#: Coordinates are stored on a binary lattice (1/128 m) so that they compress well.
+LATTICE = 128.0
+#: What each network of the run starts from and how it learns.
+RECIPE: dict[str, dict[str, object]] = {
+    "colour": {"init": COLOUR_WEIGHTS, "lr": 0.001},
+    "nocolour": {"init": NOCOLOUR_WEIGHTS, "lr": 0.001, "colour": False},
+    "student": {
+        "sliced_init": COLOUR_WEIGHTS,
+        "teacher": COLOUR_WEIGHTS,
+        "num_channels_scale": STUDENT_CHANNELS,
+        "lr": 0.002,
+    },
+}
+
+
+def write_arrays(xyz: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, path: Path) -> int:
+    """One scan as a compressed ``.npz`` that :func:`jointseg.io.read_scan` reads: coordinates
+    from the scan's lowest corner on the 1/128 m lattice, sorted (both compress well), colour
+    as bytes, labels as int8. Returns the file's size."""
+    q = np.round((xyz - xyz.min(axis=0)) * LATTICE).astype(np.int64)
+    order = np.lexsort((q[:, 2], q[:, 1], q[:, 0]))
+    arrays = {
+        "xyz": (q[order] / LATTICE).astype(np.float32),
+        "labels": np.asarray(labels)[order].astype(np.int8),
+    }
+    if rgb is not None:
+        arrays["rgb"] = np.asarray(rgb)[order].astype(np.uint8)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)  # type: ignore[arg-type]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(buffer.getvalue())
+    return len(buffer.getvalue())
+
+
+def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) -> dict:
+    """Write the carried training data under ``out`` (``a6/``, ``scannet/``, ``synth/`` and
+    ``manifest.json``); ``shared`` None packs synthetic rooms only (the test suite's run)."""
+    from jointseg.io import read_scan
+    from jointseg.synth import make_room
+
+    files: dict[str, list[str]] = {}
+    total = 0
+    folders = {"a6": "s3dis_area6", "scannet": "scannet"}
+    for name, folder in folders.items():
+        if shared is None or not (shared / folder).is_dir():
+            continue
+        for path in sorted((shared / folder).glob("*.ply")):
+            if path.stem.startswith(JUDGING):
+                continue
+            scan = read_scan(path)
+            if scan.labels is None:
+                raise SystemExit(f"{path}: no labels; the carried data must be labelled")
+            total += write_arrays(scan.xyz, scan.rgb, scan.labels, out / name / f"{path.stem}.npz")
+            files.setdefault(name, []).append(path.stem)
+    for i in range(synth_rooms):
+        room = make_room(9000 + i, points=synth_points)
+        assert room.labels is not None  # synthetic rooms are labelled
+        total += write_arrays(room.xyz, room.rgb, room.labels, out / "synth" / f"synth_{i:03d}.npz")
+        files.setdefault("synth", []).append(f"synth_{i:03d} (seed {9000 + i})")
+    manifest = {
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "shared": str(shared) if shared else None,
+        "kept_out": [f"{p}*" for p in JUDGING],
+        "synth_points": synth_points,
+        "bytes": total,
+        "scans": files,
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+    log.info(
+        "packed %d scans, %.1f MiB, into %s", sum(map(len, files.values())), total / 2**20, out
+    )
+    return manifest
+
+
+def train_config(
+    name: str, data: Path, out: Path, minutes: float, device: str, save: float
+) -> TrainConfig:
+    """The :class:`~jointseg.network.training.loop.TrainConfig` of one network of the run: the
+    packed checkpoints in ``out``, the full ones (with optimiser state) beside it in
+    :func:`work_dir`."""
+    work = work_dir(out)
+    from jointseg.network.training.loop import TrainConfig
+
+    present = [s for s in SHARES if (data / s).is_dir()]
+    if not present:
+        raise SystemExit(f"{data}: no a6/, scannet/ or synth/ folder; run 'pack' first")
+    total = sum(SHARES[s] for s in present)
+    sources = [f"{s}={data / s}:{SHARES[s] / total:.4f}" for s in present]
+    gpu = device.startswith("cuda")
+    cores = len(os.sched_getaffinity(0))
+    return TrainConfig(
+        data=sources,
+        out=work / f"{name}.pt",
+        packed_copy=out / f"{name}.pt",
+        val_scans=[v for v in VALIDATION if any(fnmatch(p.stem, v) for p in data.rglob("*.npz"))],
+        exclude_scans=[f"{p}*" for p in JUDGING],
+        epochs=10_000,
+        steps_per_epoch=50 if gpu else 4,
+        batch_size=4 if gpu else 1,
+        num_points=16_384 if gpu else 4_096,
+        gamma=0.97,
+        device=device,
+        workers=max(1, (cores - 2) // len(RECIPE)) if gpu else 0,
+        threads=None if gpu else 1,
+        minutes=minutes,
+        save_minutes=save,
+        seed=list(RECIPE).index(name),
+        command=" ".join([Path(sys.executable).name, "-m", MODULE, *sys.argv[1:]]),
+        **RECIPE[name],  # type: ignore[arg-type]
+    )
+
+
+def run(data: Path, out: Path, minutes: float, device: str | None, save: float) -> int:
+    """Train the three networks side by side, each in a process of its own; 0 when all three
+    wrote a checkpoint. Each stops stepping a little before ``minutes`` so that its last
+    validation and checkpoint land in time."""
+    import torch
+
+    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    out.mkdir(parents=True, exist_ok=True)
+    margin = 0.75 if device.startswith("cuda") else 0.35
+    steps = max(minutes - margin, 0.1)
+    started = time.monotonic()
+    procs = {}
+    for name in RECIPE:
+        cmd = [sys.executable, "-m", MODULE, "one", name, "--data", str(data),
+               "--out", str(out), "--minutes", f"{steps:.3f}", "--device", device,
+               "--save-minutes", str(save)]  # fmt: skip
+        logfile = (work_dir(out) / f"{name}.log").open("w")
+        procs[name] = (subprocess.Popen(cmd, stdout=logfile, stderr=subprocess.STDOUT), logfile)
+    codes = {}
+    for name, (proc, logfile) in procs.items():
+        codes[name] = proc.wait()
+        logfile.close()
+    networks = {name: _summary(out, name, codes[name]) for name in RECIPE}
+    logs = [f"== {n}\n" + (work_dir(out) / f"{n}.log").read_text() for n in RECIPE]
+    (out / "train.log").write_text("\n".join(logs))
+    summary = {"device": device, "minutes": minutes, "seconds": time.monotonic() - started,
+               "data": _manifest(data), "networks": networks}  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    log.info("summary: %s", json.dumps(networks))
+    return 0 if all(c == 0 and (out / f"{n}.pt").is_file() for n, c in codes.items()) else 1
+
+
+def work_dir(out: Path) -> Path:
+    """Where the full checkpoints (with optimiser state, for ``jointseg train --resume``) and
+    each network's log go: ``$JOINTSEG_GPU_WORK`` or ``runs/gpu_work``, not ``out`` (a lease
+    hands back at most eight files from its output folder: six packed checkpoints, the log and
+    the summary)."""
+    work = Path(os.environ.get("JOINTSEG_GPU_WORK", "runs/gpu_work")) / out.name
+    work.mkdir(parents=True, exist_ok=True)
+    return work
+
+
+def _manifest(data: Path) -> dict:
+    path = data / "manifest.json"
+    return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _summary(out: Path, name: str, code: int) -> dict:
+    """What one network reached: its exit code, epochs, steps and validation."""
+    from jointseg.network.checkpoint import load_checkpoint
+
+    entry: dict[str, object] = {"exit_code": code}
+    path = out / f"{name}.pt"
+    if path.is_file():
+        model, card, _ = load_checkpoint(path)
+        entry.update(
+            epochs=card.get("epochs"),
+            steps=card.get("steps"),
+            validation=card.get("validation"),
+            parameters=sum(p.numel() for p in model.parameters()),
+            hardware=card.get("hardware"),
+        )
+    return entry
+
+
+def one(name: str, data: Path, out: Path, minutes: float, device: str, save: float) -> None:
+    """Train one network of the recipe (a process of its own, so the three share the device
+    without sharing an interpreter)."""
+    from jointseg.network.training.loop import train
+
+    cfg = train_config(name, data, out, minutes, device, save)
+    train(cfg)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    sub = ap.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("pack", help="write the carried training data")
+    p.add_argument("--shared", type=Path, default=None, help="../shared/data (omit: synth only)")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--synth-rooms", type=int, default=4)
+    p.add_argument("--synth-points", type=int, default=150_000)
+    for what in ("run", "one"):
+        r = sub.add_parser(what, help="train the three networks" if what == "run" else "one")
+        if what == "one":
+            r.add_argument("name", choices=list(RECIPE))
+        r.add_argument("--data", type=Path, required=True)
+        r.add_argument("--out", type=Path, required=True)
+        r.add_argument("--minutes", type=float, default=8.0)
+        r.add_argument("--device", default=None)
+        r.add_argument("--save-minutes", type=float, default=2.0)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    if args.what == "pack":
+        pack(args.out, args.shared, args.synth_rooms, args.synth_points)
+        return 0
+    if args.what == "one":
+        one(args.name, args.data, args.out, args.minutes, args.device, args.save_minutes)
+        return 0
+    return run(args.data, args.out, args.minutes, args.device, args.save_minutes)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""The prepared GPU run (issue 42): the whole command, as a lent machine runs it, for one minute on
+this CPU; and the pieces it adds to the trainer (time budget, timed and packed checkpoints,
+distillation, a narrow network started from a wide one)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from jointseg.io import read_scan
+from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.model import RandLANet
+from jointseg.network.training.loop import _model_config, distillation_loss, sliced_init, train
+from jointseg.network.training.prepared import (
+    COLOUR_WEIGHTS,
+    LATTICE,
+    RECIPE,
+    pack,
+    write_arrays,
+)
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def carried(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Carried data as ``make gpu-pack`` writes it, synthetic rooms only."""
+    data = tmp_path_factory.mktemp("gpu") / "data"
+    pack(data, None, synth_rooms=2, synth_points=40_000)
+    return data
+
+
+def test_the_one_minute_run_leaves_eight_files_and_three_networks(carried: Path, tmp_path) -> None:
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHON": sys.executable, "GPU_DATA": str(carried), "OUT": str(out),
+           "SAVE_MINUTES": "0.2", "JOINTSEG_GPU_WORK": str(tmp_path / "work")}  # fmt: skip
+    started = time.monotonic()
+    done = subprocess.run(
+        ["bash", "scripts/gpu_train.sh", "1"], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    seconds = time.monotonic() - started
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert seconds < 90, f"a one-minute run took {seconds:.0f} s"
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        [f"{n}{s}.pt" for n in RECIPE for s in ("", ".best")] + ["summary.json", "train.log"]
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    nets = summary["networks"]
+    assert all(nets[n]["exit_code"] == 0 and nets[n]["steps"] > 0 for n in RECIPE)
+    assert nets["student"]["parameters"] < nets["colour"]["parameters"] / 3
+    assert summary["data"]["scans"]["synth"][0].startswith("synth_000")
+    for name in RECIPE:
+        model, card, body = load_checkpoint(out / f"{name}.pt")
+        assert card["weights_dtype"] == "float16" and "optimizer" not in body
+        assert card["train_config"]["minutes"] < 1 and card["colour"] == (name != "nocolour")
+        assert "no GPU" in card["hardware"]
+    student_card = load_checkpoint(out / "student.pt")[1]
+    assert student_card["train_config"]["teacher"].endswith("randlanet_indoor.pt")
+    # the full checkpoints, with optimiser state for --resume, stay out of the output folder
+    assert "optimizer" in torch.load(tmp_path / "work" / "out" / "colour.pt", weights_only=False)
+
+
+def test_the_run_refuses_to_start_without_carried_data(tmp_path) -> None:
+    env = {**os.environ, "PYTHON": sys.executable, "GPU_DATA": str(tmp_path / "none"),
+           "OUT": str(tmp_path / "out")}  # fmt: skip
+    done = subprocess.run(
+        ["bash", "scripts/gpu_train.sh", "1"], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert "make gpu-pack" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_packed_arrays_read_back_on_the_lattice(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-3, 5, (5000, 3))
+    rgb = rng.integers(0, 256, (5000, 3))
+    labels = rng.integers(-1, 13, 5000)
+    write_arrays(xyz, rgb, labels, tmp_path / "a.npz")
+    scan = read_scan(tmp_path / "a.npz")
+    order = np.lexsort(np.round((xyz - xyz.min(0)) * LATTICE).T[::-1])
+    assert np.abs(scan.xyz - (xyz - xyz.min(0))[order]).max() <= 0.5 / LATTICE + 1e-6
+    assert (scan.labels == labels[order]).all() and (scan.rgb == rgb[order]).all()
+
+
+def test_a_time_budget_stops_a_long_run_and_saves_it(tiny_training, tmp_path) -> None:
+    cfg = tiny_training(epochs=10_000, steps_per_epoch=3, minutes=0.15, save_minutes=0.05,
+                        packed_copy=tmp_path / "packed.pt")  # fmt: skip
+    started = time.monotonic()
+    train(cfg)
+    assert time.monotonic() - started < 40
+    _, card, body = load_checkpoint(cfg.out)
+    assert 0 < card["epochs"] < 10_000 and "optimizer" in body
+    assert load_checkpoint(tmp_path / "packed.pt")[1]["epochs"] == card["epochs"]
+
+
+def test_distillation_loss_is_zero_only_when_the_student_agrees() -> None:
+    rng = torch.Generator().manual_seed(0)
+    teacher = torch.randn(2, 50, 13, generator=rng)
+    assert float(distillation_loss(teacher, teacher, 2.0)) == pytest.approx(0.0, abs=1e-6)
+    assert float(distillation_loss(torch.randn(2, 50, 13, generator=rng), teacher, 2.0)) > 0.1
+
+
+def test_a_narrow_network_starts_from_the_wide_ones_leading_channels(tiny_training) -> None:
+    wide, _, _ = load_checkpoint(COLOUR_WEIGHTS)
+    narrow = RandLANet(_model_config(tiny_training(num_channels_scale=0.5)))
+    sliced_init(narrow, wide)
+    for name, tensor in narrow.state_dict().items():
+        source = wide.state_dict()[name]
+        lead = source[tuple(slice(0, n) for n in tensor.shape)] if tensor.dim() else source
+        assert torch.equal(tensor, lead.to(tensor.dtype)), name
+    with pytest.raises(Exception, match="wider in the student"):
+        sliced_init(wide, narrow)
