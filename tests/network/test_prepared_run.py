@@ -92,7 +92,7 @@ def test_packed_arrays_read_back_on_the_lattice(tmp_path) -> None:
 
 
 def test_a_time_budget_stops_a_long_run_and_saves_it(tiny_training, tmp_path) -> None:
-    cfg = tiny_training(epochs=10_000, steps_per_epoch=3, minutes=0.15, save_minutes=0.05,
+    cfg = tiny_training(epochs=10_000, steps_per_epoch=3, minutes=0.08, save_minutes=0.02,
                         packed_copy=tmp_path / "packed.pt")  # fmt: skip
     started = time.monotonic()
     train(cfg)

@@ -236,6 +236,7 @@ def one(name: str, data: Path, out: Path, minutes: float, device: str, save: flo
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``pack``, ``run`` or ``one`` from the command line; the exit status."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     sub = ap.add_subparsers(dest="what", required=True)
     p = sub.add_parser("pack", help="write the carried training data")
