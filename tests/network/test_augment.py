@@ -1,4 +1,5 @@
-"""Augmentation for other sensors: density, partial rooms and slices, tilt, colour."""
+"""Augmentation for other sensors: density, partial rooms and slices, handheld sensors' gaps,
+tilt, colour."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from jointseg.network.training.augment import (
     augment_colour,
     cut_region,
     density_sample,
+    sensor_gaps,
     tilt_matrix,
 )
 from jointseg.network.training.batches import region_crop
@@ -68,8 +70,48 @@ def test_sparse_crops_cover_more_ground_with_the_same_points() -> None:
     rng = np.random.default_rng(4)
     spans = {}
     for density, name in ((0.0, "grid"), (1.0, "sparse")):
-        aug = AugmentParams(density=density, density_range=(0.06, 0.06), partial=0, slice=0)
+        aug = AugmentParams(
+            density=density, density_range=(0.06, 0.06), partial=0, slice=0, holes=0, no_ceiling=0
+        )
         crop = region_crop(cloud, centre, 4096, 0.04, rng, aug)
         assert 0.8 * 4096 <= len(crop.xyz) <= 4096
         spans[name] = np.median(np.linalg.norm(crop.xyz - centre, axis=1))
     assert spans["sparse"] > 1.25 * spans["grid"]  # about 6 / 4 on surfaces
+
+
+def test_handheld_gaps_drop_the_ceiling_or_punch_holes() -> None:
+    rng = np.random.default_rng(5)
+    room = make_room(3, points=60_000)
+    assert room.labels is not None and (room.labels == 0).any()
+    bare = sensor_gaps(
+        room.xyz, room.labels, room.xyz[0], rng, AugmentParams(no_ceiling=1.0, holes=0.0)
+    )
+    assert bare is not None and not (room.labels[bare] == 0).any()
+    assert bare.sum() == (room.labels != 0).sum()  # nothing else goes
+    holed = sensor_gaps(
+        room.xyz, room.labels, room.xyz[0], rng, AugmentParams(no_ceiling=0.0, holes=1.0)
+    )
+    assert holed is not None and 0.0005 < 1 - holed.mean() < 0.5
+    # the dropped points are at most four balls of radius 0.5 m: a greedy cover by balls of
+    # radius 1 m (a hole's diameter) around dropped points needs no more than four
+    gone, balls = room.xyz[~holed], 0
+    while len(gone):
+        gone = gone[np.linalg.norm(gone - gone[0], axis=1) > 1.0]
+        balls += 1
+    assert 1 <= balls <= 4
+    assert (
+        sensor_gaps(room.xyz, room.labels, room.xyz[0], rng, AugmentParams(no_ceiling=0, holes=0))
+        is None
+    )
+
+
+def test_a_colour_cast_moves_the_channels_apart() -> None:
+    rng = np.random.default_rng(6)
+    rgb = np.full((2000, 3), 0.5, dtype=np.float32)
+    plain = AugmentParams(colour_drop=0, grey=0, exposure=0, colour_cast=0)
+    cast = plain.model_copy(update={"colour_cast": 1.0, "cast_range": (0.6, 1.4)})
+    spread = [
+        np.ptp(augment_colour(rgb, rng, p).mean(axis=0)) for p in (plain, cast) for _ in range(20)
+    ]
+    # white balance alone moves the channels by a few per cent; a cast by tens of per cent
+    assert np.median(spread[20:]) > 2 * np.median(spread[:20])

@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,9 @@ from jointseg.network.training.prepared import (
     COLOUR_WEIGHTS,
     LATTICE,
     RECIPE,
+    RunOptions,
     pack,
+    train_config,
     write_arrays,
 )
 
@@ -119,3 +122,20 @@ def test_a_narrow_network_starts_from_the_wide_ones_leading_channels(tiny_traini
         assert torch.equal(tensor, lead.to(tensor.dtype)), name
     with pytest.raises(Exception, match="wider in the student"):
         sliced_init(wide, narrow)
+
+
+def test_a_resumed_run_continues_its_own_weights_not_the_recipes_start(
+    carried: Path, tmp_path, monkeypatch
+) -> None:
+    monkeypatch.setenv("JOINTSEG_GPU_WORK", str(tmp_path / "work"))
+    opts = RunOptions(data=carried, out=tmp_path / "out", resume=True, alongside=3)
+    fresh = train_config("student", opts)
+    assert fresh.resume is None and fresh.sliced_init == COLOUR_WEIGHTS
+    assert fresh.teacher == COLOUR_WEIGHTS and fresh.num_channels_scale == 0.5
+    fresh.out.write_bytes(b"a checkpoint")  # what an earlier run left in the work folder
+    again = train_config("student", opts)
+    assert again.resume == fresh.out and again.sliced_init is None and again.init is None
+    assert again.teacher == COLOUR_WEIGHTS  # still distilled
+    assert train_config("student", replace(opts, resume=False)).resume is None
+    # on a CPU the three networks share the cores; on a GPU each gets a share of batch workers
+    assert fresh.threads == max(1, len(os.sched_getaffinity(0)) // 3) and fresh.workers == 0

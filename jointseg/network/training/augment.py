@@ -12,10 +12,12 @@ them at random:
 - geometry: rotation about z, a mirror, anisotropic scale, a tilt of a few degrees (what the
   frame stage leaves after levelling), an elastic field, sensor noise of up to a few mm
   (:func:`augment`);
+- handheld sensors: no ceiling, occlusion holes (:func:`sensor_gaps`);
 - stray points: a few points far outside the crop (returns through windows, off mirrors), left
   unlabelled (:func:`add_stray_points`);
 - colour: brightness, exposure (a gamma: dim rooms), per-channel gain and offset (white
-  balance), contrast, noise; some crops grey, some without colour (:func:`augment_colour`).
+  balance, and a strong cast for some), contrast, noise; some crops grey, some without colour
+  (:func:`augment_colour`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from scipy import ndimage
 
 from jointseg.voxels import cell_majority, cell_means, voxel_index
 
+#: The ceiling's class index (S3DIS order).
+CEILING = 0
 #: Elastic distortion: a random displacement field on a grid of this pitch (m), smoothed over
 #: neighbouring grid cells, scaled to about this many metres of displacement.
 ELASTIC_PITCH = 0.4
@@ -66,6 +70,29 @@ class AugmentParams(BaseModel):
     )
     gamma_range: tuple[float, float] = Field(
         (0.7, 1.8), description="gammas drawn for the exposure change (above 1: darker)"
+    )
+    no_ceiling: float = Field(
+        0.15,
+        ge=0,
+        le=1,
+        description="share of crops without their ceiling points (phone LiDAR and RGB-D "
+        "captures seldom reach the ceiling)",
+    )
+    holes: float = Field(
+        0.2, ge=0, le=1, description="share of crops with occlusion holes (points in balls gone)"
+    )
+    hole_radius: tuple[float, float] = Field(
+        (0.15, 0.5), description="radius (m) of each of the one to four holes"
+    )
+    colour_cast: float = Field(
+        0.15,
+        ge=0,
+        le=1,
+        description="share of crops given a strong colour cast (a camera's white balance off "
+        "under warm or cold light)",
+    )
+    cast_range: tuple[float, float] = Field(
+        (0.7, 1.3), description="per-channel gains drawn for the colour cast"
     )
     stray: float = Field(
         0.1, ge=0, le=1, description="share of crops given a few stray points far outside"
@@ -120,6 +147,8 @@ def augment_colour(rgb: np.ndarray, rng: np.random.Generator, params: AugmentPar
     contrast = rng.uniform(0.8, 1.2)
     rgb = (rgb - mean) * contrast + mean
     rgb = rgb * rng.uniform(0.8, 1.2) * rng.uniform(0.92, 1.08, 3) + rng.uniform(-0.05, 0.05, 3)
+    if rng.random() < params.colour_cast:
+        rgb = rgb * rng.uniform(*params.cast_range, 3)
     if rng.random() < params.exposure:
         rgb = np.clip(rgb, 0, 1) ** rng.uniform(*params.gamma_range)
     rgb = rgb + rng.normal(0, 0.02, rgb.shape)
@@ -172,6 +201,30 @@ def cut_region(
         floor = float(xyz[:, 2].min(initial=0.0))
         return xyz[:, 2] <= floor + rng.uniform(*params.slice_height)
     return None
+
+
+def sensor_gaps(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    centre: np.ndarray,
+    rng: np.random.Generator,
+    params: AugmentParams,
+) -> np.ndarray | None:
+    """A boolean mask of what a handheld sensor would have captured of the region, or None for
+    all of it: for a share of the crops no ceiling (labelled 0), for a share one to four
+    occlusion holes, balls emptied around points of the region's inner third (where the crop
+    will be)."""
+    keep = np.ones(len(xyz), dtype=bool)
+    if rng.random() < params.no_ceiling:
+        keep &= labels != CEILING
+    if rng.random() < params.holes and len(xyz):
+        dist = np.linalg.norm(xyz - centre, axis=1)
+        inner = np.flatnonzero(dist <= np.quantile(dist, 1 / 3))
+        centres = xyz[rng.choice(inner, size=int(rng.integers(1, 5)))]
+        radius = rng.uniform(*params.hole_radius, len(centres))
+        for c, r in zip(centres, radius, strict=True):
+            keep &= ((xyz - c) ** 2).sum(axis=1) > r * r
+    return None if keep.all() else keep
 
 
 def density_sample(

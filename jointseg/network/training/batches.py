@@ -33,6 +33,7 @@ from jointseg.network.training.augment import (
     augment,
     cut_region,
     density_sample,
+    sensor_gaps,
 )
 
 #: A crop's region reaches this much beyond the radius its points would span at the network's
@@ -86,6 +87,9 @@ def region_crop(
     assert cloud.labels is not None
     lab = cloud.labels[idx]
     keep = cut_region(xyz, centre, rng, aug)
+    if keep is not None and keep.sum() >= MIN_CROP:
+        xyz, rgb, lab = xyz[keep], rgb[keep], lab[keep]
+    keep = sensor_gaps(xyz, lab, centre, rng, aug)
     if keep is not None and keep.sum() >= MIN_CROP:
         xyz, rgb, lab = xyz[keep], rgb[keep], lab[keep]
     if spacing < grid:

@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from fnmatch import fnmatch
 from pathlib import Path
@@ -123,71 +124,96 @@ def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) ->
     return manifest
 
 
-def train_config(
-    name: str, data: Path, out: Path, minutes: float, device: str, save: float
-) -> TrainConfig:
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run trains: where, for how long, which networks."""
+
+    data: Path
+    out: Path
+    minutes: float = 8.0
+    device: str = "cpu"
+    save_minutes: float = 2.0
+    names: tuple[str, ...] = tuple(RECIPE)
+    steps_per_epoch: int | None = None
+    resume: bool = False
+    alongside: int = 1  # networks training at once on this machine, which share its cores
+
+    @property
+    def gpu(self) -> bool:
+        return self.device.startswith("cuda")
+
+
+def train_config(name: str, opts: RunOptions) -> TrainConfig:
     """The :class:`~jointseg.network.training.loop.TrainConfig` of one network of the run: the
-    packed checkpoints in ``out``, the full ones (with optimiser state) beside it in
-    :func:`work_dir`."""
-    work = work_dir(out)
+    packed checkpoints in ``opts.out``, the full ones (with optimiser state) in
+    :func:`work_dir`, from which ``opts.resume`` continues."""
     from jointseg.network.training.loop import TrainConfig
 
+    data, work = opts.data, work_dir(opts.out)
     present = [s for s in SHARES if (data / s).is_dir()]
     if not present:
         raise SystemExit(f"{data}: no a6/, scannet/ or synth/ folder; run 'pack' first")
     total = sum(SHARES[s] for s in present)
-    sources = [f"{s}={data / s}:{SHARES[s] / total:.4f}" for s in present]
-    gpu = device.startswith("cuda")
+    full = work / f"{name}.pt"
+    recipe = dict(RECIPE[name])
+    resume = full if opts.resume and full.is_file() else None
+    if resume is not None:  # the run's own weights and optimiser, not the recipe's start
+        for key in ("init", "sliced_init"):
+            recipe.pop(key, None)
     cores = len(os.sched_getaffinity(0))
     return TrainConfig(
-        data=sources,
-        out=work / f"{name}.pt",
-        packed_copy=out / f"{name}.pt",
+        data=[f"{s}={data / s}:{SHARES[s] / total:.4f}" for s in present],
+        out=full,
+        resume=resume,
+        packed_copy=opts.out / f"{name}.pt",
         val_scans=[v for v in VALIDATION if any(fnmatch(p.stem, v) for p in data.rglob("*.npz"))],
         exclude_scans=[f"{p}*" for p in JUDGING],
         epochs=10_000,
-        steps_per_epoch=50 if gpu else 4,
-        batch_size=4 if gpu else 1,
-        num_points=16_384 if gpu else 4_096,
+        steps_per_epoch=opts.steps_per_epoch or (50 if opts.gpu else 4),
+        batch_size=4 if opts.gpu else 1,
+        num_points=16_384 if opts.gpu else 4_096,
         gamma=0.97,
-        device=device,
-        workers=max(1, (cores - 2) // len(RECIPE)) if gpu else 0,
-        threads=None if gpu else 1,
-        minutes=minutes,
-        save_minutes=save,
+        device=opts.device,
+        workers=max(1, (cores - 2) // opts.alongside) if opts.gpu else 0,
+        threads=None if opts.gpu else max(1, cores // opts.alongside),
+        minutes=opts.minutes,
+        save_minutes=opts.save_minutes,
         seed=list(RECIPE).index(name),
         command=" ".join([Path(sys.executable).name, "-m", MODULE, *sys.argv[1:]]),
-        **RECIPE[name],  # type: ignore[arg-type]
+        **recipe,  # type: ignore[arg-type]
     )
 
 
-def run(data: Path, out: Path, minutes: float, device: str | None, save: float) -> int:
-    """Train the three networks side by side, each in a process of its own; 0 when all three
-    wrote a checkpoint. Each stops stepping a little before ``minutes`` so that its last
+def run(opts: RunOptions) -> int:
+    """Train the networks side by side, each in a process of its own; 0 when each wrote a
+    checkpoint. Each stops stepping a little before ``opts.minutes`` so that its last
     validation and checkpoint land in time."""
-    import torch
-
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    out = opts.out
     out.mkdir(parents=True, exist_ok=True)
-    margin = 0.75 if device.startswith("cuda") else 0.35
-    steps = max(minutes - margin, 0.1)
+    margin = 0.75 if opts.gpu else 0.35
     started = time.monotonic()
     procs = {}
-    for name in RECIPE:
-        cmd = [sys.executable, "-m", MODULE, "one", name, "--data", str(data),
-               "--out", str(out), "--minutes", f"{steps:.3f}", "--device", device,
-               "--save-minutes", str(save)]  # fmt: skip
-        logfile = (work_dir(out) / f"{name}.log").open("w")
+    for name in opts.names:
+        cmd = [sys.executable, "-m", MODULE, "one", name, "--data", str(opts.data),
+               "--out", str(out), "--minutes", f"{max(opts.minutes - margin, 0.1):.3f}",
+               "--device", opts.device, "--save-minutes", str(opts.save_minutes),
+               "--alongside", str(len(opts.names))]  # fmt: skip
+        if opts.steps_per_epoch:
+            cmd += ["--steps", str(opts.steps_per_epoch)]
+        if opts.resume:
+            cmd.append("--resume")
+        logfile = (work_dir(out) / f"{name}.log").open("a" if opts.resume else "w")
         procs[name] = (subprocess.Popen(cmd, stdout=logfile, stderr=subprocess.STDOUT), logfile)
     codes = {}
     for name, (proc, logfile) in procs.items():
         codes[name] = proc.wait()
         logfile.close()
-    networks = {name: _summary(out, name, codes[name]) for name in RECIPE}
-    logs = [f"== {n}\n" + (work_dir(out) / f"{n}.log").read_text() for n in RECIPE]
+    networks = {name: _summary(out, name, codes[name]) for name in opts.names}
+    logs = [f"== {n}\n" + (work_dir(out) / f"{n}.log").read_text() for n in opts.names]
     (out / "train.log").write_text("\n".join(logs))
-    summary = {"device": device, "minutes": minutes, "seconds": time.monotonic() - started,
-               "data": _manifest(data), "networks": networks}  # fmt: skip
+    summary = {"device": opts.device, "minutes": opts.minutes,
+               "seconds": time.monotonic() - started, "data": _manifest(opts.data),
+               "networks": networks}  # fmt: skip
     (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     log.info("summary: %s", json.dumps(networks))
     return 0 if all(c == 0 and (out / f"{n}.pt").is_file() for n, c in codes.items()) else 1
@@ -226,15 +252,6 @@ def _summary(out: Path, name: str, code: int) -> dict:
     return entry
 
 
-def one(name: str, data: Path, out: Path, minutes: float, device: str, save: float) -> None:
-    """Train one network of the recipe (a process of its own, so the three share the device
-    without sharing an interpreter)."""
-    from jointseg.network.training.loop import train
-
-    cfg = train_config(name, data, out, minutes, device, save)
-    train(cfg)
-
-
 def main(argv: list[str] | None = None) -> int:
     """``pack``, ``run`` or ``one`` from the command line; the exit status."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
@@ -245,23 +262,45 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--synth-rooms", type=int, default=4)
     p.add_argument("--synth-points", type=int, default=150_000)
     for what in ("run", "one"):
-        r = sub.add_parser(what, help="train the three networks" if what == "run" else "one")
+        r = sub.add_parser(what, help="train the networks" if what == "run" else "one of them")
         if what == "one":
             r.add_argument("name", choices=list(RECIPE))
+        else:
+            r.add_argument("--only", nargs="+", choices=list(RECIPE), default=list(RECIPE))
         r.add_argument("--data", type=Path, required=True)
         r.add_argument("--out", type=Path, required=True)
         r.add_argument("--minutes", type=float, default=8.0)
-        r.add_argument("--device", default=None)
+        r.add_argument("--device", default=None, help="default: cuda when present")
         r.add_argument("--save-minutes", type=float, default=2.0)
+        r.add_argument("--steps", type=int, default=None, help="steps per epoch")
+        r.add_argument("--resume", action="store_true", help="continue the work folder's runs")
+        if what == "one":
+            r.add_argument("--alongside", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.what == "pack":
         pack(args.out, args.shared, args.synth_rooms, args.synth_points)
         return 0
+    import torch
+
+    names = (args.name,) if args.what == "one" else tuple(args.only)
+    opts = RunOptions(
+        data=args.data,
+        out=args.out,
+        minutes=args.minutes,
+        device=args.device or ("cuda" if torch.cuda.is_available() else "cpu"),
+        save_minutes=args.save_minutes,
+        names=names,
+        steps_per_epoch=args.steps,
+        resume=args.resume,
+        alongside=getattr(args, "alongside", len(names)),
+    )
     if args.what == "one":
-        one(args.name, args.data, args.out, args.minutes, args.device, args.save_minutes)
+        from jointseg.network.training.loop import train
+
+        train(train_config(args.name, opts))
         return 0
-    return run(args.data, args.out, args.minutes, args.device, args.save_minutes)
+    return run(opts)
 
 
 if __name__ == "__main__":
