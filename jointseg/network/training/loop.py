@@ -523,6 +523,7 @@ def _train_epochs(
                 break
             if clock.save_due():
                 _save(cfg, run, data, epoch, validated=False)
+                clock.saved()
         train_seconds = time.perf_counter() - started
         run.scheduler.step()
         miou, per_source = validate_sources(run.model, data.sources, cfg)
@@ -560,10 +561,7 @@ class _Clock:
         return self.budget is not None and time.monotonic() - self.start >= self.budget
 
     def save_due(self) -> bool:
-        if self.every is None or time.monotonic() - self.last_save < self.every:
-            return False
-        self.saved()
-        return True
+        return self.every is not None and time.monotonic() - self.last_save >= self.every
 
     def saved(self) -> None:
         self.last_save = time.monotonic()

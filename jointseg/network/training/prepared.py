@@ -18,7 +18,6 @@ the three: eight files, the most a lease hands back.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import logging
 import os
@@ -32,6 +31,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from jointseg.io.atomic import atomic_open
 
 if TYPE_CHECKING:
     from jointseg.network.training.loop import TrainConfig
@@ -77,11 +78,10 @@ def write_arrays(xyz: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, pa
     }
     if rgb is not None:
         arrays["rgb"] = np.asarray(rgb)[order].astype(np.uint8)
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **arrays)  # type: ignore[arg-type]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(buffer.getvalue())
-    return len(buffer.getvalue())
+    with atomic_open(path) as fh:  # a pack cut short leaves no half-written scan
+        np.savez_compressed(fh, **arrays)  # type: ignore[arg-type]
+    return path.stat().st_size
 
 
 def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) -> dict:
@@ -192,6 +192,7 @@ def run(opts: RunOptions) -> int:
     out.mkdir(parents=True, exist_ok=True)
     margin = 0.75 if opts.gpu else 0.35
     started = time.monotonic()
+    work = work_dir(out)
     procs = {}
     for name in opts.names:
         cmd = [sys.executable, "-m", MODULE, "one", name, "--data", str(opts.data),
@@ -202,14 +203,14 @@ def run(opts: RunOptions) -> int:
             cmd += ["--steps", str(opts.steps_per_epoch)]
         if opts.resume:
             cmd.append("--resume")
-        logfile = (work_dir(out) / f"{name}.log").open("a" if opts.resume else "w")
+        logfile = (work / f"{name}.log").open("a" if opts.resume else "w")
         procs[name] = (subprocess.Popen(cmd, stdout=logfile, stderr=subprocess.STDOUT), logfile)
     codes = {}
     for name, (proc, logfile) in procs.items():
         codes[name] = proc.wait()
         logfile.close()
     networks = {name: _summary(out, name, codes[name]) for name in opts.names}
-    logs = [f"== {n}\n" + (work_dir(out) / f"{n}.log").read_text() for n in opts.names]
+    logs = [f"== {n}\n" + (work / f"{n}.log").read_text() for n in opts.names]
     (out / "train.log").write_text("\n".join(logs))
     summary = {"device": opts.device, "minutes": opts.minutes,
                "seconds": time.monotonic() - started, "data": _manifest(opts.data),
