@@ -18,8 +18,10 @@ import torch
 
 from jointseg.io import read_scan
 from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
-from jointseg.network.training.loop import _model_config, distillation_loss, sliced_init, train
+from jointseg.network.randlanet.slicing import channel_maps, sliced_init
+from jointseg.network.training.loop import _model_config, distillation_loss, train
 from jointseg.network.training.prepared import (
     COLOUR_WEIGHTS,
     LATTICE,
@@ -112,16 +114,48 @@ def test_distillation_loss_is_zero_only_when_the_student_agrees() -> None:
     assert float(distillation_loss(torch.randn(2, 50, 13, generator=rng), teacher, 2.0)) > 0.1
 
 
-def test_a_narrow_network_starts_from_the_wide_ones_leading_channels(tiny_training) -> None:
+def _zero_outside(wide: RandLANet, narrow: RandLANet) -> None:
+    """Zero every weight of ``wide`` on a channel the narrow copy leaves out: the wide network
+    then carries nothing on those channels, and a right slicing computes the same logits."""
+    state = wide.state_dict()
+    for name, small in narrow.state_dict().items():
+        if small.dim() == 0 or name.endswith(("running_mean", "running_var")):
+            continue
+        keep = torch.zeros_like(state[name], dtype=torch.bool)
+        index = channel_maps(name, tuple(small.shape), wide.config, narrow.config)
+        keep[torch.meshgrid(*index, indexing="ij")] = True
+        state[name] = torch.where(keep, state[name], torch.zeros_like(state[name]))
+    wide.load_state_dict(state)
+
+
+def test_a_sliced_narrow_network_computes_what_the_wide_one_does_on_its_channels(
+    tiny_training,
+) -> None:
     wide, _, _ = load_checkpoint(COLOUR_WEIGHTS)
     narrow = RandLANet(_model_config(tiny_training(num_channels_scale=0.5)))
+    _zero_outside(wide, narrow)
     sliced_init(narrow, wide)
-    for name, tensor in narrow.state_dict().items():
-        source = wide.state_dict()[name]
-        lead = source[tuple(slice(0, n) for n in tensor.shape)] if tensor.dim() else source
-        assert torch.equal(tensor, lead.to(tensor.dtype)), name
+    wide.eval(), narrow.eval()
+    gen = torch.Generator().manual_seed(0)
+    xyz = torch.rand(1, 2048, 3, generator=gen) * 3
+    features = torch.cat([xyz, torch.rand(1, 2048, 3, generator=gen)], dim=2)
+    indices = layer_indices(xyz, wide.config)
+    with torch.no_grad():
+        expected, got = wide(features, *indices), narrow(features, *indices)
+    assert expected.abs().max() > 0.1  # the zeroed network still says something
+    torch.testing.assert_close(got, expected, rtol=1e-4, atol=1e-4)
     with pytest.raises(Exception, match="wider in the student"):
         sliced_init(wide, narrow)
+
+
+def test_a_leading_block_copy_would_not_do(tiny_training) -> None:
+    """The decoder reads a skip beside the upsampled features: the narrow network's second part
+    sits at the wide one's offset, not right after its own first part."""
+    wide = RandLANet(_model_config(tiny_training()))
+    narrow = RandLANet(_model_config(tiny_training(num_channels_scale=0.5)))
+    index = channel_maps("decoder.0.conv.weight", (1, 768, 1, 1), wide.config, narrow.config)[1]
+    assert index[:256].tolist() == list(range(256))
+    assert index[256:].tolist() == list(range(512, 1024))
 
 
 def test_a_resumed_run_continues_its_own_weights_not_the_recipes_start(

@@ -31,6 +31,18 @@ class RandLANetConfig(BaseModel):
     grid_size: float = Field(0.04, gt=0, description="grid sub-sampling, metres")
 
 
+def decoder_inputs(cfg: RandLANetConfig) -> list[tuple[int, int]]:
+    """Each decoder layer's input as (skip channels, upsampled channels), concatenated in that
+    order: the layout a channel-sliced copy of the network must follow."""
+    skips = [2 * cfg.d_out[0]] + [2 * d for d in cfg.d_out]
+    inputs, d = [], 2 * cfg.d_out[-1]
+    for i in range(len(cfg.d_out)):
+        skip = skips[-i - 2]
+        inputs.append((skip, d))
+        d = skip
+    return inputs
+
+
 class RandLANet(nn.Module):
     """Encoder of dilated residual blocks with random sampling, decoder with nearest-neighbour
     upsampling and skip connections, per-point class logits.
@@ -48,19 +60,14 @@ class RandLANet(nn.Module):
             raise ValueError("d_out and ratios must have one entry per layer")
         self.stem = nn.Linear(cfg.in_channels, cfg.d_stem)
         self.stem_bn = nn.BatchNorm2d(cfg.d_stem, eps=1e-6, momentum=BN_MOMENTUM)
-        blocks, skip_dims, d = [], [], cfg.d_stem
-        for i, d_out in enumerate(cfg.d_out):
+        blocks, d = [], cfg.d_stem
+        for d_out in cfg.d_out:
             blocks.append(DilatedResidualBlock(d, d_out))
             d = 2 * d_out
-            skip_dims += [d, d] if i == 0 else [d]
         self.encoder = nn.ModuleList(blocks)
         self.bottleneck = SharedMLP(d, d)
-        decoder = []
-        for i in range(len(cfg.d_out)):
-            skip = skip_dims[-i - 2]
-            decoder.append(SharedMLP(skip + d, skip))
-            d = skip
-        self.decoder = nn.ModuleList(decoder)
+        self.decoder = nn.ModuleList(SharedMLP(skip + up, skip) for skip, up in decoder_inputs(cfg))
+        d = decoder_inputs(cfg)[-1][0]
         self.head = nn.Sequential(
             SharedMLP(d, 64),
             SharedMLP(64, 32),

@@ -39,6 +39,7 @@ from jointseg.network.randlanet.crops import (
 )
 from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
+from jointseg.network.randlanet.slicing import sliced_init
 from jointseg.network.training.augment import AugmentParams
 from jointseg.network.training.batches import BatchMaker, CropBatch, batch_stream
 from jointseg.network.training.data import centre_weights
@@ -424,25 +425,6 @@ def _start(cfg: TrainConfig) -> TrainingRun:
         for p in teacher.parameters():
             p.requires_grad_(False)
     return TrainingRun(model, device, optimiser, scheduler, start_epoch, history, teacher)
-
-
-def sliced_init(student: RandLANet, teacher: RandLANet) -> None:
-    """Copy into each of the student's tensors the leading slice of the teacher's (the same
-    layers, fewer channels): a narrow network that starts from what the wide one learnt rather
-    than from noise."""
-    source = teacher.state_dict()
-    target = student.state_dict()
-    for name, tensor in target.items():
-        src = source.get(name)
-        if src is None or src.dim() != tensor.dim():
-            raise ConfigError(f"sliced init: the teacher has no tensor like {name!r}")
-        if tensor.dim() == 0:
-            target[name] = src.clone()
-            continue
-        if any(t > s for t, s in zip(tensor.shape, src.shape, strict=True)):
-            raise ConfigError(f"sliced init: {name!r} is wider in the student than the teacher")
-        target[name] = src[tuple(slice(0, n) for n in tensor.shape)].clone()
-    student.load_state_dict(target)
 
 
 def card_facts(cfg: TrainConfig, history: list[dict]) -> dict[str, object]:
