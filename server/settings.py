@@ -126,8 +126,9 @@ class Settings(BaseSettings):
     )
     weights_dirs: list[Path] = Field(
         default_factory=list,
-        description="When set (a JSON list of folders), a job's `network.weights` must lie in one "
-        "of them.",
+        description="Folders (a JSON list) whose files a job's `network.weights` may name, by "
+        "name or path; besides them only pulled published models and the bundled weights. "
+        "Anything else gets one 422, whether or not such a file exists.",
     )
     log_level: str = Field("INFO", description="Logging level of the API and the workers.")
 

@@ -16,6 +16,8 @@ from jointseg.network.training.loop import TrainConfig
 
 #: Real scans and published weights shared between checkouts (never copied into the repository).
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+#: Environment variable naming the folder of the tests' weights files (not a service setting).
+TEST_WEIGHTS_ENV = "JOINTSEG_TEST_WEIGHTS_DIR"
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -24,6 +26,8 @@ def pytest_configure(config: pytest.Config) -> None:
     import tempfile
 
     os.environ["JOINTSEG_CACHE"] = tempfile.mkdtemp(prefix="jointseg-cache-")
+    # the one folder of test weights: the services the tests start allow it (weights_dirs)
+    os.environ[TEST_WEIGHTS_ENV] = tempfile.mkdtemp(prefix="jointseg-weights-")
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -31,6 +35,14 @@ def pytest_unconfigure(config: pytest.Config) -> None:
     import shutil
 
     shutil.rmtree(os.environ.get("JOINTSEG_CACHE", ""), ignore_errors=True)
+    shutil.rmtree(os.environ.get(TEST_WEIGHTS_ENV, ""), ignore_errors=True)
+
+
+def weights_folder() -> Path:
+    """The folder the weights fixtures write to, and the test services' weights folder."""
+    import os
+
+    return Path(os.environ[TEST_WEIGHTS_ENV])
 
 
 @pytest.fixture(scope="session")
@@ -47,17 +59,17 @@ def shared_file() -> Callable[[str], Path]:
 
 
 @pytest.fixture(scope="session")
-def random_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def random_weights() -> Path:
     """A small, randomly initialised RandLA-Net checkpoint: the tests never need trained weights."""
     torch.manual_seed(0)
     model = RandLANet(RandLANetConfig(num_points=4096))
-    path = tmp_path_factory.mktemp("weights") / "random.pt"
+    path = weights_folder() / "random.pt"
     save_checkpoint(path, model, {"data": "random initialisation (tests)"})
     return path
 
 
 @pytest.fixture(scope="session")
-def dgcnn_random_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def dgcnn_random_weights() -> Path:
     """A randomly initialised DGCNN saved as dgcnn.pytorch saves its S3DIS weights: a state dict
     from ``nn.DataParallel`` (``module.`` prefix), with batch-norm statistics that are not the
     identity, so that folding them is tested."""
@@ -69,7 +81,7 @@ def dgcnn_random_weights(tmp_path_factory: pytest.TempPathFactory) -> Path:
             module.running_var.uniform_(0.5, 2.0)
             module.weight.data.uniform_(-1.5, 1.5)  # negative scales too
             module.bias.data.uniform_(-0.2, 0.2)
-    path = tmp_path_factory.mktemp("dgcnn") / "model_9.t7"
+    path = weights_folder() / "model_9.t7"
     torch.save({f"module.{k}": v for k, v in model.state_dict().items()}, path)
     return path
 

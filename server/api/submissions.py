@@ -9,14 +9,12 @@ from __future__ import annotations
 import json
 import logging
 import uuid
-from pathlib import Path
 
 from pydantic import ValidationError
 
 from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
 from jointseg.io import ScanInfo, probe_scan, read_scan
 from jointseg.io.mesh import check_single_file
-from jointseg.network import published
 from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
@@ -25,6 +23,7 @@ from server.messages import public_message
 from server.settings import Settings
 from server.state import jobs
 from server.state.lifecycle import fail_queued
+from server.weights import resolve_job_weights
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +40,8 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
     ConfigError
         For invalid JSON or values, naming the field (``config.fusion.ratio_threshold``), an
         unknown network, a network without weights on this service (the job would only fail
-        in the worker), or weights that do not exist or lie outside ``settings.weights_dirs``.
+        in the worker), or weights that are neither a pulled model nor a file in the weights
+        folders (one answer whether or not the file exists; :mod:`server.weights`).
     """
     config = _validated(text)
     network = config.network
@@ -51,7 +51,7 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
             f"{', '.join(BACKENDS)}"
         )
     if network.weights is not None:
-        _check_weights(network.weights, settings)
+        resolve_job_weights(network.weights, settings)
     elif not has_weights(network.name):
         raise ConfigError(_no_weights(network.name))
     if config.tiles.max_points > settings.max_tile_points:
@@ -88,26 +88,6 @@ def _no_weights(name: str) -> str:
         f"config.network.name: network {name!r} has no weights installed on this service; "
         f"{fix} (or name weights in config.network.weights)"
     )
-
-
-def _check_weights(weights: Path, settings: Settings) -> None:
-    name = str(weights)
-    if not weights.exists() and name in published.catalogue():  # published weights by name
-        if published.pulled_path(name) is None:
-            raise ConfigError(
-                f"config.network.weights: {name} is not pulled on this service "
-                f"(`jointseg models pull {name}` on its machines)"
-            )
-        return
-    path = weights.expanduser().resolve()
-    if settings.weights_dirs and not any(
-        path.is_relative_to(d.expanduser().resolve()) for d in settings.weights_dirs
-    ):
-        raise ConfigError(
-            f"config.network.weights: {weights} is outside the allowed weights folders"
-        )
-    if not path.is_file():
-        raise ConfigError(f"config.network.weights: {weights}: file not found")
 
 
 def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:

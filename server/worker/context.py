@@ -19,6 +19,7 @@ from server.settings import Settings
 from server.state import lifecycle, parts
 from server.state.db import SessionFactory
 from server.storage import Storage
+from server.weights import resolve_job_weights
 
 if TYPE_CHECKING:  # only for annotations: jointseg.network imports torch
     from jointseg.network import Predictor
@@ -55,6 +56,10 @@ class WorkerContext:
         if kept is not None:
             return kept, 0.0
         started = time.perf_counter()
-        predictor = load_predictor(config.network)
+        network = config.network
+        if network.weights is not None:  # opened only inside the weights folders
+            resolved = resolve_job_weights(network.weights, self.settings)
+            network = network.model_copy(update={"weights": resolved})
+        predictor = load_predictor(network)
         self.predictors.put(key, predictor)
         return predictor, time.perf_counter() - started

@@ -68,10 +68,10 @@ def test_submit_without_wait_prints_the_id_only(service, room, monkeypatch, caps
     assert re.fullmatch(r"[0-9a-f]{32}\n", out)
 
 
-def test_a_failed_job_is_one_error_line(service, room, tmp_path, capsys) -> None:
-    # a weights file that exists (so the API accepts the job) but is no checkpoint: the worker
-    # fails the job when it loads the network
-    garbage = tmp_path / "garbage.pt"
+def test_a_failed_job_is_one_error_line(service, room, random_weights, tmp_path, capsys) -> None:
+    # a weights file in the service's weights folder (so the API accepts the job) but no
+    # checkpoint: the worker fails the job when it loads the network
+    garbage = random_weights.parent / "garbage-cli.pt"
     garbage.write_bytes(b"not a checkpoint")
     config = _config(tmp_path, {"network": {"weights": str(garbage)}})
     args = ["--server", service.url, "--api-key", "key-one", "--config", config, "--wait"]

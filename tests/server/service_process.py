@@ -7,6 +7,7 @@ RandLA-Net of tests/conftest.py, passed in each job's config.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -47,10 +48,14 @@ def free_port() -> int:
 
 
 def service_env(data_dir: Path, **settings: Any) -> dict[str, str]:
-    """The environment of a service process: fast heartbeats plus ``settings`` (JOINTSEG_*)."""
+    """The environment of a service process: fast heartbeats, the test weights' folder as its
+    weights folder, plus ``settings`` (JOINTSEG_*)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
     env.update(FAST)
     env["JOINTSEG_DATA_DIR"] = str(data_dir)
+    weights = os.environ.get("JOINTSEG_TEST_WEIGHTS_DIR")  # the weights fixtures' folder
+    if weights:
+        env["JOINTSEG_WEIGHTS_DIRS"] = json.dumps([weights])
     env.update({f"JOINTSEG_{k.upper()}": str(v) for k, v in settings.items()})
     return env
 

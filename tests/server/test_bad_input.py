@@ -256,3 +256,41 @@ def test_upload_over_the_limit_is_413_and_leaves_nothing(locked, scans) -> None:
         except httpx.TransportError:
             pass  # the server may close the connection before the client finished sending
         _assert_nothing_left(locked, http, before)
+
+
+def test_weights_outside_the_weights_folders_get_one_answer(locked, scans, random_weights) -> None:
+    """Whether the file exists or not, and whatever it holds, the answer is the same 422: it
+    tells nothing about the server's files, and no job (so no worker) ever opens them."""
+    room = scan_file(scans, ".ply", points=1000, seed=7)
+    link = random_weights.parent / "leads-out.pt"  # a link in the weights folder to outside
+    link.unlink(missing_ok=True)
+    link.symlink_to("/etc/hostname")
+    values = [
+        "/etc/hostname",
+        "/etc/does-not-exist",
+        "/etc/shadow",
+        "../../../../../../etc/hostname",
+        str(random_weights.parent / ".." / "elsewhere.pt"),
+        "leads-out.pt",
+    ]
+    try:
+        with locked.http() as http:
+            before = http.get("/v1/jobs").json()["total"]
+            bodies = []
+            for value in values:
+                response = post_scan(http, room, {"network": {"weights": value}})
+                detail = _json_error(response, 422)
+                assert detail.startswith("config.network.weights: "), detail
+                assert "/etc" not in detail and str(random_weights.parent) not in detail
+                bodies.append(response.json())
+            assert all(body == bodies[0] for body in bodies), bodies
+            assert "random.pt" in bodies[0]["detail"]  # the names a job may use
+            _assert_nothing_left(locked, http, before)
+
+            # the same file by its name in the weights folder, or by its path: accepted
+            for value in ("random.pt", str(random_weights)):
+                accepted = post_scan(http, room, {"network": {"weights": value}})
+                assert accepted.status_code == 201, accepted.text
+                http.delete(f"/v1/jobs/{accepted.json()['id']}")
+    finally:
+        link.unlink()

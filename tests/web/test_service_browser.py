@@ -66,6 +66,8 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
         JOINTSEG_API_KEYS=f"{API_KEY},{SPECIAL_KEY}",
         JOINTSEG_TORCH_THREADS="1",
         JOINTSEG_QUEUE_POLL_S="0.2",
+        # the folder of the weights fixtures (tests/conftest.py): the jobs name files there
+        JOINTSEG_WEIGHTS_DIRS=json.dumps([os.environ["JOINTSEG_TEST_WEIGHTS_DIR"]]),
     )
     log = data / "serve.log"
     with open(log, "wb") as out:
@@ -213,7 +215,7 @@ def _jobs(http: httpx.Client, tmp_path: Path, random_weights: Path) -> dict[str,
     """A job that succeeds (the small random network) and one that fails in the worker with a
     long error (a weights file that exists, so the API accepts it, but is no checkpoint)."""
     scan = write_scan(make_room(4, points=3000), tmp_path / "small room.ply")
-    garbage = tmp_path / "garbage.pt"
+    garbage = random_weights.parent / f"garbage-{tmp_path.name}.pt"  # in the weights folder
     garbage.write_bytes(b"not a checkpoint")
     configs = {
         "succeeded": {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0},
