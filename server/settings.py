@@ -90,6 +90,14 @@ class Settings(BaseSettings):
         "in a worker's memory one tile at a time, so this, not max_points, sizes a worker "
         "(about 3 GB at 4 M points a tile; bench/big.py).",
     )
+    max_span: float = Field(
+        500_000.0,
+        gt=0,
+        le=1e9,
+        description="Largest extent of a scan's coordinates along any axis, in its own units "
+        "(422 at upload, or the job fails naming the span): 500 m even in millimetres; "
+        "spans far beyond a building only exhaust a worker's memory.",
+    )
     full_check_max_bytes: int = Field(
         64 * MIB,
         ge=0,

@@ -19,6 +19,7 @@ from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
 from server.api.uploads import ReceivedUpload
+from server.limits import check_config_limits, check_scan_span
 from server.messages import public_message
 from server.settings import Settings
 from server.state import jobs
@@ -38,12 +39,14 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
     Raises
     ------
     ConfigError
-        For invalid JSON or values, naming the field (``config.fusion.ratio_threshold``), an
+        For invalid JSON or values, naming the field (``config.fusion.ratio_threshold``), a
+        number beyond the service's bounds (:mod:`server.limits`), an
         unknown network, a network without weights on this service (the job would only fail
         in the worker), or weights that are neither a pulled model nor a file in the weights
         folders (one answer whether or not the file exists; :mod:`server.weights`).
     """
     config = _validated(text)
+    check_config_limits(config)
     network = config.network
     if network.name not in BACKENDS:
         raise ConfigError(
@@ -105,7 +108,8 @@ def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
         check_single_file(upload.path)
         info = probe_scan(upload.path, max_points=settings.max_points)
         if upload.size <= settings.full_check_max_bytes:
-            read_scan(upload.path, max_points=settings.max_points)
+            scan = read_scan(upload.path, max_points=settings.max_points)
+            check_scan_span(scan.xyz, upload.filename, settings.max_span)
     except JointsegError as exc:
         raise type(exc)(public_message(exc, upload.path, upload.filename)) from exc
     return info

@@ -20,6 +20,7 @@ from pydantic import ValidationError
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError
 from jointseg.io import probe_scan
 from jointseg.pipeline import PipelineConfig, segment_file
+from server.limits import check_file_span
 from server.messages import public_message
 from server.state import lifecycle
 from server.worker.context import WorkerContext
@@ -65,6 +66,11 @@ class JobRunner:
             points = claim.points  # probed at submission; probed here only for older rows
             if points is None:
                 points = probe_scan(upload, max_points=self.settings.max_points).n_points
+            # a scan spread over 1e18 units would fail deep in the pipeline (an allocation of
+            # petabytes): refused here by one streamed pass, naming the span
+            check_file_span(
+                upload, claim.filename, self.settings.max_span, self.settings.max_points
+            )
             if config.tiles.needs_tiles(points):
                 self.fanout.plan(claim, config, upload, token)
                 return

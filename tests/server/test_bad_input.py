@@ -61,6 +61,13 @@ def _bad_files(folder: Path, scans: Path) -> dict[str, tuple[Path, int, str]]:
         "property float y\nproperty float z\nend_header\n"
     )
     cases["too-many-points"] = (huge, 422, "max_points")
+    for span in ("1e18", "1e300"):  # a room's points, one of them absurdly far away
+        far = folder / f"far_{span}.ply"
+        far.write_text(
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n"
+            f"property double z\nend_header\n0 0 0\n1 1 1\n{span} 0 -{span}\n"
+        )
+        cases[f"span-{span}"] = (far, 422, "span")
     columns = folder / "columns.txt"
     columns.write_text("0 0 0 1 2 3\n1 1 1 4 5 6\n2 2 2 7 8\n")
     cases["txt-mismatched-columns"] = (columns, 422, "line 3")
@@ -117,6 +124,8 @@ def _json_error(response: httpx.Response, status: int) -> str:
         "nan-binary-ply",
         "inf-ascii-ply",
         "too-many-points",
+        "span-1e18",
+        "span-1e300",
         "txt-mismatched-columns",
         "txt-non-numeric",
         "txt-nan",
@@ -162,6 +171,14 @@ def test_bad_scan_gets_4xx_with_the_readers_message(locked, bad_files, case) -> 
         (json.dumps({"network": {"colour_free": "maybe"}}), "config.network.colour_free"),
         (json.dumps({"quality": "ultra"}), "config.quality"),
         (json.dumps({"network": {"randlanet": {"views": 0}}}), "config.network.randlanet.views"),
+        # accepted by the model, but failed (or took a worker's memory) in the worker before
+        (json.dumps({"seed": -1}), "config.seed: -1 must be at least 0"),
+        (json.dumps({"seed": 2**64}), "config.seed"),
+        ('{"fusion": {"evidence_weight": 1e400}}', "config.fusion.evidence_weight: inf must be"),
+        (json.dumps({"geometry": {"face_distance": 1e300}}), "config.geometry.face_distance"),
+        (json.dumps({"geometry": {"neighbours": 10**6}}), "config.geometry.neighbours"),
+        (json.dumps({"network": {"batch_size": 10**6}}), "config.network.batch_size"),
+        (json.dumps({"network": {"dgcnn": {"stride": 1e-9}}}), "config.network.dgcnn.stride"),
     ],
 )
 def test_bad_config_names_the_field(locked, scans, config, needle) -> None:
