@@ -74,7 +74,13 @@ class Settings(BaseSettings):
     api_keys: Annotated[list[SecretStr], NoDecode] = Field(
         default_factory=list,
         description="Accepted API keys (comma-separated or a JSON list); empty: no key needed. "
-        "Clients send `Authorization: Bearer <key>`.",
+        "Clients send `Authorization: Bearer <key>`. Each key sees and manages only the jobs "
+        "it submitted.",
+    )
+    admin_keys: Annotated[list[SecretStr], NoDecode] = Field(
+        default_factory=list,
+        description="API keys that see and manage every job, whoever submitted it (accepted "
+        "besides api_keys; comma-separated or a JSON list).",
     )
     max_upload_bytes: int = Field(2 * GIB, gt=0, description="Largest upload accepted (413).")
     max_points: int = Field(
@@ -171,7 +177,7 @@ class Settings(BaseSettings):
                 data = {**data, "queue": "postgres"}
         return data
 
-    @field_validator("api_keys", mode="before")
+    @field_validator("api_keys", "admin_keys", mode="before")
     @classmethod
     def _split_keys(cls, value: Any) -> Any:
         if isinstance(value, str):
@@ -201,9 +207,19 @@ class Settings(BaseSettings):
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'jobs.sqlite3').resolve()}"
 
+    @property
+    def keys_required(self) -> bool:
+        """Whether requests need a key: any key configured, admin or not (else the service is
+        open and every caller sees every job)."""
+        return bool(self.api_keys or self.admin_keys)
+
     def api_key_values(self) -> list[str]:
         """The configured keys in clear (for comparison only; never log them)."""
         return [k.get_secret_value() for k in self.api_keys]
+
+    def admin_key_values(self) -> list[str]:
+        """The admin keys in clear (for comparison only; never log them)."""
+        return [k.get_secret_value() for k in self.admin_keys]
 
 
 def settings_table() -> str:

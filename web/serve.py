@@ -13,13 +13,20 @@ import logging
 import os
 import signal
 import threading
+from collections.abc import Callable
 from types import FrameType
+from typing import TYPE_CHECKING
 
+from jointseg.exceptions import AuthenticationError
 from jointseg.io.atomic import atomic_open
-from server.api.auth import key_accepted
+from server.api.auth import key_accepted, tenant_for
 from server.serve_parts import ServeParts
 from server.settings import Settings
 from web.page import VIEWER_FILE, job_page_router
+
+if TYPE_CHECKING:  # viser loads only in the viewer's own process
+    from web.service_source import ServiceSource
+    from web.sources import JobSource
 
 log = logging.getLogger(__name__)
 
@@ -43,9 +50,13 @@ def run_viewer(settings: Settings) -> None:
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, note)
     source = ServiceSource(settings)
-    authorise = None if not settings.api_keys else (lambda key: key_accepted(settings, key))
+    authorise = None if not settings.keys_required else (lambda key: key_accepted(settings, key))
     viewer = Viewer(
-        source, host=settings.viewer_host, port=settings.viewer_port, authorise=authorise
+        source,
+        host=settings.viewer_host,
+        port=settings.viewer_port,
+        authorise=authorise,
+        scope=tenant_scope(settings, source),
     )
     if viewer.port != settings.viewer_port:
         log.warning("viewer port %d is taken; using %d", settings.viewer_port, viewer.port)
@@ -59,6 +70,19 @@ def run_viewer(settings: Settings) -> None:
         viewer.stop()
         source.close()
         log.info("viewer stopped")
+
+
+def tenant_scope(settings: Settings, source: ServiceSource) -> Callable[[str | None], JobSource]:
+    """What a viewer client signed in with a key sees: the same jobs as that key through the
+    API (its own; every job for admin keys and on an open service)."""
+
+    def scope(key: str | None) -> JobSource:
+        tenant = tenant_for(settings, key)
+        if tenant is None:  # the viewer asks only for accepted keys; refuse rather than widen
+            raise AuthenticationError("invalid API key")
+        return source.for_tenant(tenant)
+
+    return scope
 
 
 def service_parts() -> ServeParts:

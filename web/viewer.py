@@ -16,7 +16,8 @@ Keys
 ----
 When the job service has API keys, the viewer asks for one of them before it lists or shows
 anything: in the link (``?key=`` on the websocket address, as the job page writes it) or typed
-into the sign-in box it shows instead of its controls.
+into the sign-in box it shows instead of its controls. Each client then sees what its key may
+see through the API (``scope``: a key's own jobs; every job for admin keys).
 """
 
 from __future__ import annotations
@@ -74,6 +75,10 @@ class Viewer:
     authorise : callable, optional
         Whether a presented API key (None: none) may see the jobs; None when the service has
         no keys (everyone may).
+    scope : callable, optional
+        The source a client whose key (None: none) was accepted sees: the job service's
+        tenants (:meth:`web.service_source.ServiceSource.for_tenant`); None: ``source`` for
+        every client.
     """
 
     def __init__(
@@ -85,9 +90,11 @@ class Viewer:
         max_points: int = MAX_PANEL_POINTS,
         cache_size: int = 2,
         authorise: Callable[[str | None], bool] | None = None,
+        scope: Callable[[str | None], JobSource] | None = None,
     ) -> None:
         self.source = source
         self.authorise = authorise
+        self.scope = scope
         self.cache = SceneCache(cache_size, max_points=max_points)
         self.views: dict[int, ClientView] = {}
         self._views_lock = threading.Lock()
@@ -118,8 +125,13 @@ class Viewer:
             return
         self._open(client, state, key_in_address=state.key is not None)
 
+    def source_for(self, key: str | None) -> JobSource:
+        """The jobs a client signed in with ``key`` (already accepted) may see."""
+        return self.source if self.scope is None else self.scope(key)
+
     def _open(self, client: viser.ClientHandle, state: ViewState, *, key_in_address: bool) -> None:
-        view = ClientView(client, self.source, self.cache, state, key_in_address=key_in_address)
+        source = self.source_for(state.key)
+        view = ClientView(client, source, self.cache, state, key_in_address=key_in_address)
         with self._views_lock:
             self.views[client.client_id] = view
         if state.job_id is not None:

@@ -24,6 +24,15 @@ from server.storage import Storage
 
 log = logging.getLogger(__name__)
 
+#: The schema's description: keys and tenants (docs/guide/job-service.md#api-keys).
+DESCRIPTION = (
+    "With API keys configured, every `/v1` route needs `Authorization: Bearer <key>` (401 "
+    "otherwise). Each key is a tenant: it lists, reads, downloads, cancels and deletes only "
+    "the jobs it submitted; another key's job answers 404 exactly as a job that does not "
+    "exist. Admin keys see every job. Without keys the service is open and everyone sees "
+    "every job."
+)
+
 
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the API for ``settings`` (default: from the environment and JOINTSEG_CONFIG)."""
@@ -44,7 +53,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "API ready: data in %s, %s queue, %s",
             settings.data_dir,
             settings.queue,
-            "API keys required" if settings.api_keys else "no API keys",
+            "API keys required" if settings.keys_required else "no API keys",
         )
         try:
             yield
@@ -57,6 +66,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="jointseg job service",
         version="1",
         summary="Upload indoor scans, poll their segmentation jobs, download the results.",
+        description=DESCRIPTION,
         lifespan=lifespan,
     )
     app.add_exception_handler(JointsegError, domain_error)

@@ -43,6 +43,9 @@ ERROR_STATUS: tuple[tuple[type[JointsegError], int], ...] = (
 ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
     code: {"model": ErrorBody} for code in (401, 404, 409, 413, 415, 422, 503)
 }
+ERROR_RESPONSES[404]["description"] = (
+    "No such job, or another API key's job (the same answer: existence does not leak)"
+)
 
 
 def status_for(exc: JointsegError) -> int:

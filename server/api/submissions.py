@@ -115,8 +115,9 @@ def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
     return info
 
 
-def submit(services: Services, upload: ReceivedUpload) -> jobs.JobView:
-    """Check, store and enqueue an upload (blocking: run it in a worker thread).
+def submit(services: Services, upload: ReceivedUpload, owner: str | None = None) -> jobs.JobView:
+    """Check, store and enqueue an upload (blocking: run it in a worker thread); the job
+    belongs to ``owner`` (the submitting key's hash; None in open mode).
 
     The temporary upload is removed when anything is refused.
 
@@ -145,6 +146,7 @@ def submit(services: Services, upload: ReceivedUpload) -> jobs.JobView:
             points=info.n_points,
             config=json.loads(config.model_dump_json()),
             network=config.network.name,
+            owner=owner,
         )
     try:
         services.queue.enqueue(job_id)

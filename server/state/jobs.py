@@ -3,6 +3,10 @@
 Functions take a SQLAlchemy session and return :class:`server.schemas.JobView`, the pydantic
 model the API answers with, so callers never hold ORM objects. A tiled job's view carries its
 tiles' counts (from ``job_tiles``, :mod:`server.state.parts`).
+
+Tenants: every lookup takes ``owned_by``, the owner whose jobs the caller may see
+(:attr:`server.api.auth.Tenant.scope`; None: every job). Another owner's job raises the same
+:class:`JobNotFound` as a job that does not exist, so its existence does not leak.
 """
 
 from __future__ import annotations
@@ -44,9 +48,9 @@ def _views(session: Session, rows: list[Job]) -> list[JobView]:
     return [_view(job, counts.get(job.id)) for job in rows]
 
 
-def _row(session: Session, job_id: str) -> Job:
+def _row(session: Session, job_id: str, owned_by: str | None = None) -> Job:
     job = session.get(Job, check_job_id(job_id))
-    if job is None:
+    if job is None or (owned_by is not None and job.owner != owned_by):
         raise JobNotFound(f"job {job_id} not found")
     return job
 
@@ -61,8 +65,10 @@ def create_job(
     points: int | None,
     config: dict[str, Any],
     network: str,
+    owner: str | None = None,
 ) -> JobView:
-    """Insert a queued job (its upload already stored) and commit."""
+    """Insert a queued job (its upload already stored) and commit; ``owner`` is the submitting
+    key's hash (None in open mode)."""
     job = Job(
         id=check_job_id(job_id),
         filename=filename,
@@ -76,47 +82,57 @@ def create_job(
         created_at=utcnow(),
         attempts=0,
         cancel_requested=False,
+        owner=owner,
     )
     session.add(job)
     session.commit()
     return _view(job)
 
 
-def get_job(session: Session, job_id: str) -> JobView:
-    """One job.
+def get_job(session: Session, job_id: str, *, owned_by: str | None = None) -> JobView:
+    """One job (of ``owned_by``, when given).
 
     Raises
     ------
     JobNotFound
-        For an unknown (or malformed) id.
+        For an unknown (or malformed) id, or another owner's job.
     """
     # the tile counts first, then the row: a plan records its tiles and the row's stage in one
     # commit, so a row read after the counts is never older than them (no "read" stage beside
     # tile counts under READ COMMITTED)
     counts = parts.tile_counts(session, [check_job_id(job_id)])
-    job = _row(session, job_id)
+    job = _row(session, job_id, owned_by)
     return _view(job, counts.get(job.id))
 
 
 def list_jobs(
-    session: Session, *, status: str | None = None, limit: int = 50, offset: int = 0
+    session: Session,
+    *,
+    status: str | None = None,
+    limit: int = 50,
+    offset: int = 0,
+    owned_by: str | None = None,
 ) -> list[JobView]:
-    """Jobs newest first, optionally only those with ``status``."""
+    """Jobs newest first, optionally only those with ``status`` (and of ``owned_by``)."""
     query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
     if status is not None:
         query = query.where(Job.status == status)
+    if owned_by is not None:
+        query = query.where(Job.owner == owned_by)
     return _views(session, list(session.scalars(query)))
 
 
-def count_jobs(session: Session, *, status: str | None = None) -> int:
-    """How many jobs (with ``status``) exist, for pagination."""
+def count_jobs(session: Session, *, status: str | None = None, owned_by: str | None = None) -> int:
+    """How many jobs (with ``status``, of ``owned_by``) exist, for pagination."""
     query = select(func.count()).select_from(Job)
     if status is not None:
         query = query.where(Job.status == status)
+    if owned_by is not None:
+        query = query.where(Job.owner == owned_by)
     return int(session.scalar(query) or 0)
 
 
-def cancel_job(session: Session, job_id: str) -> JobView:
+def cancel_job(session: Session, job_id: str, *, owned_by: str | None = None) -> JobView:
     """Cancel a queued job at once, or ask a running job's worker to stop.
 
     A queued job becomes ``cancelled`` immediately (its worker will skip it); a running one gets
@@ -128,10 +144,11 @@ def cancel_job(session: Session, job_id: str) -> JobView:
     Raises
     ------
     JobNotFound
+        For an unknown id or another owner's job.
     JobStateError
         When the job has already finished.
     """
-    job = _row(session, job_id)
+    job = _row(session, job_id, owned_by)
     queued = session.execute(
         update(Job)
         .where(Job.id == job.id, Job.status == "queued")
@@ -154,16 +171,17 @@ def cancel_job(session: Session, job_id: str) -> JobView:
     return _views(session, [job])[0]
 
 
-def delete_job_row(session: Session, job_id: str) -> JobView:
+def delete_job_row(session: Session, job_id: str, *, owned_by: str | None = None) -> JobView:
     """Delete a finished job's row (its files are the caller's: :meth:`Storage.delete`).
 
     Raises
     ------
     JobNotFound
+        For an unknown id or another owner's job.
     JobStateError
         When the job is queued or running (cancel it first).
     """
-    job = _row(session, job_id)
+    job = _row(session, job_id, owned_by)
     if job.status not in FINAL_STATUSES:
         raise JobStateError(f"job {job_id} is {job.status}; cancel it before deleting it")
     view = _views(session, [job])[0]

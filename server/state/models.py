@@ -2,9 +2,9 @@
 declarative models).
 
 The job row is the single source of truth about a job: its status, stage and progress, its
-heartbeat and attempts (for recovering from lost workers) and its cancel flag. A job whose scan
-is tiled also has rows in ``job_tiles``: its plan, one per tile and its merge, each with the
-status, attempts and heartbeat of a queue task. The queue only carries ids.
+heartbeat and attempts (for recovering from lost workers), its cancel flag and its owner. A job
+whose scan is tiled also has rows in ``job_tiles``: its plan, one per tile and its merge, each
+with the status, attempts and heartbeat of a queue task. The queue only carries ids.
 """
 
 from __future__ import annotations
@@ -73,6 +73,10 @@ class Job(Base):
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
     worker: Mapped[str | None] = mapped_column(String(128), nullable=True)
+    #: Who submitted it: :func:`server.api.auth.owner_of` its API key (never the key); None for
+    #: a job of an open service or from before tenants (only admin keys and open mode see it).
+    #: Added to older tables by :func:`server.state.db.add_missing_columns`.
+    owner: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
 
 
 class Worker(Base):

@@ -26,9 +26,16 @@ def scans(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def locked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    """A service with API keys, a 64 KiB upload limit and no worker (jobs stay queued)."""
+    """A service with API keys (``key-admin`` an admin key: it sees every job), a 64 KiB upload
+    limit and no worker (jobs stay queued)."""
     folder = tmp_path_factory.mktemp("locked")
-    with running(folder, workers=0, api_keys="key-one,key-two", max_upload_bytes=65536) as svc:
+    with running(
+        folder,
+        workers=0,
+        api_keys="key-one,key-two",
+        admin_keys="key-admin",
+        max_upload_bytes=65536,
+    ) as svc:
         yield svc
 
 

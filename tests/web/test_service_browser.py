@@ -35,7 +35,8 @@ from jointseg.synth import make_room
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 API_KEY = "viewer-test-key"
-#: A second accepted key with the characters a URL must escape.
+#: A second accepted key with the characters a URL must escape; an admin key, so it sees the
+#: jobs API_KEY submitted (tenants: any other key sees only its own).
 SPECIAL_KEY = "job+page/key=1&x"
 FINAL = ("succeeded", "failed", "cancelled")
 
@@ -63,7 +64,8 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Running]:
     env.update(
         JOINTSEG_DATA_DIR=str(data),
         JOINTSEG_CACHE=str(cache),
-        JOINTSEG_API_KEYS=f"{API_KEY},{SPECIAL_KEY}",
+        JOINTSEG_API_KEYS=API_KEY,
+        JOINTSEG_ADMIN_KEYS=SPECIAL_KEY,
         JOINTSEG_TORCH_THREADS="1",
         JOINTSEG_QUEUE_POLL_S="0.2",
         # the folder of the weights fixtures (tests/conftest.py): the jobs name files there

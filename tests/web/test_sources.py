@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from jointseg.exceptions import JobNotFound
+from jointseg.exceptions import AuthenticationError, JobNotFound
 from web.sources import DirectorySource
 
 
@@ -83,6 +83,64 @@ def test_service_source_lists_succeeded_jobs_only(results: Path, tmp_path: Path)
         with pytest.raises(JobNotFound):
             source.result_path("../../etc/passwd")
         assert source.report_path("not-an-id") is None
+    finally:
+        source.close()
+        engine.dispose()
+
+
+def test_the_viewer_sees_what_its_key_sees_through_the_api(results: Path, tmp_path: Path) -> None:
+    from server.api.auth import owner_of
+    from server.settings import Settings
+    from server.state.db import init_db, make_engine, make_sessions
+    from server.state.jobs import create_job
+    from server.state.models import Job
+    from server.storage import Storage
+    from web.serve import tenant_scope
+    from web.service_source import ServiceSource
+
+    settings = Settings(data_dir=tmp_path, api_keys=["key-one", "key-two"], admin_keys=["boss"])
+    engine = make_engine(settings)
+    init_db(engine)
+    sessions, storage = make_sessions(engine), Storage(tmp_path)
+    owners = {"one": owner_of("key-one"), "two": owner_of("key-two"), "old": None}
+    ids = {name: uuid.uuid4().hex for name in owners}
+    with sessions() as session:
+        for name, job_id in ids.items():
+            create_job(
+                session,
+                job_id=job_id,
+                filename=f"{name}.ply",
+                fmt="ply",
+                size_bytes=1,
+                points=4000,
+                config={},
+                network="randlanet",
+                owner=owners[name],
+            )
+            row = session.get(Job, job_id)
+            assert row is not None
+            row.status = "succeeded"
+            session.commit()
+            storage.job_dir(job_id).mkdir(parents=True)
+            shutil.copy(results / "labelled.ply", storage.result_path(job_id))
+            shutil.copy(results / "labelled.report.json", storage.report_path(job_id))
+
+    source = ServiceSource(settings)
+    scope = tenant_scope(settings, source)
+    try:
+        one = scope("key-one")
+        assert [j.id for j in one.finished_jobs()] == [ids["one"]]
+        assert one.result_path(ids["one"]) == storage.result_path(ids["one"])
+        for other in ("two", "old"):  # another key's job, a job from before tenants
+            with pytest.raises(JobNotFound, match="not found"):
+                one.result_path(ids[other])
+            assert one.report_path(ids[other]) is None
+        assert {j.id for j in scope("boss").finished_jobs()} == set(ids.values())
+        assert scope("boss").report_path(ids["two"]) == storage.report_path(ids["two"])
+        with pytest.raises(AuthenticationError):  # a refused key sees nothing
+            scope("key-three")
+        open_scope = tenant_scope(Settings(data_dir=tmp_path), source)
+        assert {j.id for j in open_scope(None).finished_jobs()} == set(ids.values())
     finally:
         source.close()
         engine.dispose()

@@ -1,9 +1,10 @@
 """``/v1/jobs...``: thin wrappers that parse, call :mod:`server.state.jobs` and friends, and answer
 :mod:`server.schemas` models.
 
-Every route depends on :func:`server.api.auth.require_api_key`; errors are raised as jointseg's
-domain errors and turned into status codes by the app's one exception handler
-(:mod:`server.api.errors`).
+Every route depends on :func:`server.api.auth.require_api_key`, whose tenant limits what it sees:
+a key's own jobs, or every job for admin keys and an open service (another key's job is 404, as a
+job that does not exist). Errors are raised as jointseg's domain errors and turned into status
+codes by the app's one exception handler (:mod:`server.api.errors`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from fastapi.responses import FileResponse
 
 from jointseg.exceptions import JobStateError
 from jointseg.objects.records import LayoutReport
-from server.api.auth import require_api_key
+from server.api.auth import Tenant, TenantDep, require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
 from server.api.errors import ERROR_RESPONSES
 from server.api.results import layout_of, result_file
@@ -27,7 +28,14 @@ from server.state import jobs
 from server.state.models import FINAL_STATUSES
 from server.storage import ResultFormat
 
-JobId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="Job id: 32 hex digits.")]
+JobId = Annotated[
+    str,
+    Path(
+        pattern=r"^[0-9a-f]{32}$",
+        description="Job id: 32 hex digits. Another API key's job answers 404, as an unknown id "
+        "does (admin keys see every job).",
+    ),
+]
 
 jobs_router = APIRouter(
     prefix="/v1", tags=["jobs"], dependencies=[Depends(require_api_key)], responses=ERROR_RESPONSES
@@ -37,16 +45,19 @@ jobs_router = APIRouter(
 @jobs_router.post(
     "/jobs", status_code=201, response_model=JobResponse, openapi_extra=UPLOAD_OPENAPI
 )
-async def create_job(request: Request, services: ServicesDep, response: Response) -> JobResponse:
+async def create_job(
+    request: Request, services: ServicesDep, response: Response, tenant: TenantDep
+) -> JobResponse:
     """Upload a scan (form field ``file``) with an optional ``config`` (PipelineConfig JSON).
 
     The upload streams to disk; it is checked (header, point count, and every point of files
-    up to ``full_check_max_bytes``) before the job is queued.
+    up to ``full_check_max_bytes``) before the job is queued. The job belongs to the API key
+    that submitted it: only that key (and admin keys) can see, download, cancel or delete it.
     """
     upload = await receive_upload(
         request, services.storage, max_bytes=services.settings.max_upload_bytes
     )
-    view = await run_in_threadpool(submit, services, upload)
+    view = await run_in_threadpool(submit, services, upload, tenant.owner)
     response.headers["Location"] = f"/v1/jobs/{view.id}"
     return JobResponse.from_view(view)
 
@@ -54,22 +65,25 @@ async def create_job(request: Request, services: ServicesDep, response: Response
 @jobs_router.get("/jobs", response_model=JobList)
 def list_jobs(
     session: SessionDep,
+    tenant: TenantDep,
     status: Annotated[JobStatus | None, Query(description="Only this status.")] = None,
     limit: Annotated[int, Query(ge=1, le=500)] = 50,
     offset: Annotated[int, Query(ge=0, le=1 << 40)] = 0,
 ) -> JobList:
-    """Jobs, newest first, a page at a time."""
-    items = jobs.list_jobs(session, status=status, limit=limit, offset=offset)
-    total = jobs.count_jobs(session, status=status)
+    """Jobs, newest first, a page at a time: the calling key's own (every job for admin keys
+    and on a service without keys)."""
+    scope = tenant.scope
+    items = jobs.list_jobs(session, status=status, limit=limit, offset=offset, owned_by=scope)
+    total = jobs.count_jobs(session, status=status, owned_by=scope)
     return JobList(
         items=[JobResponse.from_view(v) for v in items], total=total, limit=limit, offset=offset
     )
 
 
 @jobs_router.get("/jobs/{job_id}", response_model=JobResponse)
-def get_job(job_id: JobId, session: SessionDep) -> JobResponse:
+def get_job(job_id: JobId, session: SessionDep, tenant: TenantDep) -> JobResponse:
     """Status, stage, progress, timings, points and error of one job."""
-    return JobResponse.from_view(jobs.get_job(session, job_id))
+    return JobResponse.from_view(jobs.get_job(session, job_id, owned_by=tenant.scope))
 
 
 @jobs_router.get(
@@ -80,6 +94,7 @@ def get_job(job_id: JobId, session: SessionDep) -> JobResponse:
 async def get_result(
     job_id: JobId,
     services: ServicesDep,
+    tenant: TenantDep,
     format: Annotated[
         ResultFormat, Query(description="ply, las or laz (the scan), or ifc (an IFC4 model).")
     ] = "ply",
@@ -87,7 +102,7 @@ async def get_result(
     """The segmented scan with every field of ``jointseg segment``, or its IFC4 model of rooms,
     walls, doors, windows and furniture (409 until it succeeded, or when the run found no
     objects or rooms)."""
-    view = await run_in_threadpool(_current_view, services, job_id)
+    view = await run_in_threadpool(_current_view, services, job_id, tenant)
     if view.status != "succeeded":
         raise JobStateError(f"job {job_id} is {view.status}; no result")
     path = await run_in_threadpool(result_file, services.storage, job_id, format)
@@ -100,29 +115,30 @@ async def get_result(
 
 
 @jobs_router.get("/jobs/{job_id}/objects", response_model=LayoutReport)
-async def get_objects(job_id: JobId, services: ServicesDep) -> LayoutReport:
+async def get_objects(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> LayoutReport:
     """The objects, rooms and walls (with their doors and windows) the run found, as
     ``jointseg segment --objects`` writes them (409 until it succeeded, or without them)."""
-    view = await run_in_threadpool(_current_view, services, job_id)
+    view = await run_in_threadpool(_current_view, services, job_id, tenant)
     if view.status != "succeeded":
         raise JobStateError(f"job {job_id} is {view.status}; no objects")
     return await run_in_threadpool(layout_of, services.storage, job_id)
 
 
 @jobs_router.get("/jobs/{job_id}/report", responses={200: {"content": {"application/json": {}}}})
-async def get_report(job_id: JobId, services: ServicesDep) -> FileResponse:
+async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> FileResponse:
     """The job's report.json (as ``jointseg segment --report`` writes it)."""
-    view = await run_in_threadpool(_current_view, services, job_id)
+    view = await run_in_threadpool(_current_view, services, job_id, tenant)
     path = services.storage.report_path(job_id)
     if view.status != "succeeded" or not path.is_file():
         raise JobStateError(f"job {job_id} is {view.status}; no report")
     return FileResponse(path, media_type="application/json")
 
 
-def _current_view(services: Services, job_id: str) -> JobView:
-    """The job as it is now, read in its own session (the async routes run this in a thread)."""
+def _current_view(services: Services, job_id: str, tenant: Tenant) -> JobView:
+    """The job as ``tenant`` may see it now, read in its own session (the async routes run
+    this in a thread)."""
     with services.sessions() as session:
-        return jobs.get_job(session, job_id)
+        return jobs.get_job(session, job_id, owned_by=tenant.scope)
 
 
 @jobs_router.delete(
@@ -131,14 +147,15 @@ def _current_view(services: Services, job_id: str) -> JobView:
     response_model=JobResponse,
     responses={204: {"description": "The finished job and its files were deleted."}},
 )
-def delete_job(job_id: JobId, services: ServicesDep, session: SessionDep) -> Any:
+def delete_job(job_id: JobId, services: ServicesDep, session: SessionDep, tenant: TenantDep) -> Any:
     """Cancel a queued or running job (202); delete a finished job and its files (204)."""
-    view = jobs.get_job(session, job_id)
+    scope = tenant.scope
+    view = jobs.get_job(session, job_id, owned_by=scope)
     if view.status not in FINAL_STATUSES:
-        view = jobs.cancel_job(session, job_id)
+        view = jobs.cancel_job(session, job_id, owned_by=scope)
         if view.finished:  # a queued job, or a tiled one with no tile running: its folder goes
             services.storage.remove_tiles(job_id)
         return JobResponse.from_view(view)
-    jobs.delete_job_row(session, job_id)
+    jobs.delete_job_row(session, job_id, owned_by=scope)
     services.storage.delete(job_id)
     return Response(status_code=204)
