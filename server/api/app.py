@@ -12,9 +12,8 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
-from jointseg.exceptions import JointsegError
 from server.api.deps import Services
-from server.api.errors import domain_error
+from server.api.errors import install_error_handlers
 from server.api.routes import health_router, jobs_router
 from server.queue import JobQueue
 from server.settings import Settings
@@ -69,7 +68,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         description=DESCRIPTION,
         lifespan=lifespan,
     )
-    app.add_exception_handler(JointsegError, domain_error)
+    install_error_handlers(app)
     app.include_router(jobs_router)
     app.include_router(health_router)
     return app

@@ -1,16 +1,25 @@
-"""jointseg's domain errors as HTTP answers: one status per error class, one JSON body shape.
+"""Every error as an HTTP answer of one shape: ``{"error": <name>, "detail": <one line>}``.
 
 Routes raise domain errors (JobNotFound, ScanFormatError, ...) and never build error responses
-themselves; :func:`domain_error` is the app's single handler for all of them.
+themselves; :func:`domain_error` is the app's single handler for all of them. The framework's own
+answers get the same shape: request validation (:func:`validation_error`, 422), unknown routes
+and wrong methods (:func:`http_error`, 404 / 405 with ``Allow``) and anything unexpected
+(:func:`internal_error`, 500, details only in the log). :func:`install_error_handlers` wires all
+four into an app.
 """
 
 from __future__ import annotations
 
 import logging
+import re
+from collections.abc import Mapping
+from http import HTTPStatus
 from typing import Any
 
-from fastapi import Request
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from jointseg.exceptions import (
     AuthenticationError,
@@ -39,10 +48,41 @@ ERROR_STATUS: tuple[tuple[type[JointsegError], int], ...] = (
     (QueueUnavailable, 503),
 )
 
-#: The error answers of the /v1 routes, for OpenAPI.
-ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (401, 404, 409, 413, 415, 422, 503)
+#: Longest ``detail`` sent (a message is cut, with an ellipsis, beyond it).
+MAX_DETAIL = 1000
+#: Validation problems listed in one 422 (the rest counted).
+MAX_PROBLEMS = 5
+
+#: What each error status means, for OpenAPI.
+ERROR_MEANINGS: dict[int, str] = {
+    401: "Missing or refused API key",
+    404: "No such job, or another API key's job (the same answer: existence does not leak), "
+    "or no such route",
+    405: "Method not allowed on this path; `Allow` lists those that are",
+    409: "The job is not in a state for this (not finished, not succeeded, nothing found)",
+    413: "Upload larger than the service takes",
+    415: "Not a scan format jointseg reads",
+    422: "Invalid request, config or scan; `detail` names the field or the problem",
+    500: "Unexpected error (its details are only in the service log)",
+    503: "The queue is unavailable",
 }
+
+
+def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` for these error statuses: each an :class:`ErrorBody` (405 with
+    its ``Allow`` header)."""
+    responses: dict[int | str, dict[str, Any]] = {}
+    for code in codes:
+        responses[code] = {"model": ErrorBody, "description": ERROR_MEANINGS[code]}
+        if code == 405:
+            responses[code]["headers"] = {
+                "Allow": {"description": "The path's methods.", "schema": {"type": "string"}}
+            }
+    return responses
+
+
+#: The error answers every /v1 route can give (routes add their own: 409, 413, ...).
+ERROR_RESPONSES = error_responses(401, 404, 405, 422, 500)
 ERROR_RESPONSES[404]["description"] = (
     "No such job, or another API key's job (the same answer: existence does not leak)"
 )
@@ -56,6 +96,22 @@ def status_for(exc: JointsegError) -> int:
     return 400
 
 
+def one_line(message: str, limit: int = MAX_DETAIL) -> str:
+    """``message`` on one line (line breaks and runs of blanks become one space), cut at
+    ``limit`` characters: a client's error is a sentence, not a library's dump."""
+    text = re.sub(r"\s+", " ", message).strip()
+    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
+
+
+def error_response(
+    status: int, error: str, detail: str, headers: Mapping[str, str] | None = None
+) -> JSONResponse:
+    """The body every error has: ``{"detail", "error"}``, ``detail`` on one line."""
+    return JSONResponse(
+        {"detail": one_line(detail), "error": error}, status_code=status, headers=headers
+    )
+
+
 async def domain_error(request: Request, exc: Exception) -> JSONResponse:
     """The one handler mapping jointseg's errors to a status and ``{"detail", "error"}``."""
     assert isinstance(exc, JointsegError)
@@ -63,6 +119,59 @@ async def domain_error(request: Request, exc: Exception) -> JSONResponse:
     headers = {"WWW-Authenticate": "Bearer"} if status == 401 else None
     if status >= 500:
         log.error("%s %s: %s", request.method, request.url.path, exc)
-    return JSONResponse(
-        {"detail": str(exc), "error": type(exc).__name__}, status_code=status, headers=headers
-    )
+    return error_response(status, type(exc).__name__, str(exc), headers)
+
+
+def _problem(error: Any) -> str:
+    """One validation problem as ``where: what`` (``query.limit: Input should be ...``)."""
+    where = ".".join(str(part) for part in error.get("loc", ())) or "request"
+    return f"{where}: {error.get('msg', 'invalid')}"
+
+
+async def validation_error(request: Request, exc: Exception) -> JSONResponse:
+    """A request FastAPI could not parse (422): each problem named by where it is, without
+    echoing the input back."""
+    assert isinstance(exc, RequestValidationError)
+    errors = list(exc.errors())
+    problems = [_problem(e) for e in errors[:MAX_PROBLEMS]]
+    if len(errors) > MAX_PROBLEMS:
+        problems.append(f"and {len(errors) - MAX_PROBLEMS} more")
+    return error_response(422, "RequestValidationError", "; ".join(problems) or "invalid request")
+
+
+def http_status_name(status: int) -> str:
+    """``NotFound`` for 404, ``MethodNotAllowed`` for 405: the status's phrase as a name."""
+    try:
+        phrase = HTTPStatus(status).phrase
+    except ValueError:
+        return "HTTPError"
+    return re.sub(r"[^A-Za-z]", "", phrase.title())
+
+
+async def http_error(request: Request, exc: Exception) -> JSONResponse:
+    """The framework's own errors (unknown route 404, wrong method 405 with its ``Allow``
+    header, and any ``HTTPException`` a route raises) in the one shape."""
+    assert isinstance(exc, StarletteHTTPException)
+    status = exc.status_code
+    if status == 404 and exc.detail == HTTPStatus.NOT_FOUND.phrase:
+        detail = f"no route {request.url.path}"
+    elif status == 405:
+        detail = f"{request.method} is not allowed on {request.url.path}"
+    else:
+        detail = str(exc.detail)
+    return error_response(status, http_status_name(status), detail, exc.headers)
+
+
+async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+    """Anything unexpected (500): the client learns only that it happened; the traceback goes
+    to the log (Starlette logs it again after this answer)."""
+    log.error("%s %s: unexpected %s", request.method, request.url.path, type(exc).__name__)
+    return error_response(500, "InternalError", "internal error; the service log has the details")
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Give every error ``app`` can answer the one shape."""
+    app.add_exception_handler(JointsegError, domain_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(Exception, internal_error)

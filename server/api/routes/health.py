@@ -8,6 +8,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
 from server.api.deps import ServicesDep
+from server.api.errors import error_responses
 from server.schemas import Health, WorkerView
 from server.state import lifecycle
 from server.state.db import ping
@@ -15,7 +16,11 @@ from server.state.db import ping
 health_router = APIRouter(tags=["health"])
 
 
-@health_router.get("/healthz", response_model=Health, responses={503: {"model": Health}})
+@health_router.get(
+    "/healthz",
+    response_model=Health,
+    responses={503: {"model": Health}, **error_responses(405, 500)},
+)
 def healthz(services: ServicesDep) -> Any:
     """Database, queue and worker liveness (503 when the database or the queue is down)."""
     database = ping(services.engine)

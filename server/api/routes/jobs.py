@@ -19,7 +19,7 @@ from jointseg.exceptions import JobStateError
 from jointseg.objects.records import LayoutReport
 from server.api.auth import Tenant, TenantDep, require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
-from server.api.errors import ERROR_RESPONSES
+from server.api.errors import ERROR_RESPONSES, error_responses
 from server.api.results import layout_of, result_file
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
@@ -37,13 +37,20 @@ JobId = Annotated[
     ),
 ]
 
+#: The IFC download's media type (STEP physical file, ISO 10303-21).
+IFC_MEDIA_TYPE = "application/x-step"
+
 jobs_router = APIRouter(
     prefix="/v1", tags=["jobs"], dependencies=[Depends(require_api_key)], responses=ERROR_RESPONSES
 )
 
 
 @jobs_router.post(
-    "/jobs", status_code=201, response_model=JobResponse, openapi_extra=UPLOAD_OPENAPI
+    "/jobs",
+    status_code=201,
+    response_model=JobResponse,
+    openapi_extra=UPLOAD_OPENAPI,
+    responses=error_responses(413, 415, 503),
 )
 async def create_job(
     request: Request, services: ServicesDep, response: Response, tenant: TenantDep
@@ -89,7 +96,13 @@ def get_job(job_id: JobId, session: SessionDep, tenant: TenantDep) -> JobRespons
 @jobs_router.get(
     "/jobs/{job_id}/result",
     response_class=FileResponse,
-    responses={200: {"content": {"application/octet-stream": {}}}},
+    responses={
+        200: {
+            "description": "The scan (ply, las, laz) or its IFC4 model (ifc).",
+            "content": {"application/octet-stream": {}, IFC_MEDIA_TYPE: {}},
+        },
+        **error_responses(409),
+    },
 )
 async def get_result(
     job_id: JobId,
@@ -108,13 +121,15 @@ async def get_result(
     path = await run_in_threadpool(result_file, services.storage, job_id, format)
     stem = view.filename.rsplit(".", 1)[0]
     if format == "ifc":
-        return FileResponse(path, media_type="application/x-step", filename=f"{stem}.ifc")
+        return FileResponse(path, media_type=IFC_MEDIA_TYPE, filename=f"{stem}.ifc")
     return FileResponse(
         path, media_type="application/octet-stream", filename=f"{stem}_segmented.{format}"
     )
 
 
-@jobs_router.get("/jobs/{job_id}/objects", response_model=LayoutReport)
+@jobs_router.get(
+    "/jobs/{job_id}/objects", response_model=LayoutReport, responses=error_responses(409)
+)
 async def get_objects(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> LayoutReport:
     """The objects, rooms and walls (with their doors and windows) the run found, as
     ``jointseg segment --objects`` writes them (409 until it succeeded, or without them)."""
@@ -124,7 +139,10 @@ async def get_objects(job_id: JobId, services: ServicesDep, tenant: TenantDep) -
     return await run_in_threadpool(layout_of, services.storage, job_id)
 
 
-@jobs_router.get("/jobs/{job_id}/report", responses={200: {"content": {"application/json": {}}}})
+@jobs_router.get(
+    "/jobs/{job_id}/report",
+    responses={200: {"content": {"application/json": {}}}, **error_responses(409)},
+)
 async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> FileResponse:
     """The job's report.json (as ``jointseg segment --report`` writes it)."""
     view = await run_in_threadpool(_current_view, services, job_id, tenant)
@@ -145,7 +163,10 @@ def _current_view(services: Services, job_id: str, tenant: Tenant) -> JobView:
     "/jobs/{job_id}",
     status_code=202,
     response_model=JobResponse,
-    responses={204: {"description": "The finished job and its files were deleted."}},
+    responses={
+        204: {"description": "The finished job and its files were deleted."},
+        **error_responses(409),
+    },
 )
 def delete_job(job_id: JobId, services: ServicesDep, session: SessionDep, tenant: TenantDep) -> Any:
     """Cancel a queued or running job (202); delete a finished job and its files (204)."""
