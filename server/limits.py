@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from jointseg.exceptions import ConfigError, ScanFormatError
+from jointseg.io import DEFAULT_MAX_INFLATION
 from jointseg.io.stream import open_chunks
 from jointseg.pipeline import PipelineConfig
 
@@ -103,7 +104,14 @@ def check_scan_span(xyz: np.ndarray, name: str, max_span: float) -> None:
         raise ScanFormatError(f"{name}: {problem}")
 
 
-def check_file_span(path: Any, name: str, max_span: float, max_points: int) -> None:
+def check_file_span(
+    path: Any,
+    name: str,
+    max_span: float,
+    max_points: int,
+    *,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+) -> None:
     """:func:`check_scan_span` for a stored file, read chunk by chunk (bounded memory).
 
     Raises
@@ -113,7 +121,7 @@ def check_file_span(path: Any, name: str, max_span: float, max_points: int) -> N
     """
     low = np.full(3, np.inf)
     high = np.full(3, -np.inf)
-    with open_chunks(path, max_points=max_points) as chunks:
+    with open_chunks(path, max_points=max_points, max_inflation=max_inflation) as chunks:
         for chunk in chunks.chunks():
             low = np.minimum(low, chunk.xyz.min(axis=0))
             high = np.maximum(high, chunk.xyz.max(axis=0))

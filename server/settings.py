@@ -104,12 +104,19 @@ class Settings(BaseSettings):
         "(422 at upload, or the job fails naming the span): 500 m even in millimetres; "
         "spans far beyond a building only exhaust a worker's memory.",
     )
+    max_inflation: float = Field(
+        200.0,
+        ge=1,
+        description="Largest ratio of the bytes a compressed upload (LAZ, NPZ, PCD, E57) "
+        "declares to the bytes it stores (422): real LAZ scans are 3-15, a header lying "
+        "about its point count or a zip bomb (1000 for zeros) far more.",
+    )
     full_check_max_bytes: int = Field(
         64 * MIB,
         ge=0,
         description="Uploads up to this size are read completely before queuing (every point "
-        "checked, e.g. for NaN); larger ones only by header and size, their body when the "
-        "job runs.",
+        "checked, e.g. for NaN, in a checking process, never in the API's); larger ones only "
+        "by header and size, their body when the job runs.",
     )
     workers: int = Field(1, ge=0, description="Worker processes `jointseg serve` starts.")
     torch_threads: int | None = Field(

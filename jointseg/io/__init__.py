@@ -22,11 +22,12 @@ from pathlib import Path
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.dispatch import INPUT_ERRORS, prepare_input, prepare_output
 from jointseg.io.formats import READ_EXTENSIONS, WRITE_EXTENSIONS, detect_format, get_format
-from jointseg.io.limits import DEFAULT_MAX_POINTS, ScanInfo
+from jointseg.io.limits import DEFAULT_MAX_INFLATION, DEFAULT_MAX_POINTS, ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
 
 __all__ = [
+    "DEFAULT_MAX_INFLATION",
     "DEFAULT_MAX_POINTS",
     "READ_EXTENSIONS",
     "WRITE_EXTENSIONS",
@@ -45,6 +46,7 @@ def read_scan(
     path: str | os.PathLike[str],
     *,
     max_points: int = DEFAULT_MAX_POINTS,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
     progress: ProgressFn | None = None,
 ) -> Scan:
     """Read a scan file (or S3DIS room folder) of any supported format into a :class:`Scan`.
@@ -57,6 +59,9 @@ def read_scan(
     max_points : int
         Refuse scans with more points; checked from the header, before the body is read, where
         the format has one.
+    max_inflation : float
+        Refuse a compressed file (LAZ, NPZ, PCD, E57) whose header declares more than this many
+        times its size; checked before anything is allocated or decompressed.
     progress : ProgressFn, optional
         Receives ``("read", fraction)`` as the file is read.
 
@@ -74,8 +79,9 @@ def read_scan(
     """
     path, fmt = prepare_input(path, max_points)
     logger.debug("reading %s as %s", path, fmt)
+    entry = get_format(fmt)
     try:
-        scan = get_format(fmt).read(path, max_points=max_points, progress=progress)
+        scan = entry.read(path, **entry.limits(max_points, max_inflation), progress=progress)
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:
@@ -84,12 +90,18 @@ def read_scan(
     return scan
 
 
-def probe_scan(path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_POINTS) -> ScanInfo:
+def probe_scan(
+    path: str | os.PathLike[str],
+    *,
+    max_points: int = DEFAULT_MAX_POINTS,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+) -> ScanInfo:
     """Validate a scan's header and point count cheaply, without reading its points.
 
     Meant for refusing bad uploads before queuing work. Checks the format's magic and header,
     the body size against the declared count where the format allows (binary PLY/PCD,
-    uncompressed LAS, NPY), and ``max_points``. Text formats are counted line by line.
+    uncompressed LAS, NPY; compressed LAZ, NPZ, PCD and E57 against ``max_inflation``), and
+    ``max_points``. Text formats are counted line by line.
 
     Parameters
     ----------
@@ -97,6 +109,8 @@ def probe_scan(path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_PO
         As for :func:`read_scan`.
     max_points : int
         Refuse scans with more points.
+    max_inflation : float
+        As for :func:`read_scan`.
 
     Returns
     -------
@@ -108,8 +122,9 @@ def probe_scan(path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_PO
         As :func:`read_scan`, for what can be seen without reading the points.
     """
     path, fmt = prepare_input(path, max_points)
+    entry = get_format(fmt)
     try:
-        return get_format(fmt).probe(path, max_points=max_points)
+        return entry.probe(path, **entry.limits(max_points, max_inflation))
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:

@@ -11,6 +11,7 @@ the lossless format: writing then reading gives back exactly the same scan.
 from __future__ import annotations
 
 import logging
+import math
 import zipfile
 from pathlib import Path
 
@@ -21,7 +22,12 @@ from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
 from jointseg.io.labels import normalise_labels
-from jointseg.io.limits import ScanInfo, check_max_points
+from jointseg.io.limits import (
+    DEFAULT_MAX_INFLATION,
+    ScanInfo,
+    check_inflation,
+    check_max_points,
+)
 from jointseg.io.text import POSITIONAL_COLUMNS, columns_to_parts
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
@@ -124,18 +130,44 @@ def probe_npy(path: Path, *, max_points: int) -> ScanInfo:
     )
 
 
-def _npz_headers(path: Path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+def _npz_headers(
+    path: Path, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Each array's shape and dtype, after checking what the archive declares against its size.
+
+    A member's .npy header must fit the uncompressed size the zip declares for it (zipfile
+    never inflates a member beyond that), and all members together may inflate to at most
+    ``max_inflation`` times the archive: a 0.5 MB archive of zeros that inflates to 480 MB is
+    refused here, before any array is allocated.
+    """
     try:
         with zipfile.ZipFile(path) as zf:
             out = {}
-            for member in zf.namelist():
-                if not member.endswith(".npy"):
+            declared = 0
+            for info in zf.infolist():
+                declared += info.file_size
+                if not info.filename.endswith(".npy"):
                     continue
-                with zf.open(member) as fh:
-                    out[member[:-4]] = _read_npy_header(fh, path, f"member {member!r}")
-            return out
+                with zf.open(info) as fh:
+                    shape, dtype = _read_npy_header(fh, path, f"member {info.filename!r}")
+                    need = math.prod(shape) * dtype.itemsize
+                    if need > info.file_size - fh.tell():
+                        raise ScanFormatError(
+                            f"{path}: member {info.filename!r} declares shape {shape} "
+                            f"({need:,} bytes) but holds only {info.file_size:,} bytes"
+                        )
+                out[info.filename[:-4]] = (shape, dtype)
     except (zipfile.BadZipFile, OSError, EOFError) as exc:
         raise ScanFormatError(f"{path}: not a valid .npz archive: {exc}") from exc
+    points = f" of {out['xyz'][0][0]:,} points" if out.get("xyz", ((),))[0] else ""
+    check_inflation(
+        declared,
+        path.stat().st_size,
+        max_inflation,
+        path,
+        what=f"the .npz archive's {len(out)} arrays{points}",
+    )
+    return out
 
 
 def _check_npz_headers(
@@ -167,7 +199,13 @@ def _check_npz_headers(
     return n
 
 
-def read_npz(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+def read_npz(
+    path: Path,
+    *,
+    max_points: int,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+    progress: ProgressFn | None = None,
+) -> Scan:
     """Read an ``.npz`` archive with ``xyz``, optional ``rgb`` / ``labels`` and fields.
 
     Parameters
@@ -175,6 +213,8 @@ def read_npz(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     path : Path
     max_points : int
         Refuse archives whose ``xyz`` has more rows (checked from its header).
+    max_inflation : float
+        Refuse archives whose arrays inflate to more than this many times the file.
     progress : ProgressFn, optional
         Receives ``("read", fraction)``.
 
@@ -186,9 +226,10 @@ def read_npz(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     ------
     ScanFormatError
         On a file that is not a zip of .npy arrays, a missing ``xyz``, arrays of the wrong shape
-        or dtype (object arrays are refused), non-finite coordinates or too many points.
+        or dtype (object arrays are refused), an archive inflating beyond ``max_inflation``,
+        non-finite coordinates or too many points.
     """
-    headers = _npz_headers(path)
+    headers = _npz_headers(path, max_inflation)
     _check_npz_headers(headers, path, max_points)
     report(progress, "read", 0.0)
     arrays: dict[str, np.ndarray] = {}
@@ -211,13 +252,16 @@ def read_npz(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     return build_scan(path, "npz", xyz, rgb, labels, arrays)
 
 
-def probe_npz(path: Path, *, max_points: int) -> ScanInfo:
+def probe_npz(
+    path: Path, *, max_points: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> ScanInfo:
     """Check the array headers inside an ``.npz`` archive without loading the data.
 
     Parameters
     ----------
     path : Path
     max_points : int
+    max_inflation : float
 
     Returns
     -------
@@ -228,7 +272,7 @@ def probe_npz(path: Path, *, max_points: int) -> ScanInfo:
     ScanFormatError
         As :func:`read_npz`, for what the headers show.
     """
-    headers = _npz_headers(path)
+    headers = _npz_headers(path, max_inflation)
     n = _check_npz_headers(headers, path, max_points)
     return ScanInfo(
         path=str(path),

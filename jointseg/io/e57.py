@@ -17,7 +17,12 @@ import numpy as np
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
-from jointseg.io.limits import ScanInfo, check_max_points
+from jointseg.io.limits import (
+    DEFAULT_MAX_INFLATION,
+    ScanInfo,
+    check_inflation,
+    check_max_points,
+)
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -58,7 +63,26 @@ def _scan_headers(e57, path: Path) -> list:
     return headers
 
 
-def probe_e57(path: Path, *, max_points: int) -> ScanInfo:
+#: Bytes a point takes once read (three float64 coordinates), for the inflation check.
+_POINT_BYTES = 24
+
+
+def _check_counts(path: Path, n: int, max_points: int, max_inflation: float) -> None:
+    """The scans' declared count against max_points and the file's size (E57 packs values in
+    as few bits as their range needs, so a lying count would otherwise allocate freely)."""
+    check_max_points(n, max_points, path)
+    check_inflation(
+        n * _POINT_BYTES,
+        path.stat().st_size,
+        max_inflation,
+        path,
+        what=f"the E57 scans' {n:,} points",
+    )
+
+
+def probe_e57(
+    path: Path, *, max_points: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> ScanInfo:
     """Sum the point counts of the scans in an E57 file without reading the points.
 
     Parameters
@@ -79,7 +103,7 @@ def probe_e57(path: Path, *, max_points: int) -> ScanInfo:
     try:
         headers = _scan_headers(e57, path)
         n = sum(int(h.point_count) for h in headers)
-        check_max_points(n, max_points, path)
+        _check_counts(path, n, max_points, max_inflation)
         has_rgb = all(set(_COLOUR) <= set(h.point_fields) for h in headers)
         has_intensity = all("intensity" in h.point_fields for h in headers)
     finally:
@@ -93,7 +117,13 @@ def probe_e57(path: Path, *, max_points: int) -> ScanInfo:
     )
 
 
-def read_e57(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+def read_e57(
+    path: Path,
+    *,
+    max_points: int,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+    progress: ProgressFn | None = None,
+) -> Scan:
     """Read and merge every scan of an E57 file in the file's common frame.
 
     Parameters
@@ -118,7 +148,7 @@ def read_e57(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     try:
         headers = _scan_headers(e57, path)
         total = sum(int(h.point_count) for h in headers)
-        check_max_points(total, max_points, path)
+        _check_counts(path, total, max_points, max_inflation)
         has_rgb = all(set(_COLOUR) <= set(h.point_fields) for h in headers)
         has_intensity = all("intensity" in h.point_fields for h in headers)
         parts: list[dict[str, np.ndarray]] = []

@@ -24,20 +24,35 @@ Writer = Callable[..., None]
 
 @dataclass(frozen=True)
 class Format:
-    """One supported format: its name and the functions handling it."""
+    """One supported format: its name and the functions handling it.
+
+    ``inflates`` marks formats whose body may be compressed, so their reader and prober take
+    ``max_inflation`` (what a header declares against the file's size).
+    """
 
     name: str
     read: Reader
     probe: Prober
     write: Writer | None = None
+    inflates: bool = False
+
+    def limits(self, max_points: int, max_inflation: float) -> dict[str, float]:
+        """The keyword arguments bounding this format's reader and prober."""
+        if self.inflates:
+            return {"max_points": max_points, "max_inflation": max_inflation}
+        return {"max_points": max_points}
 
 
 FORMATS: dict[str, Format] = {
     "ply": Format("ply", mesh.read_ply_file, mesh.probe_ply_file, ply.write_ply),
-    "las": Format("las", las.read_las, las.probe_las, partial(las.write_las, compress=False)),
-    "laz": Format("laz", las.read_las, las.probe_las, partial(las.write_las, compress=True)),
-    "e57": Format("e57", e57.read_e57, e57.probe_e57),
-    "pcd": Format("pcd", pcd.read_pcd, pcd.probe_pcd, pcd.write_pcd),
+    "las": Format(
+        "las", las.read_las, las.probe_las, partial(las.write_las, compress=False), inflates=True
+    ),
+    "laz": Format(
+        "laz", las.read_las, las.probe_las, partial(las.write_las, compress=True), inflates=True
+    ),
+    "e57": Format("e57", e57.read_e57, e57.probe_e57, inflates=True),
+    "pcd": Format("pcd", pcd.read_pcd, pcd.probe_pcd, pcd.write_pcd, inflates=True),
     "txt": Format(
         "txt",
         partial(text.read_text, fmt="txt"),
@@ -57,7 +72,7 @@ FORMATS: dict[str, Format] = {
         partial(text.write_text, comma=True),
     ),
     "npy": Format("npy", arrays.read_npy, arrays.probe_npy),
-    "npz": Format("npz", arrays.read_npz, arrays.probe_npz, arrays.write_npz),
+    "npz": Format("npz", arrays.read_npz, arrays.probe_npz, arrays.write_npz, inflates=True),
     # meshes (phone scanning apps): read as points sampled on their faces, never written
     "glb": Format("glb", mesh.read_gltf, mesh.probe_gltf),
     "gltf": Format("gltf", mesh.read_gltf, mesh.probe_gltf),

@@ -34,7 +34,12 @@ from jointseg.io.build import build_scan
 from jointseg.io.colour import ColourRange, merge_colour_ranges, to_rgb8
 from jointseg.io.fields import FieldColumn, field_columns
 from jointseg.io.labels import LabelSummary, label_summary, log_outside_labels, normalise_labels
-from jointseg.io.limits import ScanInfo, check_max_points
+from jointseg.io.limits import (
+    DEFAULT_MAX_INFLATION,
+    ScanInfo,
+    check_inflation,
+    check_max_points,
+)
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -71,11 +76,22 @@ def open_reader(
         raise ScanFormatError(f"{path}: cannot read the LAS header: {exc}") from exc
 
 
-def check_body_size(path: Path, header: laspy.LasHeader) -> None:
-    """For uncompressed files, compare the byte size of the point block with the header's count."""
-    if header.are_points_compressed:
-        return
+def check_body_size(
+    path: Path, header: laspy.LasHeader, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> None:
+    """Compare the byte size of the point block with the header's count before any point is
+    allocated: exactly for LAS, against ``max_inflation`` for LAZ (whose size cannot be known
+    without decompressing)."""
     record = header.point_format.size
+    if header.are_points_compressed:
+        check_inflation(
+            header.point_count * record,
+            os.path.getsize(path) - header.offset_to_point_data,
+            max_inflation,
+            path,
+            what=f"the LAZ header's {header.point_count:,} points of {record} bytes",
+        )
+        return
     start = header.offset_to_point_data
     end = os.path.getsize(path)
     if header.number_of_evlrs and header.start_of_first_evlr:
@@ -251,7 +267,13 @@ def short_read_error(path: Path, header: laspy.LasHeader, got: int) -> ScanForma
     )
 
 
-def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+def read_las(
+    path: Path,
+    *,
+    max_points: int,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+    progress: ProgressFn | None = None,
+) -> Scan:
     """Read a LAS or LAZ file.
 
     Parameters
@@ -259,6 +281,8 @@ def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     path : Path
     max_points : int
         Refuse files whose header declares more points (checked before the points are read).
+    max_inflation : float
+        Refuse a LAZ whose declared points take more than this many times its size.
     progress : ProgressFn, optional
         Receives ``("read", fraction)``.
 
@@ -269,14 +293,15 @@ def read_las(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     Raises
     ------
     ScanFormatError
-        On a wrong signature, a point block shorter or longer than declared, a corrupt LAZ
-        stream, non-finite coordinates or too many points.
+        On a wrong signature, a point block shorter or longer than declared, a LAZ declaring
+        more than ``max_inflation`` times its size, a corrupt LAZ stream, non-finite
+        coordinates or too many points.
     """
     report(progress, "read", 0.0)
     with open_reader(path) as reader:
         header = reader.header
         check_max_points(header.point_count, max_points, path)
-        check_body_size(path, header)
+        check_body_size(path, header, max_inflation)
         try:
             points = reader.read_points(header.point_count)
         except LASPY_ERRORS as exc:
@@ -329,13 +354,17 @@ def las_meta(header: laspy.LasHeader) -> dict[str, Any]:
     return meta
 
 
-def probe_las(path: Path, *, max_points: int) -> ScanInfo:
-    """Check a LAS/LAZ header (and the point block size when uncompressed).
+def probe_las(
+    path: Path, *, max_points: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> ScanInfo:
+    """Check a LAS/LAZ header and the point block's size (exactly for LAS, against
+    ``max_inflation`` for LAZ).
 
     Parameters
     ----------
     path : Path
     max_points : int
+    max_inflation : float
 
     Returns
     -------
@@ -352,7 +381,7 @@ def probe_las(path: Path, *, max_points: int) -> ScanInfo:
     with open_reader(path) as reader:
         header = reader.header
     check_max_points(header.point_count, max_points, path)
-    check_body_size(path, header)
+    check_body_size(path, header, max_inflation)
     fmt = header.point_format
     dims = set(fmt.dimension_names)
     has_rgb = {"red", "green", "blue"} <= dims

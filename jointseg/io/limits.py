@@ -14,6 +14,12 @@ from jointseg.exceptions import ScanFormatError
 
 #: Default upper bound on the number of points a reader accepts.
 DEFAULT_MAX_POINTS: int = 50_000_000
+#: Default ceiling on how many times more bytes a compressed scan (LAZ, compressed NPZ,
+#: binary_compressed PCD, E57) may declare than the file stores. The most LAZ gets is about
+#: 3,400 (a million identical points in 10 KB) and deflate about 1,030, so no honest file comes
+#: near it; a 6 KB LAZ whose header claims 40 M points (200,000 times) is refused before
+#: anything is allocated. The job service sets a lower one (``JOINTSEG_MAX_INFLATION``).
+DEFAULT_MAX_INFLATION: float = 10_000.0
 
 
 class ScanInfo(BaseModel):
@@ -71,6 +77,38 @@ def check_max_points(n_points: int, max_points: int, path: Path, *, what: str = 
             f"{path}: the scan has {what}{n_points:,} points, more than max_points={max_points:,}; "
             f"pass a larger max_points (e.g. max_points={n_points}) to read it, or subsample the "
             f"scan first"
+        )
+
+
+def check_inflation(
+    declared: int, stored: int, max_inflation: float, path: Path, *, what: str
+) -> None:
+    """Refuse a file whose header declares far more data than its size can hold, before any
+    of it is allocated or decompressed (a lying header, or a decompression bomb).
+
+    Parameters
+    ----------
+    declared : int
+        Bytes the header says the points take once decompressed.
+    stored : int
+        Bytes the file holds for them.
+    max_inflation : float
+        Largest accepted ``declared / stored``.
+    path : Path
+        The file, for the message.
+    what : str
+        What declares it, e.g. ``"the LAZ header's 40,000,000 points"``.
+
+    Raises
+    ------
+    ScanFormatError
+        When ``declared > max_inflation * stored``.
+    """
+    if declared > max_inflation * max(stored, 1):
+        raise ScanFormatError(
+            f"{path}: {what} take {declared:,} bytes, {declared / max(stored, 1):,.0f} times "
+            f"the {stored:,} bytes stored; at most {max_inflation:,g} times is accepted "
+            f"(max_inflation): the header's count is wrong, or the file is a compression bomb"
         )
 
 

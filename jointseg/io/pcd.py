@@ -30,7 +30,12 @@ from jointseg.io.colour import to_rgb8
 from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
 from jointseg.io.fields import narrow_dtype, safe_field_name
 from jointseg.io.labels import normalise_labels
-from jointseg.io.limits import ScanInfo, check_max_points
+from jointseg.io.limits import (
+    DEFAULT_MAX_INFLATION,
+    ScanInfo,
+    check_inflation,
+    check_max_points,
+)
 from jointseg.io.tabular import count_lines, parse_table
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
@@ -253,7 +258,11 @@ def _read_head(path: Path) -> PcdHeader:
     return parse_header(head, path)
 
 
-def _check_size(path: Path, header: PcdHeader, size: int) -> None:
+def _check_size(
+    path: Path, header: PcdHeader, size: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> None:
+    """The body against the header's POINTS before anything is allocated: exactly for binary,
+    the LZF block against ``max_inflation`` (ASCII lines are counted as they are parsed)."""
     dtype = header.dtype()
     have = size - header.body_offset
     if header.data == "binary":
@@ -281,6 +290,13 @@ def _check_size(path: Path, header: PcdHeader, size: int) -> None:
                 f"{path}: truncated PCD: {compressed:,} compressed bytes declared but only "
                 f"{have - 8:,} follow"
             )
+        check_inflation(
+            uncompressed,
+            compressed,
+            max_inflation,
+            path,
+            what=f"the PCD header's {header.points:,} points",
+        )
         if uncompressed != header.points * dtype.itemsize:
             raise ScanFormatError(
                 f"{path}: the PCD compressed block holds {uncompressed:,} bytes, but "
@@ -357,7 +373,13 @@ def _unpack_rgb(values: np.ndarray, kind: str) -> np.ndarray:
     return rgb
 
 
-def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+def read_pcd(
+    path: Path,
+    *,
+    max_points: int,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
+    progress: ProgressFn | None = None,
+) -> Scan:
     """Read a PCD file.
 
     Parameters
@@ -365,6 +387,8 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     path : Path
     max_points : int
         Refuse files whose header declares more points (checked before the body is read).
+    max_inflation : float
+        Refuse a compressed body that inflates to more than this many times its size.
     progress : ProgressFn, optional
         Receives ``("read", fraction)``.
 
@@ -380,7 +404,7 @@ def read_pcd(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     """
     header = _read_head(path)
     check_max_points(header.points, max_points, path)
-    _check_size(path, header, os.path.getsize(path))
+    _check_size(path, header, os.path.getsize(path), max_inflation)
     report(progress, "read", 0.0)
     rec, first_line = _read_records(path, header, progress)
     xyz = np.stack([rec[a].astype(np.float64) for a in "xyz"], axis=1)
@@ -465,7 +489,9 @@ def _colour_labels_fields(
     return rgb, labels, fields
 
 
-def probe_pcd(path: Path, *, max_points: int) -> ScanInfo:
+def probe_pcd(
+    path: Path, *, max_points: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> ScanInfo:
     """Check a PCD header and its body size (binary) or line count (ASCII).
 
     Parameters
@@ -484,7 +510,7 @@ def probe_pcd(path: Path, *, max_points: int) -> ScanInfo:
     """
     header = _read_head(path)
     check_max_points(header.points, max_points, path)
-    _check_size(path, header, os.path.getsize(path))
+    _check_size(path, header, os.path.getsize(path), max_inflation)
     if header.data == "ascii":
         body = path.read_bytes()[header.body_offset :].rstrip()
         lines = count_lines(body) if body else 0

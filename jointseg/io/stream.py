@@ -68,7 +68,7 @@ from jointseg.io.las import (
     points_to_scan,
     short_read_error,
 )
-from jointseg.io.limits import DEFAULT_MAX_POINTS, check_max_points
+from jointseg.io.limits import DEFAULT_MAX_INFLATION, DEFAULT_MAX_POINTS, check_max_points
 from jointseg.io.ply import (
     PlyLayout,
     VertexFacts,
@@ -280,11 +280,11 @@ def _las_first_pass(path: Path, header: laspy.LasHeader) -> LasFacts:
     return facts
 
 
-def _open_las(path: Path, max_points: int) -> ScanChunks:
+def _open_las(path: Path, max_points: int, max_inflation: float) -> ScanChunks:
     with open_reader(path) as reader:
         header = reader.header
     check_max_points(header.point_count, max_points, path)
-    check_body_size(path, header)
+    check_body_size(path, header, max_inflation)
     if header.point_count == 0:
         raise ScanFormatError(f"{path}: the scan contains no points")
     began = time.perf_counter()
@@ -423,12 +423,18 @@ def _rows(scan: Scan, start: int, stop: int) -> Scan:
     )
 
 
-def _whole(path: Path, fmt: str, max_points: int) -> ScanChunks:
-    return _WholeChunks(read_scan(path, max_points=max_points), path, fmt)
+def _whole(
+    path: Path, fmt: str, max_points: int, max_inflation: float = DEFAULT_MAX_INFLATION
+) -> ScanChunks:
+    scan = read_scan(path, max_points=max_points, max_inflation=max_inflation)
+    return _WholeChunks(scan, path, fmt)
 
 
 def open_chunks(
-    path: str | os.PathLike[str], *, max_points: int = DEFAULT_MAX_POINTS
+    path: str | os.PathLike[str],
+    *,
+    max_points: int = DEFAULT_MAX_POINTS,
+    max_inflation: float = DEFAULT_MAX_INFLATION,
 ) -> ScanChunks:
     """Open a scan file for reading chunk by chunk, with memory bounded by the chunk size.
 
@@ -456,6 +462,8 @@ def open_chunks(
         As for :func:`jointseg.io.read_scan`.
     max_points : int
         Refuse scans with more points, checked from the header before any point is read.
+    max_inflation : float
+        As for :func:`jointseg.io.read_scan`.
 
     Returns
     -------
@@ -472,11 +480,11 @@ def open_chunks(
     path, fmt = prepare_input(path, max_points)
     try:
         if fmt in ("las", "laz"):
-            chunks = _open_las(path, max_points)
+            chunks = _open_las(path, max_points, max_inflation)
         elif fmt == "ply":
             chunks = _open_ply(path, max_points)
         else:
-            chunks = _whole(path, fmt, max_points)
+            chunks = _whole(path, fmt, max_points, max_inflation)
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:

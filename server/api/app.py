@@ -12,6 +12,7 @@ from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from server.api.checks import UploadChecker
 from server.api.deps import Services
 from server.api.errors import install_error_handlers
 from server.api.routes import health_router, jobs_router
@@ -43,8 +44,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         init_db(engine)
         storage = Storage(settings.data_dir)
         storage.clean_incoming()
-        services = Services(settings, engine, make_sessions(engine), storage, JobQueue(settings))
+        checker = UploadChecker(settings)
+        services = Services(
+            settings, engine, make_sessions(engine), storage, JobQueue(settings), checker
+        )
         app.state.services = services
+        checker.warm()
         # recovers jobs of lost workers even when every worker is gone
         reaper = ReaperThread(services.sessions, services.queue, settings)
         reaper.start()
@@ -58,6 +63,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             reaper.stop()
+            checker.close()
             services.queue.close()
             engine.dispose()
 

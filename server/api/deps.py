@@ -14,6 +14,7 @@ from fastapi import Depends, Request
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
+from server.api.checks import UploadChecker
 from server.queue import JobQueue
 from server.settings import Settings
 from server.state.db import SessionFactory
@@ -29,6 +30,7 @@ class Services:
     sessions: SessionFactory
     storage: Storage
     queue: JobQueue
+    checker: UploadChecker
 
 
 def get_services(request: Request) -> Services:

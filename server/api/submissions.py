@@ -12,15 +12,12 @@ import uuid
 
 from pydantic import ValidationError
 
-from jointseg.exceptions import ConfigError, JointsegError, QueueUnavailable
-from jointseg.io import ScanInfo, probe_scan, read_scan
-from jointseg.io.mesh import check_single_file
+from jointseg.exceptions import ConfigError, QueueUnavailable
 from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
 from server.api.uploads import ReceivedUpload
-from server.limits import check_config_limits, check_scan_span
-from server.messages import public_message
+from server.limits import check_config_limits
 from server.settings import Settings
 from server.state import jobs
 from server.state.lifecycle import fail_queued
@@ -93,28 +90,6 @@ def _no_weights(name: str) -> str:
     )
 
 
-def check_scan(upload: ReceivedUpload, settings: Settings) -> ScanInfo:
-    """Validate the stored upload: header and point count, and every point when small enough.
-
-    An upload arrives as one file, so a glTF whose buffers or textures are files beside it is
-    refused with a message saying to upload a .glb (nor may it read other files on the server).
-
-    Raises
-    ------
-    ScanFormatError
-        With the reader's message, the temporary name replaced by the client's file name.
-    """
-    try:
-        check_single_file(upload.path)
-        info = probe_scan(upload.path, max_points=settings.max_points)
-        if upload.size <= settings.full_check_max_bytes:
-            scan = read_scan(upload.path, max_points=settings.max_points)
-            check_scan_span(scan.xyz, upload.filename, settings.max_span)
-    except JointsegError as exc:
-        raise type(exc)(public_message(exc, upload.path, upload.filename)) from exc
-    return info
-
-
 def submit(services: Services, upload: ReceivedUpload, owner: str | None = None) -> jobs.JobView:
     """Check, store and enqueue an upload (blocking: run it in a worker thread); the job
     belongs to ``owner`` (the submitting key's hash; None in open mode).
@@ -130,7 +105,8 @@ def submit(services: Services, upload: ReceivedUpload, owner: str | None = None)
     """
     try:
         config = parse_config(upload.config, services.settings)
-        info = check_scan(upload, services.settings)
+        # in a checking process: the API never holds a scan's points (server.api.checks)
+        info = services.checker.check(upload.path, upload.filename, upload.size)
         job_id = uuid.uuid4().hex
         services.storage.commit_upload(upload.path, job_id, upload.suffix)
     except BaseException:

@@ -65,11 +65,19 @@ class JobRunner:
             config = PipelineConfig.model_validate(claim.config)
             points = claim.points  # probed at submission; probed here only for older rows
             if points is None:
-                points = probe_scan(upload, max_points=self.settings.max_points).n_points
+                points = probe_scan(
+                    upload,
+                    max_points=self.settings.max_points,
+                    max_inflation=self.settings.max_inflation,
+                ).n_points
             # a scan spread over 1e18 units would fail deep in the pipeline (an allocation of
             # petabytes): refused here by one streamed pass, naming the span
             check_file_span(
-                upload, claim.filename, self.settings.max_span, self.settings.max_points
+                upload,
+                claim.filename,
+                self.settings.max_span,
+                self.settings.max_points,
+                max_inflation=self.settings.max_inflation,
             )
             if config.tiles.needs_tiles(points):
                 self.fanout.plan(claim, config, upload, token)
