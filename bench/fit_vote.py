@@ -35,13 +35,17 @@ from pathlib import Path
 import numpy as np
 from helpers.inputs import AREA6, M6, MODELS, SCANNET, WEAK
 from helpers.scans import (
+    THIN,
     Item,
     calibration_rooms,
+    colourless,
     content_key,
     geometry_output,
     load_items,
     network_name,
     network_output,
+    structure_hint,
+    thinned,
 )
 from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -55,6 +59,7 @@ from jointseg.fusion.learned import (
 )
 from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
+from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 from jointseg.network.training.data import stable_order
 from jointseg.scan import Scan
 
@@ -62,6 +67,7 @@ log = logging.getLogger("fit_vote")
 
 M1 = f"dgcnn:{MODELS / 'dgcnn_s3dis' / 'model_1.t7'}"
 GPU = f"randlanet:{MODELS / 'randlanet_area6_gpu' / 'randlanet_area6_gpu.pt'}"
+NOCOLOUR = f"randlanet:{COLOUR_FREE_WEIGHTS}"
 BUNDLED = "randlanet"
 
 
@@ -99,6 +105,11 @@ LABELLERS: dict[str, list[Labeller]] = {
         Labeller(M1, "biased"),
     ],
     "synthetic": [Labeller(WEAK), Labeller(BUNDLED), Labeller(WEAK, "underconfident")],
+    # the tuning rooms thinned to 3.3 cm (sparser segments, as another building's scanner)
+    f"S3DIS {THIN * 100:.1f} cm": [Labeller(M6), Labeller(WEAK), Labeller(GPU), Labeller(BUNDLED)],
+    # the tuning scans without their colour, labelled by what the pipeline then runs
+    "S3DIS no colour": [Labeller(NOCOLOUR)],
+    "ScanNet no colour": [Labeller(NOCOLOUR)],
 }
 #: Class confusions a biased network makes (from -> to; half of the first class's probability
 #: moves to the second): furniture swapped, objects taken for the wall behind them.
@@ -129,6 +140,8 @@ MONOTONIC = [
         "logit p(own)": -1,
         "logit segment soft share of own": -1,
         "logit cell soft share of own": -1,
+        "structure reads the offer": 1,
+        "structure reads own": -1,
     }.get(name, 1 if "offer" in name and name.startswith("logit") else 0)
     for name in FEATURES
 ]
@@ -150,7 +163,9 @@ class Room:
     weight: np.ndarray  # per offer: inverse frequency of the true class, rooms weigh alike
 
 
-def load_room(item: Item, who: Labeller, predictors: dict, min_support: float) -> Room:
+def load_room(
+    item: Item, who: Labeller, predictors: dict, min_support: float, structure: bool = True
+) -> Room:
     """Offers of one scan (segments of the default geometry), with their truth and weights."""
     labels, probs = network_output(who.spec, item, predictors)
     if who.distortion:
@@ -169,6 +184,7 @@ def load_room(item: Item, who: Labeller, predictors: dict, min_support: float) -
         cell_size=DEFAULT_CELL_SIZE,
         main_plane=g["plane_id"] >= 0,
         min_support=min_support,
+        structure=structure_hint(g) if structure else None,
     )
     truth = gt[offers.point]
     freq = np.bincount(gt[gt >= 0], minlength=13) / max(int((gt >= 0).sum()), 1)
@@ -336,6 +352,13 @@ def load_rooms(args: argparse.Namespace) -> tuple[list[Room], list[Item]]:
     ]
     if args.slices:
         real += [floor_slice(i) for i in real]
+    if args.variants:
+        real += [thinned(i) for i in real if i.dataset == "S3DIS"]
+        real += [
+            colourless(i, f"{i.dataset} no colour")
+            for i in real
+            if i.dataset in ("S3DIS", "ScanNet")
+        ]
     synth = calibration_rooms(args.synth_rooms, args.synth_floors, args.synth_points)
     predictors: dict = {}
     support = FusionParams().min_support
@@ -345,7 +368,7 @@ def load_rooms(args: argparse.Namespace) -> tuple[list[Room], list[Item]]:
             if f"{item.dataset}:{who.name}" in (args.skip_labeller or []):
                 continue
             t = time.perf_counter()
-            rooms.append(load_room(item, who, predictors, support))
+            rooms.append(load_room(item, who, predictors, support, args.structure))
             log.info("%s by %s: %.1f s", item.name, who.name, time.perf_counter() - t)
     return rooms, real + synth
 
@@ -394,6 +417,18 @@ def main() -> None:
         "--slices",
         action="store_true",
         help=f"also fit on the bottom {SLICE_HEIGHT} m of every real tuning scan",
+    )
+    parser.add_argument(
+        "--structure",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="offer the geometry's structure reading (--no-structure: the vote before issue 43)",
+    )
+    parser.add_argument(
+        "--variants",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also fit on the real tuning scans thinned to 3.3 cm (S3DIS) and without colour",
     )
     parser.add_argument("--out", type=Path, default=MODEL_PATH)
     args = parser.parse_args()

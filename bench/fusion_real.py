@@ -45,6 +45,7 @@ from helpers.scans import (
     load_items,
     network_name,
     network_output,
+    structure_hint,
 )
 
 from jointseg.classes import CLASS_NAMES
@@ -102,7 +103,13 @@ def measure(item: Item, spec: str, geo: str, variants: list[str], predictors: di
     )
     for v in variants:
         result = fuse(
-            item.scan.xyz, segs, labels, probs, VARIANTS[v], main_plane=g["plane_id"] >= 0
+            item.scan.xyz,
+            segs,
+            labels,
+            probs,
+            VARIANTS[v],
+            main_plane=g["plane_id"] >= 0,
+            structure=structure_hint(g),
         )
         row.fused[v] = evaluate(gt, result.labels).miou or 0.0
         row.cm_fused[v] = confusion_matrix(gt, result.labels)

@@ -17,6 +17,7 @@ import numpy as np
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion import evidence, guard, learned
+from jointseg.fusion.learned import StructureHint
 from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
 from jointseg.fusion.transfer import transfer_labels
 from jointseg.grouping import compact_ids, group_sums, label_histogram
@@ -104,6 +105,7 @@ def fuse(
     network_xyz: np.ndarray | None = None,
     main_plane: np.ndarray | None = None,
     totals: ScanTotals | None = None,
+    structure: StructureHint | None = None,
 ) -> FusionResult:
     """Combine network labels with geometric segments (eq. 6-7 and the modes beyond them).
 
@@ -128,6 +130,10 @@ def fuse(
     totals : ScanTotals, optional
         Scan-wide values when ``xyz`` is a part of a scan made of whole segments (a tiled
         run); default: ``xyz`` is the whole scan.
+    structure : StructureHint, optional
+        The geometry's floor, ceiling and wall reading per point (``GeometryResult.structure``
+        and ``structure_confidence``): the learned vote offers it as a label of its own, even
+        where the network's majority says otherwise. The other modes ignore it.
 
     Returns
     -------
@@ -144,6 +150,7 @@ def fuse(
         xyz, segments, network_labels, network_probs, network_xyz, params
     )
     main_plane = _checked_main_plane(main_plane, len(xyz))
+    structure = _checked_structure(structure, len(xyz))
     timings: dict[str, float] = {}
     t = time.perf_counter()
     labels, probs = _labels_at_points(xyz, network_xyz, network_labels, network_probs, params)
@@ -152,7 +159,7 @@ def fuse(
     t = time.perf_counter()
     segment_ids, seg = compact_ids(segments)
     ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params, totals)
-    vote = _vote(ballot, main_plane, timings, t)
+    vote = _vote(ballot, main_plane, structure, timings, t)
     return _result(vote, labels, segment_ids, params, timings)
 
 
@@ -206,14 +213,37 @@ def _labels_at_points(
     return network_labels.astype(np.int64), network_probs
 
 
+def _checked_structure(structure: StructureHint | None, n: int) -> StructureHint | None:
+    """The structure reading as (int64 classes, float64 confidences), refused when it does
+    not match the points or names a class that is not one."""
+    if structure is None:
+        return None
+    kind = np.asarray(structure.kind)
+    confidence = np.asarray(structure.confidence, dtype=np.float64)
+    if kind.shape != (n,) or confidence.shape != (n,):
+        raise ConfigError(
+            f"structure must give a class and a confidence per point ({n}), got "
+            f"{kind.shape} and {confidence.shape}"
+        )
+    if n and (kind.min() < -1 or kind.max() >= NUM_CLASSES):
+        raise ConfigError(f"structure classes must be -1..{NUM_CLASSES - 1}")
+    if n and not (np.isfinite(confidence).all() and 0 <= confidence.min() <= confidence.max() <= 1):
+        raise ConfigError("structure confidences must lie in [0, 1]")
+    return StructureHint(kind.astype(np.int64), confidence)
+
+
 def _vote(
-    ballot: _Ballot, main_plane: np.ndarray | None, timings: dict[str, float], t: float
+    ballot: _Ballot,
+    main_plane: np.ndarray | None,
+    structure: StructureHint | None,
+    timings: dict[str, float],
+    t: float,
 ) -> _Vote:
     """Run the mode's vote, timed from ``t`` as 'vote' (the majority modes add 'relabel')."""
     if ballot.params.mode == "evidence":
         vote = _evidence_vote(ballot)
     elif ballot.params.mode == "learned":
-        vote = _learned_vote(ballot, main_plane)
+        vote = _learned_vote(ballot, main_plane, structure)
     else:
         return _majority_vote(ballot, timings, t)
     timings["vote"] = time.perf_counter() - t
@@ -269,8 +299,11 @@ def _evidence_vote(ballot: _Ballot) -> _Vote:
     return _Vote(fused, confidence, seg_votes, split, np.zeros(n_seg, bool), fused != labels)
 
 
-def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
-    """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment and cell offers."""
+def _learned_vote(
+    ballot: _Ballot, main_plane: np.ndarray | None, structure: StructureHint | None
+) -> _Vote:
+    """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment, cell and structure
+    offers."""
     xyz, seg, n_seg, labels, probs, params, totals = ballot
     p = evidence.point_probs(labels, probs)
     fused, seg_votes = learned.learned_labels(
@@ -285,6 +318,7 @@ def _learned_vote(ballot: _Ballot, main_plane: np.ndarray | None) -> _Vote:
         totals=None
         if totals is None
         else (totals.points, totals.mean_entropy, totals.disagreement),
+        structure=structure,
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

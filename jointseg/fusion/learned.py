@@ -28,6 +28,7 @@ import json
 from dataclasses import dataclass
 from functools import cache, cached_property
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -57,13 +58,25 @@ FEATURES = (
     "offer is the segment's label",
     "scan mean entropy",
     "scan share off its segment's majority",
+    "structure reads the offer",
+    "structure reads own",
+    "offer only from structure",
+    "own label is a wall fixture",
 )
+#: The features of a model fitted before the structure reading (issue 43): such a model is
+#: still read, evaluated on these columns only, and is never offered the structure's labels.
+FEATURES_BEFORE_STRUCTURE = FEATURES[:17]
 #: Probabilities are clipped to [EPS, 1 - EPS] before the logit.
 EPS = 1e-4
 #: Classes that are the room's shell: a label moving between them and an object class is the
 #: vote's riskiest change (a board in its wall plane), so the model sees it.
 STRUCTURAL = np.zeros(NUM_CLASSES, dtype=bool)
 STRUCTURAL[[CLASS_INDEX["ceiling"], CLASS_INDEX["floor"], CLASS_INDEX["wall"]]] = True
+#: Classes that lie in or against the room's shell (a window, door or board in a wall's plane, a
+#: column in it, a beam under the ceiling): the structure reading may well include them, and
+#: the network keeps them where it sees them.
+FIXTURE = np.zeros(NUM_CLASSES, dtype=bool)
+FIXTURE[[CLASS_INDEX[c] for c in ("window", "door", "board", "column", "beam")]] = True
 #: Trees with at most this many split nodes are evaluated through a lookup table.
 MAX_TABLE_BITS = 12
 #: Cell side (m) the shipped model was fitted with, when its file names none.
@@ -78,6 +91,22 @@ def _logit(x: np.ndarray) -> np.ndarray:
 #: Per-segment column sums of weights (N, C), shape (n_seg, C); the old name of
 #: :func:`jointseg.grouping.group_sums`, kept for ``bench/graph_probe.py``.
 segment_label_sums = group_sums
+
+
+class StructureHint(NamedTuple):
+    """The geometry's structural reading at every point (:mod:`jointseg.geometry.structure`),
+    evidence that uses no labels.
+
+    Attributes
+    ----------
+    kind : ndarray of shape (N,), int
+        The class the geometry reads (floor, ceiling or wall), -1 where it reads none.
+    confidence : ndarray of shape (N,), float
+        How sure it is, in [0, 1].
+    """
+
+    kind: np.ndarray
+    confidence: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -152,11 +181,15 @@ def _pick_offers(
     cell_label: np.ndarray,
     probs: np.ndarray,
     min_support: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points, offered classes and whether each offer comes from the segment (else the cell).
+    structure_kind: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points, offered classes, whether each offer comes from the segment (else the cell or
+    the structure) and whether only the structure reading makes it.
 
-    Segment offers come first; a cell offers only where it disagrees with the segment too, so
-    no point gets the same offer twice.
+    Segment offers come first; a cell offers only where it disagrees with the segment too, and
+    the structure only where it disagrees with both, so no point gets the same offer twice.
+    ``min_support`` holds back the segment's and cell's offers only: the structure reading is
+    evidence the network's probabilities do not contain.
     """
     by_segment = np.flatnonzero(seg_label != labels)
     by_cell = np.flatnonzero((cell_label != labels) & (cell_label != seg_label))
@@ -166,7 +199,17 @@ def _pick_offers(
     if min_support > 0:
         supported = probs[point, offer] >= min_support
         point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
-    return point, offer, from_segment
+    only_structure = np.zeros(len(point), dtype=bool)
+    if structure_kind is not None:
+        sk = np.asarray(structure_kind, dtype=np.int64)
+        by_structure = np.flatnonzero(
+            (sk >= 0) & (sk != labels) & (sk != seg_label) & (sk != cell_label)
+        )
+        point = np.concatenate([point, by_structure])
+        offer = np.concatenate([offer, sk[by_structure]])
+        from_segment = np.concatenate([from_segment, np.zeros(len(by_structure), bool)])
+        only_structure = np.concatenate([only_structure, np.ones(len(by_structure), bool)])
+    return point, offer, from_segment, only_structure
 
 
 def vote_offers(
@@ -180,9 +223,11 @@ def vote_offers(
     main_plane: np.ndarray | None = None,
     min_support: float = 0.0,
     totals: tuple[int, float, float] | None = None,
+    structure: StructureHint | None = None,
 ) -> Offers:
     """Every offer of a segment or cell label to a point whose network label differs, except
-    offers of a class the network gave the point less than ``min_support`` probability.
+    offers of a class the network gave the point less than ``min_support`` probability; and,
+    with ``structure``, the geometry's structural reading where it differs from all of these.
 
     Parameters
     ----------
@@ -204,6 +249,8 @@ def vote_offers(
         The whole scan's point count, mean normalised entropy and :func:`disagreement_share`
         when these points are a part of it made of whole segments (a tiled run); default: taken
         from these points.
+    structure : StructureHint, optional
+        The geometry's floor, ceiling and wall reading per point; none when not given.
 
     Returns
     -------
@@ -225,8 +272,16 @@ def vote_offers(
     plane_share = _plane_share(seg, n_seg, seg_size, main_plane)
     seg_label = seg_soft.argmax(axis=1)[seg]
     cell_label = cell_soft.argmax(axis=1)[cell]
-    point, offer, from_segment = _pick_offers(labels, seg_label, cell_label, probs, min_support)
+    kind = None if structure is None else np.asarray(structure.kind, dtype=np.int64)
+    point, offer, from_segment, only_structure = _pick_offers(
+        labels, seg_label, cell_label, probs, min_support, kind
+    )
     s, c, own = seg[point], cell[point], labels[point]
+    reads_offer = reads_own = np.zeros(len(point))
+    if structure is not None and kind is not None:
+        sure = np.asarray(structure.confidence, dtype=np.float64)[point]
+        reads_offer = np.where(kind[point] == offer, sure, 0.0)
+        reads_own = np.where(kind[point] == own, sure, 0.0)
     features = np.column_stack(
         [
             _logit(probs[point, own]),
@@ -246,6 +301,10 @@ def vote_offers(
             from_segment,
             np.full(len(point), scan_entropy),
             np.full(len(point), scan_disagreement),
+            reads_offer,
+            reads_own,
+            only_structure,
+            FIXTURE[own],
         ]
     ).astype(np.float64)
     return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
@@ -268,6 +327,12 @@ class TreeEnsemble:
     leaf: list[np.ndarray]
     card: dict
     cell_size: float = DEFAULT_CELL_SIZE
+    n_features: int = len(FEATURES)
+
+    @property
+    def weighs_structure(self) -> bool:
+        """Whether the model was fitted with the structure reading's offers and features."""
+        return self.n_features == len(FEATURES)
 
     @classmethod
     def from_json(cls, path: Path) -> TreeEnsemble:
@@ -275,7 +340,7 @@ class TreeEnsemble:
         try:
             body = json.loads(path.read_text())
             trees = body["trees"]
-            if body["features"] != list(FEATURES):
+            if body["features"] not in (list(FEATURES), list(FEATURES_BEFORE_STRUCTURE)):
                 raise ConfigError(f"{path}: features {body['features']} are not {list(FEATURES)}")
             cell_size = float(body.get("cell_size", DEFAULT_CELL_SIZE))
             if not np.isfinite(cell_size) or cell_size < 0:
@@ -290,13 +355,14 @@ class TreeEnsemble:
                 leaf=[np.asarray(t["leaf"], bool) for t in trees],
                 card=dict(body.get("card", {})),
                 cell_size=cell_size,
+                n_features=len(body["features"]),
             )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"vote model {path}: {exc}") from exc
 
     def probability(self, x: np.ndarray) -> np.ndarray:
         """P(the change is right) for every row of ``x`` (M, F)."""
-        columns = np.ascontiguousarray(np.asarray(x, dtype=np.float64).T)
+        columns = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:, : self.n_features].T)
         raw = np.full(len(x), self.base)
         for t in range(len(self.feature)):
             raw += self._tree_values(t, columns)
@@ -386,10 +452,12 @@ def learned_labels(
     main_plane: np.ndarray | None = None,
     model: TreeEnsemble | None = None,
     totals: tuple[int, float, float] | None = None,
+    structure: StructureHint | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     ``threshold``, else the network's label. An offer of a class the network gave the point
-    less than ``min_support`` probability is never taken.
+    less than ``min_support`` probability is never taken. ``structure`` (the geometry's floor,
+    ceiling and wall reading) is offered too where the model was fitted with it.
 
     Returns
     -------
@@ -408,6 +476,7 @@ def learned_labels(
         main_plane=main_plane,
         min_support=min_support,
         totals=totals,
+        structure=structure if model.weighs_structure else None,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
     return best_offers(labels, offers.point, offers.label, p, threshold), offers.segment_votes

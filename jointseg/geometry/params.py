@@ -22,6 +22,11 @@ class GeometryParams(BaseModel):
         description="Rotate about z to the room's dominant wall directions "
         "before the bounding-box step.",
     )
+    structure: bool = Field(
+        True,
+        description="Read floor, ceiling and walls from the segments' own geometry (no labels), "
+        "as evidence the fusion vote weighs against the network's labels.",
+    )
     voxel_factor: float = Field(
         2.5,
         ge=0,

@@ -42,6 +42,7 @@ def find_layout(
     spacing: float,
     to_user: np.ndarray | None = None,
     params: ObjectParams | None = None,
+    structure: np.ndarray | None = None,
 ) -> Layout:
     """Objects, rooms and walls of a labelled scan.
 
@@ -57,11 +58,16 @@ def find_layout(
         Point spacing, metres.
     to_user : ndarray of shape (4, 4), optional
         Work -> user coordinates (identity when None).
+    structure : ndarray of shape (N,), optional
+        The geometry's structure reading per point (floor, ceiling or wall class, -1 for
+        none; ``GeometryResult.structure``): the floor level and the rooms' ceiling heights
+        come from its floor and ceiling planes where it has them, so they hold where the
+        labels are poor; default: from the labels alone.
     """
     params = params or ObjectParams()
     matrix = np.eye(4) if to_user is None else np.asarray(to_user, dtype=np.float64)
     instances = find_instances(xyz, labels, spacing, params)
-    floor_z = floor_height(xyz[:, 2], labels)
+    floor_z = floor_height(xyz[:, 2], labels, structure)
     walls_mask = labels == WALL
     # normals of the wall and door points only: the walls' direction, planes and the rooms'
     # barriers need no others
@@ -80,7 +86,7 @@ def find_layout(
     if grid.labels.size == 0 or grid.labels.max() < 0:
         report.reason = "no room found: the floor is not closed by walls into any region"
         return Layout(instances, report)
-    report.rooms = _rooms(xyz, labels, grid, floor_z)
+    report.rooms = _rooms(xyz, labels, grid, floor_z, structure)
     faces = [] if normals is None else wall_faces(xyz, labels, normals, instances, grid, params)
     if join_door_pieces(instances, labels, xyz, grid, faces, floor_z):
         report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, floor_z, grid)
@@ -150,10 +156,16 @@ def _objects(
     return out
 
 
-def _rooms(xyz: np.ndarray, labels: np.ndarray, grid: RoomGrid, floor_z: float) -> list[RoomRecord]:
+def _rooms(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    grid: RoomGrid,
+    floor_z: float,
+    structure: np.ndarray | None,
+) -> list[RoomRecord]:
     areas = room_areas(grid)
     room = grid.room_of(xyz)
-    heights = ceiling_heights(xyz, labels, room, floor_z, len(areas))
+    heights = ceiling_heights(xyz, labels, room, floor_z, len(areas), structure)
     out = []
     for r, area in enumerate(areas):
         ii, jj = np.nonzero(grid.labels == r)

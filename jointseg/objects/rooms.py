@@ -64,10 +64,22 @@ class RoomGrid:
         return out
 
 
-def floor_height(z: np.ndarray, labels: np.ndarray) -> float | None:
-    """Median height of the floor points, None with fewer than 50 of them."""
+#: The least points of a structure reading's floor (ceiling) before it sets the floor level
+#: (a room's ceiling height).
+MIN_FLOOR_POINTS, MIN_CEILING_POINTS = 50, 20
+
+
+def floor_height(
+    z: np.ndarray, labels: np.ndarray, structure: np.ndarray | None = None
+) -> float | None:
+    """Median height of the geometry's floor planes (``structure``) where it read at least 50
+    floor points, else of the points labelled floor; None with fewer than 50 of either."""
+    if structure is not None:
+        planes = z[structure == FLOOR]
+        if planes.size >= MIN_FLOOR_POINTS:
+            return float(np.median(planes))
     floor = z[labels == FLOOR]
-    return float(np.median(floor)) if floor.size >= 50 else None
+    return float(np.median(floor)) if floor.size >= MIN_FLOOR_POINTS else None
 
 
 def room_grid(
@@ -288,13 +300,24 @@ def room_areas(grid: RoomGrid) -> np.ndarray:
 
 
 def ceiling_heights(
-    xyz: np.ndarray, labels: np.ndarray, room: np.ndarray, floor_z: float, n_rooms: int
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    room: np.ndarray,
+    floor_z: float,
+    n_rooms: int,
+    structure: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Per room: the median ceiling point's height above the floor; without ceiling points, the
-    99th percentile of the room's wall points (NaN when the room has neither)."""
+    """Per room: the median height above the floor of the geometry's ceiling planes in it
+    (``structure``), else of its points labelled ceiling; without either, the 99th percentile
+    of the room's wall points (NaN when the room has none of these)."""
     out = np.full(n_rooms, np.nan)
     for r in range(n_rooms):
         inside = room == r
+        if structure is not None:
+            planes = xyz[inside & (structure == CEILING), 2]
+            if planes.size >= MIN_CEILING_POINTS:
+                out[r] = float(np.median(planes)) - floor_z
+                continue
         ceiling = xyz[inside & (labels == CEILING), 2]
         if ceiling.size >= 20:
             out[r] = float(np.median(ceiling)) - floor_z

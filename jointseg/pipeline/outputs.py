@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from jointseg.classes import CLASS_INDEX
+from jointseg.geometry import GeometryResult
 from jointseg.pipeline.stages import PipelineResult
 from jointseg.scan import Scan
 
@@ -58,6 +60,19 @@ def annotate(scan: Scan, result: PipelineResult) -> Scan:
     )
 
 
+def structure_section(geo: GeometryResult) -> dict[str, Any] | None:
+    """What the geometry read as the room's structure: its floor and ceiling levels (metres, in
+    the levelled work frame) and how many points it read as each; None when switched off."""
+    if geo.structure is None:
+        return None
+    counts = np.bincount(geo.structure[geo.structure >= 0].astype(np.int64), minlength=3)
+    return {
+        "floor_z": None if geo.floor_z is None else round(geo.floor_z, 4),
+        "ceiling_z": None if geo.ceiling_z is None else round(geo.ceiling_z, 4),
+        "points": {name: int(counts[CLASS_INDEX[name]]) for name in ("floor", "ceiling", "wall")},
+    }
+
+
 def report_body(
     scan: Scan, result: PipelineResult, *, extra_timings: dict[str, float] | None = None
 ) -> dict[str, Any]:
@@ -97,6 +112,7 @@ def report_body(
         },
         "params": result.params,
         "frame": None if result.frame is None else result.frame.report(),
+        "structure": structure_section(result.geometry),
         **layout_sections(result),
         "metrics": None
         if result.metrics is None

@@ -21,7 +21,7 @@ import numpy as np
 from jointseg.exceptions import Cancelled, ConfigError
 from jointseg.frame.colour import decide_colour
 from jointseg.frame.decide import Frame, decide_frame, work_scan
-from jointseg.fusion import FusionResult, fuse
+from jointseg.fusion import FusionResult, StructureHint, fuse
 from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
@@ -194,7 +194,7 @@ def run(
     net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
 
     fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
-    layout = _objects_stage(work, fused, frame, config, geo.params.spacing, timings)
+    layout = _objects_stage(work, fused, frame, config, geo, timings)
     if index is not None:
         net, geo, fused = expand(net, geo, fused, index)
         layout = _expand_layout(layout, index, frame.stray)
@@ -234,12 +234,12 @@ def _objects_stage(
     fused: FusionResult,
     frame: Frame,
     config: PipelineConfig,
-    spacing: float,
+    geo: GeometryResult,
     timings: dict[str, float],
 ) -> Layout | None:
-    """Objects, rooms and walls from the fused labels, in the work frame, reported in the
-    user's coordinates; timed as ``objects``. None when switched off. ``spacing`` is the one
-    the geometry stage measured on the same points."""
+    """Objects, rooms and walls from the fused labels and the geometry's structure reading, in
+    the work frame, reported in the user's coordinates; timed as ``objects``. None when
+    switched off. The spacing is the one the geometry stage measured on the same points."""
     if not config.objects.enabled:
         return None
     from jointseg.objects.layout import find_layout
@@ -250,9 +250,10 @@ def _objects_stage(
         work.xyz,
         fused.labels,
         fused.confidence,
-        spacing,
+        geo.params.spacing,
         to_user=to_user,
         params=config.objects,
+        structure=geo.structure,
     )
     timings["objects"] = time.perf_counter() - t
     return layout
@@ -285,7 +286,15 @@ def expand(
     point's stand-in in the work scan; a stray point takes its nearest kept point's)."""
     return (
         replace(net, labels=net.labels[index], probs=net.probs[index]),
-        replace(geo, segments=geo.segments[index], plane_id=geo.plane_id[index]),
+        replace(
+            geo,
+            segments=geo.segments[index],
+            plane_id=geo.plane_id[index],
+            structure=None if geo.structure is None else geo.structure[index],
+            structure_confidence=None
+            if geo.structure_confidence is None
+            else geo.structure_confidence[index],
+        ),
         replace(
             fused,
             labels=fused.labels[index],
@@ -384,11 +393,24 @@ def _fusion_stage(
     t = time.perf_counter()
     check_cancel(cancel)
     fused = fuse(
-        scan.xyz, geo.segments, net.labels, net.probs, config.fusion, main_plane=geo.main_plane
+        scan.xyz,
+        geo.segments,
+        net.labels,
+        net.probs,
+        config.fusion,
+        main_plane=geo.main_plane,
+        structure=structure_hint(geo),
     )
     report(progress, "fusion", 1.0)
     timings["fusion"] = time.perf_counter() - t
     return fused
+
+
+def structure_hint(geo: GeometryResult) -> StructureHint | None:
+    """The geometry's structure reading as the fusion takes it; None when switched off."""
+    if geo.structure is None or geo.structure_confidence is None:
+        return None
+    return StructureHint(geo.structure, geo.structure_confidence)
 
 
 def _metrics(

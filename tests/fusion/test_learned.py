@@ -125,7 +125,8 @@ def test_the_scans_disagreement_with_its_segments_reaches_the_features() -> None
     np.testing.assert_allclose(column, 0.25)
     # a part of a bigger scan (a tiled run) takes the scan's figure
     part = vote_offers(line(20), seg, 2, labels, probs, totals=(1000, 0.3, 0.1))
-    np.testing.assert_allclose(part.features[:, -1], 0.1)
+    column = FEATURES.index("scan share off its segment's majority")
+    np.testing.assert_allclose(part.features[:, column], 0.1)
 
 
 def test_main_plane_of_the_wrong_shape_is_a_config_error() -> None:
@@ -175,4 +176,4 @@ def test_the_shipped_model_never_saw_a_judging_room(shared_file) -> None:
     assert not judging & set(scans["S3DIS"])
     # bench/fusion_real.py's ScanNet judging rooms, every re-scan of them
     assert not [s for s in scans["ScanNet"] if s[:9] in ("scene0002", "scene0005", "scene0007")]
-    assert MODEL_PATH.stat().st_size < 100_000
+    assert MODEL_PATH.stat().st_size < 200_000

