@@ -3,7 +3,9 @@ input format, every result format, the report, and 20 uploads at once."""
 
 from __future__ import annotations
 
+import json
 import time
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -34,6 +36,18 @@ def _e57(folder: Path, points: int = 3000) -> Path:
         with pye57.E57(str(path), mode="w") as e57:
             e57.write_scan_raw(data)
     return path
+
+
+def _strings(value: object) -> Iterator[str]:
+    """Every string inside a JSON value."""
+    if isinstance(value, dict):
+        for item in value.values():
+            yield from _strings(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from _strings(item)
+    elif isinstance(value, str):
+        yield value
 
 
 def _check_result(path: Path, source: Path) -> None:
@@ -85,7 +99,12 @@ def test_result_formats_report_and_links(service, scans, job_config, tmp_path) -
     assert report["points"] == 3000 and report["input"] == source.name
     assert {"network", "geometry", "fusion", "read", "write", "total"} <= set(report["timings_s"])
     assert report["metrics"]["fused"]["miou"] is not None  # the synthetic room is labelled
-    assert report["params"]["network"]["weights"] == job_config["network"]["weights"]
+    # the weights by file name only: no path on the server anywhere in the report (issue 44)
+    assert report["params"]["network"]["weights"] == Path(job_config["network"]["weights"]).name
+    text = json.dumps(report)
+    assert str(service.data_dir) not in text
+    assert str(Path(job_config["network"]["weights"]).parent) not in text
+    assert not [s for s in _strings(report) if s.startswith(("/", "~"))]
     assert report["frame"]["up"]["axis"] == "+z" and report["frame"]["units"]["unit"] == "m"
     # cached conversions next to the PLY the worker wrote
     files = sorted(p.name for p in (service.data_dir / "jobs" / body["id"]).iterdir())

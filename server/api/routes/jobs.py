@@ -23,6 +23,7 @@ from server.api.errors import ERROR_RESPONSES, error_responses
 from server.api.results import layout_of, result_file
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
+from server.messages import public_report_bytes
 from server.schemas import JobList, JobResponse, JobStatus, JobView
 from server.state import jobs
 from server.state.models import FINAL_STATUSES
@@ -143,13 +144,15 @@ async def get_objects(job_id: JobId, services: ServicesDep, tenant: TenantDep) -
     "/jobs/{job_id}/report",
     responses={200: {"content": {"application/json": {}}}, **error_responses(409)},
 )
-async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> FileResponse:
-    """The job's report.json (as ``jointseg segment --report`` writes it)."""
+async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> Response:
+    """The job's report.json (as ``jointseg segment --report`` writes it), with paths on the
+    server reduced to file names (:func:`server.messages.public_report`)."""
     view = await run_in_threadpool(_current_view, services, job_id, tenant)
     path = services.storage.report_path(job_id)
     if view.status != "succeeded" or not path.is_file():
         raise JobStateError(f"job {job_id} is {view.status}; no report")
-    return FileResponse(path, media_type="application/json")
+    body = await run_in_threadpool(public_report_bytes, path)
+    return Response(body, media_type="application/json")
 
 
 def _current_view(services: Services, job_id: str, tenant: Tenant) -> JobView:
