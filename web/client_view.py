@@ -11,7 +11,7 @@ again under the same name in one update can keep its old position in the browser
 a three-panel job over a four-panel job's slots.
 
 The browser's address follows the view (:mod:`web.view_state`): a copied link opens the same
-job with the same camera, classes and toggles.
+job with the same camera, classes and toggles, and carries no key (whoever opens it signs in).
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ import viser
 
 from jointseg.classes import NUM_CLASSES, PALETTE, UNLABELLED, UNLABELLED_COLOUR
 from jointseg.exceptions import JointsegError
+from server.messages import public_report_bytes
 from web.layout import (
     VIEW_DIRECTIONS,
     CameraPose,
@@ -94,8 +95,8 @@ class ClientView:
         Loaded results shared by every client of one viewer (bounded).
     state : ViewState, optional
         The view a link asked for (classes, toggles, camera; its job is shown by the caller).
-    key_in_address : bool
-        Whether the API key stays in the address the view writes (only when it came in one).
+    sign_out : callable, optional
+        Ends this tab's sign-in session (a *Sign out* button is shown only with one).
     """
 
     def __init__(
@@ -105,13 +106,13 @@ class ClientView:
         cache: SceneCache,
         state: ViewState | None = None,
         *,
-        key_in_address: bool = False,
+        sign_out: Callable[[], None] | None = None,
     ) -> None:
         self.client = client
         self.source = source
         self.cache = cache
         self.asked = state or ViewState()
-        self.key_in_address = key_in_address
+        self.sign_out = sign_out
         self.job_id: str | None = None
         self.data: SceneData | None = None
         self.hidden = set(HIDDEN_BY_DEFAULT if self.asked.hidden is None else self.asked.hidden)
@@ -159,6 +160,10 @@ class ClientView:
             self.refresh = gui.add_button("Refresh list", icon=viser.Icon.REFRESH)
             self.status = gui.add_markdown("No job shown.")
             self.address = gui.add_html("")
+            if self.sign_out is not None:
+                signing_out = self.sign_out
+                out = gui.add_button("Sign out", icon=viser.Icon.LOGOUT, hint="end this sign-in")
+                out.on_click(lambda _: signing_out())
         with gui.add_folder("Display"):
             self.layout = gui.add_dropdown(
                 "Layout", (ROW, SINGLE), initial_value=SINGLE if asked.single else ROW
@@ -690,7 +695,6 @@ class ClientView:
             single = next((p.key for p in self.data.panels if p.title == self.single.value), None)
         return ViewState(
             job_id=self.job_id,
-            key=self.asked.key,
             camera=None if camera is None else tuple(float(v) for v in camera),
             hidden=frozenset(self.hidden),
             panels=frozenset(p.key for p, want in self._wanted.items() if want),
@@ -708,7 +712,7 @@ class ClientView:
                 self._address_due = None
             self._address_last = time.monotonic()
             self._address_serial += 1
-            path = state_path(self.view_state(), with_key=self.key_in_address)
+            path = state_path(self.view_state())
             self.address.content = address_html(path, self._address_serial)
 
     def _address_soon(self) -> None:
@@ -826,4 +830,11 @@ class ClientView:
         entry = self._entries.get(job_id)
         stem = Path(entry.filename).stem if entry is not None else job_id
         name = f"{stem}_segmented{path.suffix}" if result else f"{stem}_report.json"
-        self.client.send_file_download(name, path.read_bytes(), save_immediately=True)
+        # a report names the weights' file only, as the API serves it (no path on the server)
+        try:
+            body = path.read_bytes() if result else public_report_bytes(path)
+        except (OSError, ValueError):  # the message would name the path: say what, not where
+            log.warning("job %s: its %s could not be read", job_id, path.name)
+            self.client.add_notification("Cannot download", f"{job_id}: unreadable", color="red")
+            return
+        self.client.send_file_download(name, body, save_immediately=True)

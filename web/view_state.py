@@ -1,4 +1,4 @@
-"""A view as a link: the job, the API key, the camera, hidden classes and toggles, in the URL.
+"""A view as a link: the job, the camera, hidden classes and toggles, in the URL; never a key.
 
 viser's browser client opens its websocket on the address in the page's ``websocket`` search
 parameter, so that address is the one part of the page URL the viewer receives. A view is
@@ -8,8 +8,11 @@ written into it as the path and one query parameter,
 
 each token a letter, a dot and a value (``c.`` camera, ``h.`` hidden classes, ...). A single
 parameter with ``~`` between tokens survives viser's own rewriting of the address bar, which
-puts the websocket address back unescaped (an ``&`` inside it would split it); API keys go as
-base64url for the same reason. ``key=<key>`` (what the job page adds) is read as well.
+puts the websocket address back unescaped (an ``&`` inside it would split it).
+
+A link shares a view, never a credential (issue 44): no key is written into an address, and a
+key found in one (``key=`` or a ``k.`` token, as links once carried) is not used: the viewer
+asks whoever opens the link to sign in (:mod:`web.sessions`). :func:`carries_key` tells.
 
 The viewer keeps the browser's address following the view with :func:`address_html`: viser
 has no call to set a client's address, so a hidden image whose ``onerror`` runs
@@ -20,8 +23,6 @@ handler ``URL`` is ``document.URL``, a string: the handler names ``window.URL``.
 
 from __future__ import annotations
 
-import base64
-import binascii
 import json
 import re
 from dataclasses import dataclass, replace
@@ -39,7 +40,6 @@ class ViewState:
     """What a link restores; None (or empty) means the viewer's default."""
 
     job_id: str | None = None
-    key: str | None = None
     camera: tuple[float, ...] | None = None  # position xyz, look-at xyz (scene coordinates)
     hidden: frozenset[int] | None = None
     panels: frozenset[str] | None = None  # optional panels shown: truth, segments, ...
@@ -47,17 +47,6 @@ class ViewState:
     point_size: float | None = None
     single: str | None = None  # one large panel (its key) instead of the row
     budget: int | None = None
-
-
-def _b64(text: str) -> str:
-    return base64.urlsafe_b64encode(text.encode()).decode().rstrip("=")
-
-
-def _unb64(text: str) -> str | None:
-    try:
-        return base64.urlsafe_b64decode(text + "=" * (-len(text) % 4)).decode()
-    except (binascii.Error, UnicodeDecodeError, ValueError):
-        return None
 
 
 def _floats(text: str, count: int) -> tuple[float, ...] | None:
@@ -77,17 +66,23 @@ def parse_path(path: str | None) -> ViewState:
     match = _JOB_PATH.match(route)
     job_id = unquote(match.group(1)) if match else None
     params = parse_qs(query, keep_blank_values=True)
-    keys = params.get("key") or [""]
-    state = ViewState(job_id=job_id, key=keys[0] or None)
+    state = ViewState(job_id=job_id)
     for token in (params.get("v") or [""])[0].split("~"):
         letter, _, value = token.partition(".")
         state = _apply(state, letter, value)
     return state
 
 
+def carries_key(path: str | None) -> bool:
+    """Whether a websocket path tries to carry a key (``key=``, or a ``k.`` token): the viewer
+    ignores it and says so at sign-in."""
+    query = (path or "").partition("?")[2]
+    params = parse_qs(query, keep_blank_values=True)
+    tokens = (params.get("v") or [""])[0].split("~")
+    return "key" in params or any(token.startswith("k.") for token in tokens)
+
+
 def _apply(state: ViewState, letter: str, value: str) -> ViewState:
-    if letter == "k":
-        return replace(state, key=_unb64(value) or state.key)
     if letter == "c":
         return replace(state, camera=_floats(value, 6))
     if letter == "h":
@@ -112,13 +107,11 @@ def _apply(state: ViewState, letter: str, value: str) -> ViewState:
     return state
 
 
-def state_path(state: ViewState, *, with_key: bool) -> str:
-    """The websocket path (and query) that restores ``state``; the key only when asked."""
+def state_path(state: ViewState) -> str:
+    """The websocket path (and query) that restores ``state``."""
     if state.job_id is None:
         return "/"
     tokens = []
-    if with_key and state.key:
-        tokens.append("k." + _b64(state.key))
     if state.camera is not None:
         tokens.append("c." + ",".join(f"{v:.4f}" for v in state.camera))
     if state.hidden is not None:
@@ -138,10 +131,10 @@ def state_path(state: ViewState, *, with_key: bool) -> str:
     return path + ("?v=" + "~".join(tokens) if tokens else "")
 
 
-def viewer_link(base_url: str, state: ViewState, *, with_key: bool = True) -> str:
+def viewer_link(base_url: str, state: ViewState) -> str:
     """The page address at ``base_url`` (``http://host:port``) that opens ``state``."""
     base = base_url.rstrip("/")
-    ws = re.sub(r"^http", "ws", base) + state_path(state, with_key=with_key)
+    ws = re.sub(r"^http", "ws", base) + state_path(state)
     return f"{base}/?websocket={quote(ws, safe='')}"
 
 

@@ -15,9 +15,12 @@ its state there too (:mod:`web.view_state`).
 Keys
 ----
 When the job service has API keys, the viewer asks for one of them before it lists or shows
-anything: in the link (``?key=`` on the websocket address, as the job page writes it) or typed
-into the sign-in box it shows instead of its controls. Each client then sees what its key may
-see through the API (``scope``: a key's own jobs; every job for admin keys).
+anything, in a password field of the sign-in box it shows instead of its controls. A link
+never carries a key (one found in a link is ignored): the key is checked once and dropped, and
+the tab holds a short-lived session of this viewer (:mod:`web.sessions`) in a cookie, so a
+reload or another link opened in the same browser needs no key until it expires. Each client
+sees what its key may see through the API (``scope``: a key's own jobs; every job for admin
+keys), so a link opened by someone else shows its job only if their own key may see it.
 """
 
 from __future__ import annotations
@@ -26,7 +29,6 @@ import logging
 import re
 import threading
 from collections.abc import Callable
-from dataclasses import replace
 from urllib.parse import unquote
 
 import viser
@@ -34,8 +36,9 @@ import viser
 from web.client_view import ClientView
 from web.memory import release_soon
 from web.scene import MAX_PANEL_POINTS, SceneCache
+from web.sessions import SESSION_S, Sessions, cookie_html, cookie_name, cookie_value, password_html
 from web.sources import JobSource
-from web.view_state import ViewState, parse_path
+from web.view_state import ViewState, carries_key, parse_path
 from web.view_state import viewer_link as state_link
 
 log = logging.getLogger(__name__)
@@ -43,10 +46,10 @@ log = logging.getLogger(__name__)
 _JOB_PATH = re.compile(r"^/job/([^/?#]+)/?$")
 
 
-def viewer_link(base_url: str, job_id: str, key: str | None = None) -> str:
+def viewer_link(base_url: str, job_id: str) -> str:
     """The address that opens the viewer at ``base_url`` (``http://host:port``) on ``job_id``
-    (signed in with ``key`` when given)."""
-    return state_link(base_url, ViewState(job_id=job_id, key=key))
+    (never with a key: whoever opens it signs in)."""
+    return state_link(base_url, ViewState(job_id=job_id))
 
 
 def job_from_path(path: str | None) -> str | None:
@@ -79,6 +82,8 @@ class Viewer:
         The source a client whose key (None: none) was accepted sees: the job service's
         tenants (:meth:`web.service_source.ServiceSource.for_tenant`); None: ``source`` for
         every client.
+    session_s : float
+        Seconds a sign-in lasts (:mod:`web.sessions`).
     """
 
     def __init__(
@@ -91,10 +96,13 @@ class Viewer:
         cache_size: int = 2,
         authorise: Callable[[str | None], bool] | None = None,
         scope: Callable[[str | None], JobSource] | None = None,
+        session_s: float = SESSION_S,
     ) -> None:
         self.source = source
         self.authorise = authorise
         self.scope = scope
+        self.sessions = Sessions(session_s)
+        self._serial = 0
         self.cache = SceneCache(cache_size, max_points=max_points)
         self.views: dict[int, ClientView] = {}
         self._views_lock = threading.Lock()
@@ -110,28 +118,48 @@ class Viewer:
         """The port the viewer listens on."""
         return self.server.get_port()
 
-    def link(self, job_id: str, host: str = "127.0.0.1", key: str | None = None) -> str:
+    @property
+    def cookie(self) -> str:
+        """The name of this viewer's session cookie."""
+        return cookie_name(self.port)
+
+    def link(self, job_id: str, host: str = "127.0.0.1") -> str:
         """A link opening this viewer on ``job_id``."""
-        return viewer_link(f"http://{host}:{self.port}", job_id, key)
+        return viewer_link(f"http://{host}:{self.port}", job_id)
 
     def _connect(self, client: viser.ClientHandle) -> None:
         # no share button: viser's would publish the scan through its public relay; the
         # address bar is this viewer's way to share a view
         client.gui.configure_theme(control_width="large", show_logo=False, show_share_button=False)
         client.gui.main_panel.dock_right()  # beside the canvas, not over the panels
-        state = parse_path(self._request_path(client))
-        if self.authorise is not None and not self.authorise(state.key):
-            self._sign_in(client, state)
+        path = self._request_path(client)
+        state = parse_path(path)
+        if self.authorise is None:
+            self._open(client, state, self.source)
             return
-        self._open(client, state, key_in_address=state.key is not None)
+        token = cookie_value(self._request_header(client, "Cookie"), self.cookie)
+        source = self.sessions.find(token)
+        if source is None:
+            self._sign_in(client, state, key_in_link=carries_key(path))
+            return
+        assert token is not None
+        self._open(client, state, source, token=token)
 
     def source_for(self, key: str | None) -> JobSource:
         """The jobs a client signed in with ``key`` (already accepted) may see."""
         return self.source if self.scope is None else self.scope(key)
 
-    def _open(self, client: viser.ClientHandle, state: ViewState, *, key_in_address: bool) -> None:
-        source = self.source_for(state.key)
-        view = ClientView(client, source, self.cache, state, key_in_address=key_in_address)
+    def _open(
+        self,
+        client: viser.ClientHandle,
+        state: ViewState,
+        source: JobSource,
+        *,
+        token: str | None = None,
+    ) -> None:
+        """The tab's view on ``source``; with a session ``token``, a *Sign out* button."""
+        sign_out = None if token is None else (lambda: self._sign_out(client, token))
+        view = ClientView(client, source, self.cache, state, sign_out=sign_out)
         with self._views_lock:
             self.views[client.client_id] = view
         if state.job_id is not None:
@@ -139,26 +167,49 @@ class Viewer:
         else:
             view.sync_address()
 
-    def _sign_in(self, client: viser.ClientHandle, state: ViewState) -> None:
-        """Show only a key box: nothing is listed or drawn until a key is accepted."""
+    def _next_serial(self) -> int:
+        with self._views_lock:
+            self._serial += 1
+            return self._serial
+
+    def _sign_in(self, client: viser.ClientHandle, state: ViewState, *, key_in_link: bool) -> None:
+        """Show only a key box (a password field): nothing is listed or drawn until a key is
+        accepted; then the key is dropped and a session cookie stands for it."""
         gui = client.gui
         with gui.add_folder("Sign in") as folder:
-            why = "The key in this link was refused." if state.key else "This viewer needs a key."
+            why = (
+                "Links never carry a key: the one in this link was not used."
+                if key_in_link
+                else "This viewer needs a key."
+            )
             note = gui.add_markdown(f"{why} Enter one of the job service's API keys.")
             box = gui.add_text("API key", "")
             button = gui.add_button("Sign in", icon=viser.Icon.LOGIN)
+            gui.add_html(password_html(box._impl.uuid, self._next_serial()))
 
         def attempt(_: object) -> None:
             key = str(box.value).strip()
+            box.value = ""  # type: ignore[misc]  # viser types it read-only; the key is not kept
             assert self.authorise is not None
             if not self.authorise(key or None):
                 log.info("viewer: client %d presented a refused key", client.client_id)
                 note.content = "**This key was refused.** Enter one of the service's API keys."
                 return
+            source = self.source_for(key)
+            token = self.sessions.start(source)
             folder.remove()
-            self._open(client, replace(state, key=key), key_in_address=False)
+            html = cookie_html(self.cookie, token, self.sessions.lifetime_s, self._next_serial())
+            gui.add_html(html)
+            log.info("viewer: client %d signed in", client.client_id)
+            self._open(client, state, source, token=token)
 
         button.on_click(attempt)
+
+    def _sign_out(self, client: viser.ClientHandle, token: str) -> None:
+        """End the session: its cookie is deleted and the tab reloads to the sign-in box."""
+        self.sessions.end(token)
+        log.info("viewer: client %d signed out", client.client_id)
+        client.gui.add_html(cookie_html(self.cookie, None, 0, self._next_serial()))
 
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._views_lock:
@@ -167,16 +218,26 @@ class Viewer:
             view.data = None  # drop the tab's reference to its points at once
         release_soon()  # and give the freed memory back once viser has dropped the tab
 
-    def _request_path(self, client: viser.ClientHandle) -> str | None:
-        """The path the client's websocket was opened on.
+    def _request(self, client: viser.ClientHandle) -> object | None:
+        """The handshake request of the client's websocket.
 
         viser keeps each client's websocket connection in its websocket server; the handshake
-        request is the only place the browser's choice of job reaches the server.
+        request is the only place the browser's choice of job (its path) and its session
+        cookie (a header) reach the server.
         """
         connections = getattr(self.server._websock_server, "_live_connections", {})
         connection = connections.get(client.client_id)
-        request = getattr(connection, "request", None)
-        return getattr(request, "path", None)
+        return getattr(connection, "request", None)
+
+    def _request_path(self, client: viser.ClientHandle) -> str | None:
+        """The path the client's websocket was opened on."""
+        return getattr(self._request(client), "path", None)
+
+    def _request_header(self, client: viser.ClientHandle, name: str) -> str | None:
+        """A header of the client's websocket handshake (None when absent)."""
+        headers = getattr(self._request(client), "headers", None)
+        value = None if headers is None else headers.get(name)
+        return value if isinstance(value, str) else None
 
     def wait(self) -> None:
         """Block until the process is stopped (the viewer serves from its own threads)."""

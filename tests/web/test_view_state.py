@@ -2,13 +2,21 @@
 
 from __future__ import annotations
 
+import base64
 from urllib.parse import parse_qs, urlsplit
 
-from web.view_state import ViewState, address_html, parse_path, state_path, viewer_link
+from web.view_state import (
+    ViewState,
+    address_html,
+    carries_key,
+    parse_path,
+    state_path,
+    viewer_link,
+)
 
+KEY = "k&y=+/%"
 FULL = ViewState(
     job_id="a b/ç",
-    key="k&y=+/%",
     camera=(1.25, -2.5, 3.0, 0.0, 0.5, -0.125),
     hidden=frozenset({0, 2, -1}),
     panels=frozenset({"segments", "errors"}),
@@ -19,23 +27,29 @@ FULL = ViewState(
 )
 
 
-def test_a_view_comes_back_from_its_path_with_and_without_the_key() -> None:
-    assert parse_path(state_path(FULL, with_key=True)) == FULL
-    without = parse_path(state_path(FULL, with_key=False))
-    assert without.key is None and without.camera == FULL.camera and without.job_id == FULL.job_id
+def test_a_view_comes_back_from_its_path() -> None:
+    assert parse_path(state_path(FULL)) == FULL
 
 
 def test_the_path_has_no_character_viser_would_split_the_address_on() -> None:
     # viser writes the websocket address back unescaped: '&', '#', '+' and '%' would break it
-    path = state_path(FULL, with_key=True)
+    path = state_path(FULL)
     query = path.partition("?")[2]
     assert not set(query) & set("&#+% ")
     assert query.count("=") == 1
 
 
-def test_the_job_page_key_parameter_is_read() -> None:
-    state = parse_path("/job/abc?key=secret")
-    assert state.job_id == "abc" and state.key == "secret"
+def test_a_key_in_a_link_is_never_used_nor_written_back() -> None:
+    # links once carried the key (?key=, then a k. token in base64): a link shares a view only
+    b64 = base64.urlsafe_b64encode(KEY.encode()).decode().rstrip("=")
+    for path in ("/job/abc?key=secret", f"/job/abc?v=k.{b64}~o.1"):
+        assert carries_key(path)
+        state = parse_path(path)
+        assert state.job_id == "abc"
+        written = state_path(state)
+        assert "secret" not in written and b64 not in written and "k." not in written
+    assert not carries_key(state_path(FULL)) and not carries_key(None)
+    assert not hasattr(ViewState(), "key")
 
 
 def test_malformed_tokens_keep_their_defaults() -> None:
@@ -53,6 +67,6 @@ def test_a_link_opens_the_view_on_the_viewer_and_the_address_element_names_the_p
     ws = parse_qs(urlsplit(link).query)["websocket"][0]
     assert ws.startswith("ws://h:9/job/")
     assert parse_path(ws.removeprefix("ws://h:9")) == FULL
-    html = address_html(state_path(FULL, with_key=False), 7)
+    html = address_html(state_path(FULL), 7)
     assert 'data-view="7"' in html and "window.URL" in html and "replaceState" in html
     assert '"' not in html.split('onerror="')[1][:-2]  # the handler's quotes are escaped

@@ -7,18 +7,20 @@ nodes' positions and points, the answer of a click on a known point.
 
 from __future__ import annotations
 
+import base64
 import io
 import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 import numpy as np
 import pytest
 from PIL import Image
 from shots import HIDE_TOASTS, canvas_box, panel_spans, settled
-from viewer_pages import free_port, view_of
+from viewer_pages import free_port, key_in, view_of
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
@@ -95,46 +97,62 @@ def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
     browser: Any, locked: Viewer, artifacts: Path
 ) -> None:
     # no key: a sign-in box, no job list, no points, no view on the server
-    page = open_page(browser, locked.link("room"))
+    context = browser.new_context(viewport=VIEWPORT)
+    page = context.new_page()
     try:
+        page.goto(locked.link("room"))
+        page.add_style_tag(content=HIDE_TOASTS)
         page.get_by_text("This viewer needs a key").wait_for(timeout=30_000)
+        # the key is typed into a password field: never shown as typed (issue 44)
+        box = field(page, "API key")
+        wait_for(lambda: box.get_attribute("type") == "password", what="a password field")
         (artifacts / "viewer_sign_in.png").write_bytes(page.screenshot())
         assert page.get_by_label("Job", exact=True).count() == 0
         assert page.get_by_text("points shown").count() == 0
         assert page.get_by_text("room.ply").count() == 0
         assert not locked.views
         # a wrong key typed in is refused, still nothing shown
-        field(page, "API key").fill("wrong")
+        box.fill("wrong")
         page.get_by_role("button", name="Sign in").click()
         page.get_by_text("This key was refused").wait_for(timeout=15_000)
-        assert not locked.views
+        assert not locked.views and not locked.sessions
         # the right key opens the job of the link
-        field(page, "API key").fill(KEY)
+        box.fill(KEY)
+        assert box.get_attribute("type") == "password"
         page.get_by_role("button", name="Sign in").click()
         shown(page)
         assert view_of(locked, "room").job_id == "room"
-        # the typed key never goes into the address (a copied link does not carry it)
+        # the key never goes into the address, in clear or encoded (a copied link does not
+        # carry it); the browser keeps a session token of the viewer's, not the key
         wait_for(lambda: "job%2Froom" in address(page), what="the address")
-        assert KEY not in address(page) and "k." not in address(page)
-    finally:
-        page.close()
-    # a wrong key in the link: refused; the key in the link (as the job page writes it): shown
-    page = open_page(browser, locked.link("room", key="nope"))
-    try:
-        page.get_by_text("The key in this link was refused").wait_for(timeout=30_000)
-        assert page.get_by_text("points shown").count() == 0
-    finally:
-        page.close()
-    port = locked.port
-    ws = f"ws://127.0.0.1:{port}/job/bare?key={KEY}"
-    from urllib.parse import quote
-
-    page = open_page(browser, f"http://127.0.0.1:{port}/?websocket={quote(ws, safe='')}")
-    try:
+        assert not key_in(address(page), KEY) and "k." not in address(page)
+        (cookie,) = [c for c in context.cookies() if c["name"] == locked.cookie]
+        assert not key_in(cookie["value"], KEY) and len(cookie["value"]) >= 32
+        # signed in once: a reload (or another link in this browser) needs no key
+        page.reload()
         shown(page)
-        assert view_of(locked, "bare").job_id == "bare"
+        assert page.get_by_text("This viewer needs a key").count() == 0
+        assert not key_in(address(page), KEY)
+        # signing out ends the session: the tab asks for a key again
+        page.get_by_role("button", name="Sign out").click()
+        page.get_by_text("This viewer needs a key").wait_for(timeout=30_000)
+        assert [c for c in context.cookies() if c["name"] == locked.cookie] == []
+        assert not locked.sessions
     finally:
-        page.close()
+        context.close()
+    # a key in a link (as links once carried it: ?key=, or a k. token) is never used
+    port = locked.port
+    b64 = base64.urlsafe_b64encode(KEY.encode()).decode().rstrip("=")
+    for query in (f"?key={KEY}", f"?v=k.{b64}"):
+        ws = f"ws://127.0.0.1:{port}/job/bare{query}"
+        page = open_page(browser, f"http://127.0.0.1:{port}/?websocket={quote(ws, safe='')}")
+        try:
+            page.get_by_text("the one in this link was not used").wait_for(timeout=30_000)
+            time.sleep(0.5)
+            assert page.get_by_text("points shown").count() == 0
+            assert not [v for v in list(locked.views.values()) if v.job_id == "bare"]
+        finally:
+            page.close()
 
 
 # ----------------------------------------------------------------------------- layout

@@ -25,3 +25,33 @@ def view_of(viewer: Any, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
             return found[0]
         time.sleep(0.1)
     raise AssertionError(f"no client shows {job_id}")
+
+
+def key_in(text: str, key: str) -> bool:
+    """Whether ``text`` (an address, a link) holds ``key`` in clear, percent-encoded (once or
+    twice: a websocket address inside a page address) or in base64 (standard or URL-safe)."""
+    import base64
+    from urllib.parse import quote, unquote
+
+    raw = key.encode()
+    forms = {key, quote(key), quote(key, safe=""), quote(quote(key, safe=""), safe="")}
+    for encode in (base64.b64encode, base64.urlsafe_b64encode):
+        coded = encode(raw).decode()
+        forms |= {coded, coded.rstrip("="), quote(coded, safe="")}
+    decoded = unquote(unquote(text))
+    return any(form in text or form in decoded for form in forms)
+
+
+def sign_in(page: Any, key: str) -> None:
+    """Type ``key`` into the viewer's sign-in box (a password field) and sign in."""
+    page.get_by_text("Enter one of the job service's API keys").wait_for(timeout=60_000)
+    row = page.get_by_text("API key", exact=True).locator(
+        "xpath=ancestor::div[contains(@class, 'mantine-Flex-root')][1]"
+    )
+    box = row.locator("input").first
+    deadline = time.monotonic() + 15
+    while box.get_attribute("type") != "password":
+        assert time.monotonic() < deadline, "the key field is no password field"
+        time.sleep(0.05)
+    box.fill(key)
+    page.get_by_role("button", name="Sign in").click()

@@ -50,14 +50,12 @@ async function errorText(response) {
   }
 }
 
-// The viewer's address for one job: its websocket URL names the job and, when a key is saved,
-// carries it as ?key=... (the viewer asks for the API's keys too); the whole websocket URL is
-// itself percent-encoded in the page URL's `websocket` parameter.
+// The viewer's address for one job: its websocket URL names the job, never the key (a link
+// shares a view, not a credential: the viewer asks for a key itself, once per sign-in); the
+// whole websocket URL is itself percent-encoded in the page URL's `websocket` parameter.
 function viewerLink(jobId) {
   const base = `${location.protocol}//${location.hostname}:${viewerPort}`;
-  const key = apiKey();
-  const query = key ? `?key=${encodeURIComponent(key)}` : "";
-  const ws = base.replace(/^http/, "ws") + "/job/" + encodeURIComponent(jobId) + query;
+  const ws = base.replace(/^http/, "ws") + "/job/" + encodeURIComponent(jobId);
   return `${base}/?websocket=${encodeURIComponent(ws)}`;
 }
 
@@ -69,7 +67,7 @@ function setupKey() {
     if (key) localStorage.setItem(KEY_STORAGE, key);
     else localStorage.removeItem(KEY_STORAGE);
     note("key-status", key ? "saved in this browser" : "no key");
-    for (const row of rows.values()) delete row.dataset.actionsFor; // viewer links carry the key
+    for (const row of rows.values()) delete row.dataset.actionsFor; // redraw the links
     poll();
   });
 }
