@@ -173,3 +173,16 @@ def test_a_resumed_run_continues_its_own_weights_not_the_recipes_start(
     assert train_config("student", replace(opts, resume=False)).resume is None
     # on a CPU the three networks share the cores; on a GPU each gets a share of batch workers
     assert fresh.threads == max(1, len(os.sched_getaffinity(0)) // 3) and fresh.workers == 0
+
+
+@pytest.mark.parametrize("frozen", [True, False])
+def test_frozen_norms_keep_their_statistics_while_the_weights_learn(tiny_training, frozen) -> None:
+    cfg = tiny_training(init=COLOUR_WEIGHTS, freeze_norm=frozen, lr=0.001)
+    start = load_checkpoint(COLOUR_WEIGHTS)[0].state_dict()
+    train(cfg)
+    after = load_checkpoint(cfg.out)[0].state_dict()
+    stats = [k for k in start if k.endswith(("running_mean", "running_var"))]
+    weights = [k for k in start if k.endswith("conv.weight")]
+    assert any(not torch.equal(start[k], after[k]) for k in weights)
+    kept = all(torch.equal(start[k], after[k]) for k in stats)
+    assert kept == frozen

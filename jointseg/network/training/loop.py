@@ -111,6 +111,13 @@ class TrainConfig(BaseModel):
     num_channels_scale: float = Field(
         1.0, gt=0, le=1, description="scale RandLA-Net's channel widths (lighter network)"
     )
+    freeze_norm: bool = Field(
+        False,
+        description="keep the batch norms' running statistics and train through them: "
+        "fine-tuning a trained network on small batches of small crops otherwise replaces "
+        "statistics learnt on whole crops (a CPU run from the bundled weights fell from 0.41 "
+        "to 0.02 validation mIoU in 52 steps)",
+    )
     elastic: float = Field(
         0.3, ge=0, le=1, description="share of training crops given an elastic distortion"
     )
@@ -288,6 +295,16 @@ def validation_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator)
     return cloud.xyz[idx], cloud.rgb[idx], cloud.labels[idx], idx
 
 
+def train_mode(model: RandLANet, cfg: TrainConfig) -> None:
+    """Training mode, with the batch norms held at their running statistics when
+    ``cfg.freeze_norm``."""
+    model.train()
+    if cfg.freeze_norm:
+        for module in model.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.eval()
+
+
 def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> float | None:
     """mIoU on deterministic crops of each validation cloud (about twice its points)."""
     if not clouds:
@@ -306,7 +323,7 @@ def validate(model: RandLANet, clouds: list[GridCloud], cfg: TrainConfig) -> flo
                 )
                 preds.append(logits.argmax(-1).cpu().numpy().ravel())
                 gts.append(lab)
-    model.train()
+    train_mode(model, cfg)
     return evaluate(np.concatenate(gts), np.concatenate(preds)).miou
 
 
@@ -371,7 +388,7 @@ def train(
         neighbours_on_device=on_device,
     )
     loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights.to(run.device), ignore_index=-1)
-    run.model.train()
+    train_mode(run.model, cfg)
     stream = batch_stream(
         maker, workers=cfg.workers, prefetch=cfg.prefetch, pin=run.device.type == "cuda"
     )

@@ -55,8 +55,9 @@ SHARES = {"a6": 0.5, "scannet": 0.35, "synth": 0.15}
 LATTICE = 128.0
 #: What each network of the run starts from and how it learns.
 RECIPE: dict[str, dict[str, object]] = {
-    "colour": {"init": COLOUR_WEIGHTS, "lr": 0.001},
-    "nocolour": {"init": NOCOLOUR_WEIGHTS, "lr": 0.001, "colour": False},
+    # fine-tuned: the batch norms keep the statistics learnt on whole crops, a gentle rate
+    "colour": {"init": COLOUR_WEIGHTS, "lr": 0.0002, "freeze_norm": True},
+    "nocolour": {"init": NOCOLOUR_WEIGHTS, "lr": 0.0002, "colour": False, "freeze_norm": True},
     "student": {
         "sliced_init": COLOUR_WEIGHTS,
         "teacher": COLOUR_WEIGHTS,
