@@ -107,11 +107,16 @@ class WorkerView(BaseModel):
 
 
 class Health(BaseModel):
-    """Whether the database, the queue and the workers are alive."""
+    """Whether the service is up; with an accepted key (or on an open service) also the
+    database, the queue and the workers. Without a key a locked service answers ``status``
+    only: no host name, process ids or job ids for anonymous callers."""
 
     status: str = Field(description="ok, degraded (no live worker) or unavailable.")
-    database: bool
-    queue: bool
-    queue_kind: str
-    pending: int | None = Field(None, description="Job ids waiting in the queue.")
-    workers: list[WorkerView]
+    database: bool | None = Field(None, description="Whether the job table answers (with a key).")
+    queue: bool | None = Field(None, description="Whether the queue answers (with a key).")
+    queue_kind: str | None = Field(None, description="sqlite, postgres or redis (with a key).")
+    pending: int | None = Field(None, description="Job ids waiting in the queue (with a key).")
+    workers: list[WorkerView] | None = Field(
+        None,
+        description="Live workers (with a key); a job id only when the key may see that job.",
+    )

@@ -1,9 +1,12 @@
 """`jointseg serve`: the API in this process, workers and extra processes spawned beside it.
 
 Children are started with the ``spawn`` method (a fresh interpreter, never a fork of a process
-that has initialised torch). A worker that dies (even by SIGKILL) is restarted; its job is
-recovered by the reaper. Ctrl-C or SIGTERM stops uvicorn, then every child: each gets SIGTERM,
-finishes or re-queues its job, and is killed only if it has not exited after a grace period.
+that has initialised torch). A worker that dies (even by SIGKILL) is seen within half a second:
+its job goes back to the queue at once (:func:`server.state.reaper.recover_dead_worker`), its
+row leaves /healthz, and it is restarted. Ctrl-C or SIGTERM stops uvicorn, then every child:
+each gets SIGTERM, finishes or re-queues its job, and is killed only if it has not exited after
+a grace period. When ``serve`` itself dies, even by SIGKILL, its children follow
+(:mod:`server.lifeline`).
 """
 
 from __future__ import annotations
@@ -22,21 +25,28 @@ import uvicorn
 from fastapi import APIRouter
 
 from server.api.app import create_app
+from server.lifeline import STOP_GRACE_S, die_with_parent
 from server.logs import configure_logging
+from server.queue import JobQueue
 from server.serve_parts import ExtraProcess
 from server.settings import Settings
-from server.state.db import init_db, make_engine
+from server.state import lifecycle
+from server.state.db import init_db, make_engine, make_sessions
+from server.state.reaper import recover_dead_worker
 from server.worker.process import worker_main
 
 log = logging.getLogger(__name__)
 
-#: Seconds a child gets to exit after SIGTERM before it is killed.
-STOP_GRACE_S = 20.0
 #: Shortest time between two restarts of the same worker slot.
 RESTART_BACKOFF_S = 1.0
+#: Seconds between two looks at the workers.
+WATCH_INTERVAL_S = 0.5
+#: Seconds an extra process (the viewer) gets to exit on SIGTERM once ``serve`` is gone.
+EXTRA_GRACE_S = 5.0
 
 
-def _run_extra(target: ExtraProcess, settings: Settings) -> None:
+def _run_extra(target: ExtraProcess, settings: Settings, parent_pid: int) -> None:
+    die_with_parent(parent_pid, grace_s=EXTRA_GRACE_S)
     configure_logging(settings)
     target(settings)
 
@@ -52,6 +62,11 @@ class _Children:
         self.extra_targets = list(extra)
         self.stopping = threading.Event()
         self._watch = threading.Thread(target=self._watch_workers, name="jointseg-supervisor")
+        self._recovered: set[int] = set()  # pids of dead workers whose jobs went back
+        # the supervisor's own connections, to put a dead worker's job back at once
+        self._engine = make_engine(settings)
+        self._sessions = make_sessions(self._engine)
+        self._queue = JobQueue(settings)
 
     def _spawn_worker(self, slot: int) -> BaseProcess:
         process = self.ctx.Process(
@@ -68,7 +83,9 @@ class _Children:
         self.workers = [self._spawn_worker(i) for i in range(self.settings.workers)]
         for target in self.extra_targets:
             process = self.ctx.Process(
-                target=_run_extra, args=(target, self.settings), name=f"jointseg-{target.__name__}"
+                target=_run_extra,
+                args=(target, self.settings, os.getpid()),
+                name=f"jointseg-{target.__name__}",
             )
             process.start()
             self.extra.append(process)
@@ -76,21 +93,40 @@ class _Children:
         self._watch.start()
 
     def _watch_workers(self) -> None:
+        """Every WATCH_INTERVAL_S: recover the job of a worker that died, restart it.
+
+        Workers restarted here are children of this thread, which lives as long as the
+        service: their PR_SET_PDEATHSIG (see :mod:`server.lifeline`) fires only at the stop.
+        """
         restarted = [0.0] * len(self.workers)
-        while not self.stopping.wait(0.5):
+        while not self.stopping.wait(WATCH_INTERVAL_S):
             for slot, process in enumerate(self.workers):
                 if process.is_alive() or self.stopping.is_set():
                     continue
+                try:
+                    self._recover(slot, process)
+                except Exception:  # noqa: BLE001 - e.g. the database is down: retried
+                    log.warning("worker %d: its job not re-queued yet", slot + 1, exc_info=True)
                 if time.monotonic() - restarted[slot] < RESTART_BACKOFF_S:
                     continue
-                log.warning(
-                    "worker %d (pid %s) exited with %s; restarting it",
-                    slot + 1,
-                    process.pid,
-                    process.exitcode,
-                )
+                log.warning("restarting worker %d", slot + 1)
                 restarted[slot] = time.monotonic()
-                self.workers[slot] = self._spawn_worker(slot)
+                try:
+                    self.workers[slot] = self._spawn_worker(slot)
+                except Exception:  # noqa: BLE001 - the supervisor must outlive a failed start
+                    log.exception("worker %d could not be restarted; retrying", slot + 1)
+
+    def _recover(self, slot: int, process: BaseProcess) -> None:
+        """Put the job of a worker that exited back in the queue and drop its /healthz row
+        (once per dead process; if it fails until the worker is restarted, the reaper recovers
+        the job after the heartbeat timeout)."""
+        if process.pid is None or process.pid in self._recovered:
+            return
+        log.warning("worker %d (pid %s) exited with %s", slot + 1, process.pid, process.exitcode)
+        worker = lifecycle.worker_id(process.pid)
+        # logs each job, tile or merge it puts back ("job …: worker … died; now queued")
+        recover_dead_worker(self._sessions, self._queue, self.settings, worker)
+        self._recovered.add(process.pid)
 
     def stop(self) -> None:
         self.stopping.set()
@@ -106,6 +142,8 @@ class _Children:
                 log.warning("%s did not stop in %.0f s; killing it", process.name, STOP_GRACE_S)
                 process.kill()
                 process.join()
+        self._queue.close()
+        self._engine.dispose()
         log.info("all %d child processes stopped", len(children))
 
 

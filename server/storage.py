@@ -8,7 +8,9 @@ Layout of the data directory::
     jobs/<job id>/tiles/<n>/      a tiled job's work folder while it runs, per attempt of its
                                   plan (spilled scan, tile results: jointseg.pipeline.tile_store);
                                   removed when the job ends
-    incoming/                     uploads still streaming (temporary names)
+    incoming/api-<host>-<pid>-<n>/
+                                  uploads still streaming into one API process (temporary
+                                  names), beside its .lock file, locked while it runs
 
 Every file appears by rename after an fsync (:mod:`jointseg.io.atomic`), and job ids are checked
 to be 32 hex digits before they become part of a path.
@@ -17,10 +19,13 @@ to be 32 hex digits before they become part of a path.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import logging
 import os
 import re
+import secrets
 import shutil
+import socket
 import tempfile
 import time
 from pathlib import Path
@@ -67,6 +72,8 @@ class Storage:
         self.incoming_dir = self.root / "incoming"
         self.jobs_dir.mkdir(parents=True, exist_ok=True)
         self.incoming_dir.mkdir(parents=True, exist_ok=True)
+        self._uploads_dir: Path | None = None  # this API process's folder in incoming/
+        self._uploads_lock: int | None = None  # its lock file, held while the process runs
 
     def job_dir(self, job_id: str) -> Path:
         """The folder of one job (not created)."""
@@ -126,9 +133,59 @@ class Storage:
         The name keeps ``suffix`` so the readers recognise the format; move it into place with
         :meth:`commit_upload`, or unlink it.
         """
-        fd, name = tempfile.mkstemp(prefix="upload-", suffix=suffix.lower(), dir=self.incoming_dir)
+        folder = self._uploads_dir or self.incoming_dir
+        fd, name = tempfile.mkstemp(prefix="upload-", suffix=suffix.lower(), dir=folder)
         os.close(fd)
         return Path(name)
+
+    def claim_incoming(self) -> int:
+        """Give this API process an uploads folder of its own in ``incoming/``, and remove
+        those of API processes that have ended; returns how many were removed.
+
+        Why: an upload cut short by a crash (even a SIGKILL) can never finish, so a restart
+        removes it at once, but another API sharing the data directory (several APIs behind a
+        load balancer, see the many-machines guide) may be receiving uploads right now. Each
+        API holds an exclusive ``flock`` on its folder's ``.lock`` file for as long as it runs
+        (the kernel drops it when the process dies, however it dies); a folder whose lock can
+        be taken has no living owner. On NFS this relies on the server's lock support
+        (NFSv4, or lockd for v3).
+        """
+        removed = 0
+        for lock in sorted(self.incoming_dir.glob("api-*.lock")):
+            with contextlib.suppress(OSError):
+                fd = os.open(lock, os.O_RDWR)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:  # its API is running
+                    continue
+                finally:
+                    # closing drops the lock; an API taking this name meanwhile is impossible
+                    # (names carry a random part), so the folder stays ownerless
+                    os.close(fd)
+                shutil.rmtree(self.incoming_dir / lock.stem, ignore_errors=True)
+                lock.unlink(missing_ok=True)
+                removed += 1
+                log.info("removed the unfinished uploads of an ended API (%s)", lock.stem)
+        host = re.sub(r"[^A-Za-z0-9-]", "_", socket.gethostname())[:64]
+        name = f"api-{host}-{os.getpid()}-{secrets.token_hex(4)}"
+        lock = self.incoming_dir / f"{name}.lock"
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        folder = self.incoming_dir / name
+        folder.mkdir()
+        self._uploads_dir, self._uploads_lock = folder, fd
+        return removed
+
+    def release_incoming(self) -> None:
+        """Remove this API process's uploads folder (what streams into it now is abandoned)
+        and drop its lock: the end of :meth:`claim_incoming`."""
+        folder, fd = self._uploads_dir, self._uploads_lock
+        self._uploads_dir = self._uploads_lock = None
+        if folder is None or fd is None:
+            return
+        shutil.rmtree(folder, ignore_errors=True)
+        (folder.parent / f"{folder.name}.lock").unlink(missing_ok=True)
+        os.close(fd)
 
     def commit_upload(self, tmp: Path, job_id: str, suffix: str) -> Path:
         """Fsync an upload received by :meth:`incoming` and rename it to the job's input."""
@@ -156,10 +213,14 @@ class Storage:
             log.info("deleted the files of job %s", job_id)
 
     def clean_incoming(self, *, older_than_s: float = 3600.0) -> int:
-        """Remove uploads abandoned mid-stream (a crashed API); returns how many."""
+        """Remove what lies loose in ``incoming/`` for longer than ``older_than_s`` (uploads
+        of an older version, folders a crash left half deleted); returns how many. The API
+        processes' own folders are :meth:`claim_incoming`'s."""
         cutoff = time.time() - older_than_s
         removed = 0
         for path in self.incoming_dir.iterdir():
+            if path.name.startswith("api-"):
+                continue
             with contextlib.suppress(OSError):
                 if path.stat().st_mtime < cutoff:
                     if path.is_dir():

@@ -43,6 +43,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         engine = make_engine(settings)
         init_db(engine)
         storage = Storage(settings.data_dir)
+        storage.claim_incoming()  # and removes the partial uploads of ended API processes
         storage.clean_incoming()
         checker = UploadChecker(settings)
         services = Services(
@@ -66,6 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             checker.close()
             services.queue.close()
             engine.dispose()
+            storage.release_incoming()
 
     app = FastAPI(
         title="jointseg job service",

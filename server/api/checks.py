@@ -11,6 +11,8 @@ whatever a hostile file costs is paid there, and a checker that dies is replaced
 from __future__ import annotations
 
 import logging
+import os
+import signal
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -22,6 +24,7 @@ from pydantic import BaseModel, ConfigDict
 from jointseg.exceptions import JointsegError, ScanFormatError
 from jointseg.io import ScanInfo, probe_scan
 from jointseg.io.mesh import check_single_file
+from server.lifeline import die_with_parent
 from server.limits import check_file_span
 from server.messages import public_message
 from server.settings import Settings
@@ -87,6 +90,15 @@ def _ready() -> None:
     """Run once in a new checking process (imports done, nothing else)."""
 
 
+def _start_checker(parent_pid: int) -> None:
+    """The pool's initializer: a checking process dies with the API (:mod:`server.lifeline`).
+
+    Only the watchdog, no PR_SET_PDEATHSIG: the pool starts its processes from request
+    threads, whose exit would fire it.
+    """
+    die_with_parent(parent_pid, sig=signal.SIGKILL, kernel=False)
+
+
 class UploadChecker:
     """The pool of checking processes, started on first use and replaced when one dies."""
 
@@ -105,6 +117,8 @@ class UploadChecker:
                     max_workers=CHECK_PROCESSES,
                     mp_context=get_context("spawn"),
                     max_tasks_per_child=CHECKS_PER_PROCESS,
+                    initializer=_start_checker,
+                    initargs=(os.getpid(),),
                 )
             return self._pool
 

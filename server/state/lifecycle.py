@@ -41,9 +41,10 @@ class Claim:
     points: int | None = None
 
 
-def worker_id() -> str:
-    """This process's name in the job and worker rows: ``host:pid``."""
-    return f"{socket.gethostname()}:{os.getpid()}"
+def worker_id(pid: int | None = None) -> str:
+    """This process's name in the job and worker rows: ``host:pid`` (or that of process
+    ``pid`` on this host)."""
+    return f"{socket.gethostname()}:{os.getpid() if pid is None else pid}"
 
 
 def _attempt(claim: Claim) -> Any:
@@ -151,13 +152,18 @@ def release_job(session: Session, claim: Claim) -> bool:
     return transitions.move(session, Job, where, {**transitions.released(Job), "stage": None})
 
 
-def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list[str]:
-    """Recover running jobs whose worker stopped sending heartbeats.
+def reap_stale(
+    session: Session, *, timeout_s: float, max_attempts: int, dead: str | None = None
+) -> list[str]:
+    """Recover running jobs whose worker stopped sending heartbeats (or is known to be dead).
 
     A stale job is re-queued when it has attempts left, failed with the reason when not, and
     cancelled when a cancel was requested. A job fanned out into tiles is not stale as long as
     it has parts (their own reaper: :func:`server.state.part_reaper.reap_parts`). Workers not
     seen for ``timeout_s`` are forgotten.
+
+    With ``dead`` (a worker id), only that worker's jobs are recovered, at once, and its row is
+    removed: ``jointseg serve`` saw the process exit, so there is no heartbeat to wait for.
 
     Returns
     -------
@@ -166,9 +172,10 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
     """
     now = utcnow()
     cutoff = now - timedelta(seconds=timeout_s)
+    lost_row = transitions.lost_condition(Job, cutoff, dead)
     stale = session.execute(
         select(Job.id, Job.attempts, Job.cancel_requested, Job.worker).where(
-            Job.status == "running", Job.heartbeat_at < cutoff, ~fanned_out()
+            Job.status == "running", lost_row, ~fanned_out()
         )
     ).all()
     requeued: list[str] = []
@@ -177,10 +184,10 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
             Job.id == job_id,
             Job.status == "running",
             Job.attempts == attempts,
-            Job.heartbeat_at < cutoff,
+            lost_row,
             ~fanned_out(),
         )
-        lost = transitions.lost_worker(worker, timeout_s)
+        lost = transitions.lost_worker(worker, timeout_s, dead=dead is not None)
         verdict = transitions.stale_verdict(
             stop=bool(cancel), attempts=attempts, max_attempts=max_attempts
         )
@@ -199,7 +206,8 @@ def reap_stale(session: Session, *, timeout_s: float, max_attempts: int) -> list
             log.warning("job %s: %s; now %s", job_id, lost, values["status"])
             if values["status"] == "queued":
                 requeued.append(job_id)
-    session.execute(delete(Worker).where(Worker.seen_at < cutoff))
+    gone = Worker.id == dead if dead is not None else Worker.seen_at < cutoff
+    session.execute(delete(Worker).where(gone))
     session.commit()
     return requeued
 

@@ -37,11 +37,18 @@ class Sweep:
     idle: list[str] = field(default_factory=list)
 
 
-def reap_parts(session: Session, *, timeout_s: float, max_attempts: int) -> Sweep:
-    """Recover stale parts, lost merges and cancels nobody finishes (see the module doc)."""
+def reap_parts(
+    session: Session, *, timeout_s: float, max_attempts: int, dead: str | None = None
+) -> Sweep:
+    """Recover stale parts, lost merges and cancels nobody finishes (see the module doc).
+
+    With ``dead`` (a worker id whose process exited), the parts it held are recovered at once
+    instead of the parts without a heartbeat for ``timeout_s``.
+    """
     sweep = Sweep()
     now = utcnow()
     cutoff = now - timedelta(seconds=timeout_s)
+    lost_row = transitions.lost_condition(JobTile, cutoff, dead)
     stale = session.execute(
         select(
             JobTile.job_id,
@@ -53,7 +60,7 @@ def reap_parts(session: Session, *, timeout_s: float, max_attempts: int) -> Swee
             Job.cancel_requested,
         )
         .outerjoin(Job, Job.id == JobTile.job_id)
-        .where(JobTile.status == "running", JobTile.heartbeat_at < cutoff)
+        .where(JobTile.status == "running", lost_row)
     ).all()
     for job_id, kind, tile, attempts, worker, job_status, cancel in stale:
         same = (
@@ -62,10 +69,10 @@ def reap_parts(session: Session, *, timeout_s: float, max_attempts: int) -> Swee
             JobTile.tile == tile,
             JobTile.status == "running",
             JobTile.attempts == attempts,
-            JobTile.heartbeat_at < cutoff,
+            lost_row,
         )
         name = "merge" if kind == "merge" else f"tile {tile + 1}"
-        lost = transitions.lost_worker(worker, timeout_s)
+        lost = transitions.lost_worker(worker, timeout_s, dead=dead is not None)
         verdict = transitions.stale_verdict(
             stop=job_status != "running" or bool(cancel),
             attempts=attempts,

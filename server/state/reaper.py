@@ -42,13 +42,41 @@ def reap_and_requeue(sessions: SessionFactory, queue: JobQueue, settings: Settin
     return requeued
 
 
-def reap_tiles(sessions: SessionFactory, queue: JobQueue, settings: Settings) -> None:
-    """The sweep over tiled jobs' parts: re-queue stale ones, queue lost merges, enqueue
-    queued parts missing from the queue, finish cancels, remove the tile folders of jobs that
-    ended."""
+def recover_dead_worker(
+    sessions: SessionFactory, queue: JobQueue, settings: Settings, worker: str
+) -> list[str]:
+    """Re-queue at once the job (or tile, or merge) of a worker whose process has exited, and
+    remove its worker row; returns the ids of the jobs re-queued.
+
+    Why: ``jointseg serve`` sees its worker die within half a second, while the heartbeat
+    timeout is a minute; waiting for it left the job stuck and the dead worker in /healthz.
+    The attempt counts, as when the reaper finds the job: the process may have died of it.
+    """
+    with sessions() as session:
+        requeued = lifecycle.reap_stale(
+            session,
+            timeout_s=settings.heartbeat_timeout_s,
+            max_attempts=settings.max_attempts,
+            dead=worker,
+        )
+    for job_id in requeued:
+        queue.enqueue(job_id)
+    reap_tiles(sessions, queue, settings, dead=worker)
+    return requeued
+
+
+def reap_tiles(
+    sessions: SessionFactory, queue: JobQueue, settings: Settings, *, dead: str | None = None
+) -> None:
+    """The sweep over tiled jobs' parts: re-queue stale ones (or those of the ``dead`` worker),
+    queue lost merges, enqueue queued parts missing from the queue, finish cancels, remove the
+    tile folders of jobs that ended."""
     with sessions() as session:
         sweep = reap_parts(
-            session, timeout_s=settings.heartbeat_timeout_s, max_attempts=settings.max_attempts
+            session,
+            timeout_s=settings.heartbeat_timeout_s,
+            max_attempts=settings.max_attempts,
+            dead=dead,
         )
         waiting = set(queued_parts_before(session, timeout_s=settings.heartbeat_timeout_s))
     sweep.enqueue += _orphans(waiting - set(sweep.enqueue), queue.pending_parts, _part_name)

@@ -63,8 +63,18 @@ def released(table: Claimable) -> dict[str, Any]:
     }
 
 
-def lost_worker(worker: str | None, timeout_s: float) -> str:
+def lost_condition(table: Claimable, cutoff: datetime, dead: str | None) -> Any:
+    """SQL condition on a running row whose worker is lost: no heartbeat since ``cutoff``, or,
+    with ``dead`` (a worker id whose process is known to have exited), held by that worker."""
+    if dead is not None:
+        return table.worker == dead
+    return table.heartbeat_at < cutoff
+
+
+def lost_worker(worker: str | None, timeout_s: float, *, dead: bool = False) -> str:
     """Why a stale row was reaped, in the words of its error."""
+    if dead:
+        return f"worker {worker} died"
     return f"worker {worker} stopped responding (no heartbeat for {timeout_s:g} s)"
 
 

@@ -16,6 +16,7 @@ import threading
 from collections.abc import Callable
 from types import FrameType
 
+from server.lifeline import STOP_GRACE_S, die_with_parent
 from server.logs import configure_logging
 from server.queue import MERGE_TILES, RUN_TILE, JobQueue, set_handler
 from server.settings import Settings
@@ -43,8 +44,11 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     settings : Settings
     parent_pid : int, optional
         The ``jointseg serve`` process that spawned this worker; when it disappears (even by
-        SIGKILL) the worker stops too instead of running on as an orphan.
+        SIGKILL) the worker gets SIGTERM (it puts its job back in the queue and exits) and is
+        killed if still alive after the stop grace period (:mod:`server.lifeline`).
     """
+    if parent_pid is not None:  # first, so an orphan never even loads torch
+        die_with_parent(parent_pid, grace_s=STOP_GRACE_S)
     # deferred: torch is heavy, and the `jointseg serve` API process imports this module only
     # to name the workers' spawn target
     import torch

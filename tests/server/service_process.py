@@ -107,14 +107,16 @@ class Service:
         return httpx.Client(base_url=self.url, headers=headers, timeout=60, **kwargs)
 
     def wait_healthy(self, *, workers: int = 0, timeout: float = 180.0) -> dict[str, Any]:
-        """Wait for /healthz to answer with at least ``workers`` live workers."""
+        """Wait for /healthz to answer with at least ``workers`` live workers (asked with the
+        service's key: without one a locked service says only its status)."""
         deadline = time.monotonic() + timeout
         last: Any = None
+        headers = {"Authorization": f"Bearer {self.api_key}"} if self.api_key else {}
         while time.monotonic() < deadline:
             if self.api.popen.poll() is not None:
                 raise AssertionError(f"service exited early:\n{self.api.text()[-3000:]}")
             try:
-                last = httpx.get(f"{self.url}/healthz", timeout=5)
+                last = httpx.get(f"{self.url}/healthz", headers=headers, timeout=5)
                 body = last.json()
                 if last.status_code == 200 and len(body["workers"]) >= workers:
                     return dict(body)
@@ -170,6 +172,13 @@ def running(
         yield service
     finally:
         service.stop()
+
+
+def left_in_incoming(data_dir: Path) -> list[Path]:
+    """Uploads streaming or left behind in ``data_dir/incoming`` (each API's own folder there
+    and its lock file are not uploads)."""
+    found = (data_dir / "incoming").rglob("*")
+    return sorted(p for p in found if p.is_file() and p.suffix != ".lock")
 
 
 def scan_file(folder: Path, suffix: str = ".ply", *, points: int = 3000, seed: int = 0) -> Path:

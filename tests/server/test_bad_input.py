@@ -11,7 +11,7 @@ import httpx
 import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
-from service_process import post_scan, scan_file
+from service_process import left_in_incoming, post_scan, scan_file
 
 from jointseg.io import READ_EXTENSIONS
 
@@ -103,7 +103,7 @@ def bad_files(tmp_path_factory, scans) -> dict[str, tuple[Path, int, str]]:
 
 def _assert_nothing_left(service, http: httpx.Client, total_before: int) -> None:
     assert http.get("/v1/jobs").json()["total"] == total_before
-    assert list((service.data_dir / "incoming").iterdir()) == []
+    assert left_in_incoming(service.data_dir) == []
 
 
 def _json_error(response: httpx.Response, status: int) -> str:

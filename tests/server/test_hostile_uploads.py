@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hostile_files import CLAIMED, HOSTILE, bomb_npz, liar_laz
-from service_process import post_scan
+from service_process import left_in_incoming, post_scan
 
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import probe_scan, read_scan
@@ -59,7 +59,7 @@ def test_three_hostile_uploads_at_once_are_refused_within_bounded_api_memory(
         assert path.name in body["detail"] and f"{CLAIMED:,}" in body["detail"], body
         assert str(service.data_dir) not in body["detail"], body  # no server path
     assert took < 30, f"three refusals took {took:.1f} s"
-    assert list((service.data_dir / "incoming").iterdir()) == []
+    assert left_in_incoming(service.data_dir) == []
 
 
 def test_readers_refuse_a_laz_header_claiming_more_than_the_file_can_hold(tmp_path) -> None:

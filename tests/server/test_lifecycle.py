@@ -139,3 +139,17 @@ def test_a_queued_job_without_a_queue_entry_is_enqueued_once(tmp_path, sessions)
         assert fresh not in queue.pending_ids()
     finally:
         queue.close()
+
+
+def test_a_dead_workers_job_is_requeued_at_once_and_the_worker_forgotten(sessions) -> None:
+    mine, other = _queued(sessions, 1), _queued(sessions, 2)
+    with sessions() as session:
+        lifecycle.claim_job(session, mine, "host:7")
+        lifecycle.claim_job(session, other, "host:8")
+        lifecycle.heartbeat(session, None, "host:7")
+        lifecycle.heartbeat(session, None, "host:8")
+        # fresh heartbeats: only the news of its death recovers host:7's job
+        assert lifecycle.reap_stale(session, timeout_s=60, max_attempts=3, dead="host:7") == [mine]
+        assert jobs.get_job(session, mine).status == "queued"
+        assert jobs.get_job(session, other).status == "running"
+        assert [w.id for w in lifecycle.live_workers(session, timeout_s=60)] == ["host:8"]

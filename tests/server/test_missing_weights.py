@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from service_process import Service, post_scan, running, scan_file
+from service_process import Service, left_in_incoming, post_scan, running, scan_file
 
 from jointseg.network import published
 
@@ -37,7 +37,7 @@ def test_a_network_without_weights_is_refused_at_submission_then_accepted_once_p
         assert f"jointseg models pull {published.DEFAULT_DGCNN}" in detail
         assert "config.network.name" in detail and "'dgcnn'" in detail
         assert http.get("/v1/jobs").json()["total"] == before  # no job row ...
-        assert list((service.data_dir / "incoming").iterdir()) == []  # ... and no upload left
+        assert left_in_incoming(service.data_dir) == []  # ... and no upload left
 
         # the default network (bundled weights) is still accepted
         default = post_scan(http, room)

@@ -277,3 +277,14 @@ def test_a_shutdown_releases_a_tile_without_counting_it(sessions) -> None:
         assert not parts.release_part(session, part)  # once
         again = parts.claim_part(session, job_id, "tile", 3, "w:2")
     assert again is not None and again.attempt == 1
+
+
+def test_the_tile_of_a_dead_worker_is_requeued_at_once(sessions) -> None:
+    job_id = _planned(sessions)
+    with sessions() as session:
+        assert parts.claim_part(session, job_id, "tile", 0, "host:7") is not None
+        assert parts.claim_part(session, job_id, "tile", 1, "host:8") is not None
+        sweep = reap_parts(session, timeout_s=60, max_attempts=3, dead="host:7")
+    assert sweep.enqueue == [(job_id, "tile", 0)]  # fresh heartbeats: only the dead one's
+    statuses = _statuses(sessions, job_id)
+    assert statuses[("tile", 0)] == "queued" and statuses[("tile", 1)] == "running"
