@@ -6,6 +6,8 @@ can print it as is and the service can map each class to one HTTP status.
 
 from __future__ import annotations
 
+import re
+
 
 class JointsegError(Exception):
     """Base class of every error jointseg raises on purpose."""
@@ -70,3 +72,31 @@ class ServiceError(JointsegError):
 
 class JobFailed(JointsegError):
     """A job the client waited for ended failed or cancelled; the message carries its error."""
+
+
+#: A path inside a message: absolute POSIX (``/project/src/x.cpp``), home or Windows, or a C++
+#: source file; a library's message holding one is not passed on.
+_PATH_IN_TEXT = re.compile(
+    r"(?:^|[\s'\"(=:,\[])(?:/|~/|[A-Za-z]:\\)[\w.~-]|\.(?:cpp|cc|cxx|hpp|h)\b|enforce fail"
+)
+#: libE57Format's error-code tag at the end of its first line: ``(ErrorBadChecksum)``.
+_ERROR_CODE_TAG = re.compile(r"\s*\(Error\w+\)\s*$")
+#: Longest reason taken over from a library's message.
+MAX_REASON = 200
+
+
+def library_reason(exc: BaseException, fallback: str = "the file is corrupt or truncated") -> str:
+    """The first line of a third-party library's message, fit to show a user, else ``fallback``.
+
+    Why: libraries such as libE57Format (through pye57) and torch put their debug text, C++
+    source paths and the server's file paths into their messages, over many lines. A user is
+    told what is wrong in one sentence: the first line is kept when it is short and names no
+    path; otherwise ``fallback`` says it in the project's words.
+    """
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    if not lines:
+        return fallback
+    first = _ERROR_CODE_TAG.sub("", lines[0]).strip().rstrip(":").strip()
+    if not first or len(first) > MAX_REASON or _PATH_IN_TEXT.search(first):
+        return fallback
+    return first

@@ -8,13 +8,42 @@ the client's file name back before the message reaches the API.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path, PureWindowsPath
 from typing import Any
 
+#: Longest message a client is given (cut, with an ellipsis, beyond it).
+MAX_MESSAGE = 1000
+#: An absolute POSIX path inside a sentence (``/srv/weights/w.pt``).
+_ABSOLUTE = re.compile(r"(?<![\w.:/~>\]])/[^/\s'\"(),;]+(?:/[^/\s'\"(),;]*)*")
 
-def public_message(exc: BaseException, path: Path, filename: str) -> str:
-    """``exc``'s message with every occurrence of ``path`` replaced by ``filename``."""
-    return str(exc).replace(str(path), filename)
+
+def one_line(message: str, limit: int = MAX_MESSAGE) -> str:
+    """``message`` on one line (line breaks and runs of blanks become one space), cut at
+    ``limit`` characters: a client's error is a sentence, not a library's dump."""
+    text = re.sub(r"\s+", " ", message).strip()
+    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
+
+
+def without_server_paths(message: str) -> str:
+    """``message`` with every absolute path reduced to its file name.
+
+    Why: the readers and loaders name the file they opened, which on the service is a path on
+    the server (an upload, the weights); the ones the caller knows are replaced by the user's
+    names first, and this catches whatever else a message carries.
+    """
+    return _ABSOLUTE.sub(lambda m: [p for p in m.group(0).split("/") if p][-1], message)
+
+
+def public_message(
+    exc: BaseException, path: Path, filename: str, names: dict[str, str] | None = None
+) -> str:
+    """``exc``'s message as a client sees it: ``path`` (and each key of ``names``) replaced by
+    the user's name for it, any other server path by its file name, on one line."""
+    text = str(exc).replace(str(path), filename)
+    for server, user in (names or {}).items():
+        text = text.replace(server, user)
+    return one_line(without_server_paths(text))
 
 
 def _server_path(text: str) -> bool:

@@ -19,7 +19,7 @@ import logging
 import os
 from pathlib import Path
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.dispatch import INPUT_ERRORS, prepare_input, prepare_output
 from jointseg.io.formats import READ_EXTENSIONS, WRITE_EXTENSIONS, detect_format, get_format
 from jointseg.io.limits import DEFAULT_MAX_INFLATION, DEFAULT_MAX_POINTS, ScanInfo
@@ -85,7 +85,7 @@ def read_scan(
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:
-        raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
+        raise ScanFormatError(f"{path}: cannot read as {fmt}: {library_reason(exc)}") from exc
     logger.info("read %s: %d points (%s)", path, len(scan), fmt)
     return scan
 
@@ -128,7 +128,7 @@ def probe_scan(
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:
-        raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
+        raise ScanFormatError(f"{path}: cannot read as {fmt}: {library_reason(exc)}") from exc
 
 
 def write_scan(

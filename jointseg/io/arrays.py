@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
@@ -46,7 +46,9 @@ def _read_npy_header(fh, path: Path, what: str) -> tuple[tuple[int, ...], np.dty
         else:
             shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
     except (ValueError, OSError, EOFError) as exc:
-        raise ScanFormatError(f"{path}: {what} is not a valid .npy array: {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: {what} is not a valid .npy array: {library_reason(exc)}"
+        ) from exc
     return shape, dtype
 
 
@@ -84,7 +86,9 @@ def read_npy(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     try:
         table = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
-        raise ScanFormatError(f"{path}: cannot load the array (truncated file?): {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: cannot load the array (truncated file?): {library_reason(exc)}"
+        ) from exc
     xyz, rgb, labels, fields = columns_to_parts(table, None, path=path)
     report(progress, "read", 1.0)
     return build_scan(path, "npy", xyz, rgb, labels, fields, locate=lambda i: f"row {i}")
@@ -158,7 +162,7 @@ def _npz_headers(
                         )
                 out[info.filename[:-4]] = (shape, dtype)
     except (zipfile.BadZipFile, OSError, EOFError) as exc:
-        raise ScanFormatError(f"{path}: not a valid .npz archive: {exc}") from exc
+        raise ScanFormatError(f"{path}: not a valid .npz archive: {library_reason(exc)}") from exc
     points = f" of {out['xyz'][0][0]:,} points" if out.get("xyz", ((),))[0] else ""
     check_inflation(
         declared,
@@ -239,7 +243,9 @@ def read_npz(
                 arrays[key] = npz[key]
                 report(progress, "read", (i + 1) / len(headers))
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise ScanFormatError(f"{path}: cannot load the arrays (truncated file?): {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: cannot load the arrays (truncated file?): {library_reason(exc)}"
+        ) from exc
     xyz = arrays.pop("xyz")
     rgb = arrays.pop("rgb", None)
     if rgb is not None:

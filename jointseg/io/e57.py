@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
 from jointseg.io.limits import (
@@ -33,6 +33,12 @@ _CARTESIAN = ("cartesianX", "cartesianY", "cartesianZ")
 _SPHERICAL = ("sphericalRange", "sphericalAzimuth", "sphericalElevation")
 
 
+def _reason(exc: BaseException) -> str:
+    """What libE57Format says is wrong, without its debug block (the file's path on the server,
+    C++ source paths, checksums) that follows on further lines."""
+    return library_reason(exc)
+
+
 def _open(path: Path):  # -> pye57.E57
     import pye57
 
@@ -43,14 +49,14 @@ def _open(path: Path):  # -> pye57.E57
     try:
         return pye57.E57(str(path))
     except Exception as exc:  # libE57 raises its own exception types
-        raise ScanFormatError(f"{path}: cannot open the E57 file: {exc}") from exc
+        raise ScanFormatError(f"{path}: not a readable E57 file: {_reason(exc)}") from exc
 
 
 def _scan_headers(e57, path: Path) -> list:
     try:
         headers = [e57.get_header(i) for i in range(e57.scan_count)]
     except Exception as exc:  # libE57 raises its own exception types
-        raise ScanFormatError(f"{path}: cannot read the E57 scan headers: {exc}") from exc
+        raise ScanFormatError(f"{path}: cannot read the E57 scan headers: {_reason(exc)}") from exc
     if not headers:
         raise ScanFormatError(f"{path}: the E57 file contains no scans")
     for i, header in enumerate(headers):
@@ -163,7 +169,7 @@ def read_e57(
                     transform=True,
                 )
             except Exception as exc:  # libE57 / pye57 raise their own types
-                raise ScanFormatError(f"{path}: cannot read E57 scan {i}: {exc}") from exc
+                raise ScanFormatError(f"{path}: cannot read E57 scan {i}: {_reason(exc)}") from exc
             parts.append(data)
             report(progress, "read", (i + 1) / len(headers))
     finally:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 
 #: The first four bytes of a GLB file.
 GLB_MAGIC = b"glTF"
@@ -90,7 +90,9 @@ def _document(raw: bytes, path: Path) -> dict[str, Any]:
     try:
         doc = json.loads(raw.decode("utf-8-sig"))
     except (UnicodeDecodeError, ValueError) as exc:
-        raise ScanFormatError(f"{path}: the glTF JSON is not valid JSON: {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: the glTF JSON is not valid JSON: {library_reason(exc)}"
+        ) from exc
     asset = doc.get("asset") if isinstance(doc, dict) else None
     if not isinstance(asset, dict) or "version" not in asset:
         raise ScanFormatError(

@@ -28,7 +28,7 @@ from typing import Any
 import laspy
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import ColourRange, merge_colour_ranges, to_rgb8
@@ -73,7 +73,7 @@ def open_reader(
             raise ScanFormatError(
                 f"{path}: not a LAS/LAZ file (it does not start with the 'LASF' signature)"
             ) from exc
-        raise ScanFormatError(f"{path}: cannot read the LAS header: {exc}") from exc
+        raise ScanFormatError(f"{path}: cannot read the LAS header: {library_reason(exc)}") from exc
 
 
 def check_body_size(
@@ -256,7 +256,9 @@ def points_to_scan(
 def point_read_error(path: Path, header: laspy.LasHeader, exc: Exception) -> ScanFormatError:
     """The error for points laspy could not read or decompress."""
     what = "decompress the LAZ" if header.are_points_compressed else "read the LAS"
-    return ScanFormatError(f"{path}: cannot {what} points (truncated or corrupt file?): {exc}")
+    return ScanFormatError(
+        f"{path}: cannot {what} points (truncated or corrupt file?): {library_reason(exc)}"
+    )
 
 
 def short_read_error(path: Path, header: laspy.LasHeader, got: int) -> ScanFormatError:

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.build import build_scan
 from jointseg.io.gltf import GltfFacts, check_neighbours, embedded_only, gltf_facts
 from jointseg.io.limits import ScanInfo, check_input_file, check_max_points
@@ -119,7 +119,9 @@ def _load_scene(path: Path, fmt: str) -> Any:
     except MemoryError:
         raise
     except Exception as exc:  # trimesh's readers raise whatever their parsing meets
-        raise ScanFormatError(f"{path}: cannot read the {fmt.upper()} mesh: {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: cannot read the {fmt.upper()} mesh: {library_reason(exc)}"
+        ) from exc
 
 
 def _material_colour(material: Any) -> np.ndarray | None:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io import lzf
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
@@ -314,7 +314,9 @@ def _read_compressed(path: Path, header: PcdHeader) -> np.ndarray:
     try:
         raw = lzf.decompress(stream, uncompressed)
     except lzf.LZFError as exc:
-        raise ScanFormatError(f"{path}: corrupt binary_compressed PCD data: {exc}") from exc
+        raise ScanFormatError(
+            f"{path}: corrupt binary_compressed PCD data: {library_reason(exc)}"
+        ) from exc
     out = np.empty(header.points, dtype=dtype)
     offset = 0
     for key in dtype.names or ():

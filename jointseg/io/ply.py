@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from jointseg.exceptions import ScanFormatError
+from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import ColourRange, colour_range, merge_colour_ranges, to_rgb8
@@ -328,7 +328,7 @@ def _read_with_plyfile(path: Path) -> np.ndarray:
         ply = plyfile.PlyData.read(str(path))
         return np.asarray(ply["vertex"].data)
     except (plyfile.PlyParseError, ValueError, KeyError, OSError) as exc:
-        raise ScanFormatError(f"{path}: could not read PLY body: {exc}") from exc
+        raise ScanFormatError(f"{path}: could not read PLY body: {library_reason(exc)}") from exc
 
 
 def _ascii_body(path: Path, header: PlyHeader) -> tuple[bytes, np.ndarray]:

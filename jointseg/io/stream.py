@@ -44,7 +44,7 @@ from typing import Any, BinaryIO
 import laspy
 import numpy as np
 
-from jointseg.exceptions import ConfigError, ScanFormatError
+from jointseg.exceptions import ConfigError, ScanFormatError, library_reason
 from jointseg.io import read_scan, write_scan
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
@@ -200,7 +200,7 @@ class ScanChunks:
                     raise
                 except INPUT_ERRORS as exc:
                     raise ScanFormatError(
-                        f"{self.path}: cannot read as {self.format}: {exc}"
+                        f"{self.path}: cannot read as {self.format}: {library_reason(exc)}"
                     ) from exc
                 read += len(chunk)
                 yield chunk
@@ -488,7 +488,7 @@ def open_chunks(
     except ScanFormatError:
         raise
     except INPUT_ERRORS as exc:
-        raise ScanFormatError(f"{path}: cannot read as {fmt}: {exc}") from exc
+        raise ScanFormatError(f"{path}: cannot read as {fmt}: {library_reason(exc)}") from exc
     logger.info(
         "opened %s for chunked reading: %d points (%s, %s)",
         path,

@@ -32,6 +32,7 @@ from jointseg.exceptions import (
     UnsupportedFormatError,
     UploadTooLarge,
 )
+from server.messages import MAX_MESSAGE, one_line
 from server.schemas import ErrorBody
 
 log = logging.getLogger(__name__)
@@ -49,7 +50,7 @@ ERROR_STATUS: tuple[tuple[type[JointsegError], int], ...] = (
 )
 
 #: Longest ``detail`` sent (a message is cut, with an ellipsis, beyond it).
-MAX_DETAIL = 1000
+MAX_DETAIL = MAX_MESSAGE
 #: Validation problems listed in one 422 (the rest counted).
 MAX_PROBLEMS = 5
 
@@ -94,13 +95,6 @@ def status_for(exc: JointsegError) -> int:
         if isinstance(exc, cls):
             return status
     return 400
-
-
-def one_line(message: str, limit: int = MAX_DETAIL) -> str:
-    """``message`` on one line (line breaks and runs of blanks become one space), cut at
-    ``limit`` characters: a client's error is a sentence, not a library's dump."""
-    text = re.sub(r"\s+", " ", message).strip()
-    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
 
 
 def error_response(

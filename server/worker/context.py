@@ -8,10 +8,12 @@ Handed to both :class:`server.worker.runner.JobRunner` and
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from typing import TYPE_CHECKING
 
+from jointseg.exceptions import JointsegError
 from jointseg.pipeline import PipelineConfig, load_predictor
 from server.lru import LRUCache
 from server.queue import JobQueue
@@ -57,9 +59,14 @@ class WorkerContext:
             return kept, 0.0
         started = time.perf_counter()
         network = config.network
-        if network.weights is not None:  # opened only inside the weights folders
-            resolved = resolve_job_weights(network.weights, self.settings)
-            network = network.model_copy(update={"weights": resolved})
-        predictor = load_predictor(network)
+        given = network.weights
+        if given is None:
+            predictor = load_predictor(network)
+        else:  # opened only inside the weights folders
+            resolved = resolve_job_weights(given, self.settings)
+            try:
+                predictor = load_predictor(network.model_copy(update={"weights": resolved}))
+            except JointsegError as exc:  # named as the job named them, not by their path here
+                raise type(exc)(str(exc).replace(str(resolved), os.fspath(given))) from exc
         self.predictors.put(key, predictor)
         return predictor, time.perf_counter() - started

@@ -30,7 +30,7 @@ from pydantic import ValidationError
 
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError, QueueUnavailable
 from jointseg.pipeline import PipelineConfig
-from server.messages import public_message
+from server.messages import one_line, public_message, without_server_paths
 from server.state import lifecycle, parts
 from server.state.models import Job, utcnow
 from server.worker.tokens import (
@@ -183,7 +183,8 @@ class FanOut:
                 self._stopped(part, token)
             else:
                 log.exception("job %s: %s: internal error", job_id, part.name)
-                self._failed(part, f"internal error: {type(exc).__name__}: {exc}")
+                error = f"internal error: {type(exc).__name__}: {exc}"
+                self._failed(part, one_line(without_server_paths(error)))
         finally:
             self.context.current = None
 
@@ -316,5 +317,5 @@ def _clear(folder: Path) -> None:
 def _public(exc: BaseException, upload: Path, filename: str, work: Path) -> str:
     """The failure as the client sees it: no server paths (the tile folder is named as such)."""
     if isinstance(exc, ValidationError):
-        return str(ConfigError(f"config: {exc}"))
-    return public_message(exc, upload, filename).replace(str(work), "<tile folder>")
+        return one_line(str(ConfigError(f"config: {exc}")))
+    return public_message(exc, upload, filename, {str(work): "<tile folder>"})

@@ -21,7 +21,7 @@ from jointseg.exceptions import Cancelled, ConfigError, JointsegError
 from jointseg.io import probe_scan
 from jointseg.pipeline import PipelineConfig, segment_file
 from server.limits import check_file_span
-from server.messages import public_message
+from server.messages import one_line, public_message, without_server_paths
 from server.state import lifecycle
 from server.worker.context import WorkerContext
 from server.worker.fanout import FanOut
@@ -93,7 +93,8 @@ class JobRunner:
             return
         except Exception as exc:
             log.exception("job %s: internal error", claim.job_id)
-            self._finish(claim, "failed", error=f"internal error: {type(exc).__name__}: {exc}")
+            error = f"internal error: {type(exc).__name__}: {exc}"
+            self._finish(claim, "failed", error=one_line(without_server_paths(error)))
             return
         self._finish(claim, "succeeded", points=points, timings=timings)
         log.info("job %s succeeded: %d points in %.1f s", claim.job_id, points, timings["total"])
@@ -154,5 +155,5 @@ def _failure_message(exc: BaseException, upload: Path, filename: str) -> str:
     """Why the job failed, as the client sees it (a stored config that no longer validates is
     a ConfigError; every other message names the user's file, not the stored upload)."""
     if isinstance(exc, ValidationError):
-        return str(ConfigError(f"config: {exc}"))
+        return one_line(str(ConfigError(f"config: {exc}")))
     return public_message(exc, upload, filename)

@@ -36,3 +36,22 @@ def test_a_report_names_the_weights_file_not_its_path_on_the_server(tmp_path: Pa
     stored = tmp_path / "report.json"
     stored.write_text(json.dumps(body))
     assert json.loads(public_report_bytes(stored)) == public
+
+
+def test_a_message_is_one_line_and_names_no_other_server_path(tmp_path: Path) -> None:
+    """Whatever a loader's message carries besides the upload (the weights' path on the server,
+    a library's source path, its text over several lines) reaches the client as file names on
+    one line."""
+    stored = tmp_path / "upload.ply"
+    weights = tmp_path / "weights" / "mine.pt"
+    exc = ValueError(
+        f"{stored}: read with {weights}\n  at /project/libE57Format/src/CheckedFile.cpp(699)\n"
+        "tile 3/8, see https://errors.pydantic.dev/2.14/v/x"
+    )
+    message = public_message(exc, stored, "room.ply")
+    assert message == (
+        "room.ply: read with mine.pt at CheckedFile.cpp(699) tile 3/8, see "
+        "https://errors.pydantic.dev/2.14/v/x"
+    )
+    named = public_message(exc, stored, "room.ply", {str(weights): "team/mine.pt"})
+    assert named.startswith("room.ply: read with team/mine.pt at ")

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from jointseg.exceptions import ConfigError
+from jointseg.exceptions import ConfigError, library_reason
 from jointseg.network.backends import Predictor
 from jointseg.network.base import NetworkPredictor
-from jointseg.network.checkpoint import read_torch_file
+from jointseg.network.checkpoint import read_torch_file, state_mismatch
 from jointseg.network.dgcnn.blocks import (
     block_features,
     column_blocks,
@@ -70,11 +70,17 @@ def load_dgcnn_state(path: str | os.PathLike[str]) -> tuple[DGCNN, dict[str, Any
         raise ConfigError(f"{path}: not a state dict; expected dgcnn.pytorch's model_i.t7")
     state = {str(k).removeprefix("module."): v for k, v in state.items()}
     model = DGCNN()
+    problem = state_mismatch(model, state)
+    if problem is not None:
+        raise ConfigError(
+            f"{path}: not a DGCNN S3DIS state dict (dgcnn.pytorch model_i.t7): {problem}"
+        )
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:
         raise ConfigError(
-            f"{path}: not a DGCNN S3DIS state dict (dgcnn.pytorch model_i.t7): {exc}"
+            f"{path}: not a DGCNN S3DIS state dict (dgcnn.pytorch model_i.t7): "
+            f"{library_reason(exc, 'it does not load')}"
         ) from exc
     model.eval()
     stem = path.stem
