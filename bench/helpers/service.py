@@ -21,12 +21,14 @@ def free_port() -> int:
 
 
 def start_service(
-    data: Path, workers: int, *, wait_s: float, **env: str
+    data: Path, workers: int, *, wait_s: float, key: str | None = None, **env: str
 ) -> tuple[subprocess.Popen[bytes], str]:
     """`jointseg serve --workers W --no-viewer` on a free loopback port with data directory
     ``data``; no JOINTSEG_ variable of this process reaches it, only those in ``env``. Returns
     the process and its URL once ``workers`` workers report healthy (SystemExit after
-    ``wait_s`` seconds)."""
+    ``wait_s`` seconds). ``key``: an API key of the service (``JOINTSEG_API_KEYS``), sent to
+    ``/healthz``, which tells only whether it is up without one."""
+    headers = {"Authorization": f"Bearer {key}"} if key else None
     port = free_port()
     child_env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
     child_env.update(JOINTSEG_DATA_DIR=str(data), **env)
@@ -37,7 +39,7 @@ def start_service(
     deadline = time.monotonic() + wait_s
     while time.monotonic() < deadline:
         try:
-            health = httpx.get(f"{url}/healthz", timeout=5).json()
+            health = httpx.get(f"{url}/healthz", headers=headers, timeout=5).json()
             if len(health["workers"]) >= workers:
                 return proc, url
         except (httpx.HTTPError, ValueError, KeyError):
