@@ -185,6 +185,7 @@ def load_room(
         main_plane=g["plane_id"] >= 0,
         min_support=min_support,
         structure=structure_hint(g) if structure else None,
+        has_colour=item.scan.rgb is not None,
     )
     truth = gt[offers.point]
     freq = np.bincount(gt[gt >= 0], minlength=13) / max(int((gt >= 0).sum()), 1)

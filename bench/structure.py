@@ -132,8 +132,8 @@ def votes(item: Item, spec: str, predictors: dict, before: TreeEnsemble) -> dict
         main_plane=g["plane_id"] >= 0, model=before,
     )  # fmt: skip
     new = fuse(item.scan.xyz, seg, labels, probs, params, main_plane=g["plane_id"] >= 0,
-               structure=structure_hint(g)).labels  # fmt: skip
-    return {"network": labels, "before": old, "after": new.astype(np.int64)}
+               structure=structure_hint(g), has_colour=item.scan.rgb is not None)  # fmt: skip
+    return {"network": labels, "before": old, "after": new.labels.astype(np.int64)}
 
 
 def true_rooms(scan: Scan) -> tuple[float | None, float]:

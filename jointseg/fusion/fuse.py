@@ -106,6 +106,7 @@ def fuse(
     main_plane: np.ndarray | None = None,
     totals: ScanTotals | None = None,
     structure: StructureHint | None = None,
+    has_colour: bool = True,
 ) -> FusionResult:
     """Combine network labels with geometric segments (eq. 6-7 and the modes beyond them).
 
@@ -134,6 +135,9 @@ def fuse(
         The geometry's floor, ceiling and wall reading per point (``GeometryResult.structure``
         and ``structure_confidence``): the learned vote offers it as a label of its own, even
         where the network's majority says otherwise. The other modes ignore it.
+    has_colour : bool
+        Whether the scan had usable colour (the learned vote weighs offers differently on
+        colour-free scans, whose segments merge more).
 
     Returns
     -------
@@ -159,7 +163,7 @@ def fuse(
     t = time.perf_counter()
     segment_ids, seg = compact_ids(segments)
     ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params, totals)
-    vote = _vote(ballot, main_plane, structure, timings, t)
+    vote = _vote(ballot, main_plane, structure, timings, t, has_colour)
     return _result(vote, labels, segment_ids, params, timings)
 
 
@@ -238,12 +242,13 @@ def _vote(
     structure: StructureHint | None,
     timings: dict[str, float],
     t: float,
+    has_colour: bool = True,
 ) -> _Vote:
     """Run the mode's vote, timed from ``t`` as 'vote' (the majority modes add 'relabel')."""
     if ballot.params.mode == "evidence":
         vote = _evidence_vote(ballot)
     elif ballot.params.mode == "learned":
-        vote = _learned_vote(ballot, main_plane, structure)
+        vote = _learned_vote(ballot, main_plane, structure, has_colour)
     else:
         return _majority_vote(ballot, timings, t)
     timings["vote"] = time.perf_counter() - t
@@ -300,7 +305,10 @@ def _evidence_vote(ballot: _Ballot) -> _Vote:
 
 
 def _learned_vote(
-    ballot: _Ballot, main_plane: np.ndarray | None, structure: StructureHint | None
+    ballot: _Ballot,
+    main_plane: np.ndarray | None,
+    structure: StructureHint | None,
+    has_colour: bool = True,
 ) -> _Vote:
     """The 'learned' mode (see :mod:`jointseg.fusion.learned`): segment, cell and structure
     offers."""
@@ -319,6 +327,7 @@ def _learned_vote(
         if totals is None
         else (totals.points, totals.mean_entropy, totals.disagreement),
         structure=structure,
+        has_colour=has_colour,
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

@@ -62,6 +62,7 @@ FEATURES = (
     "structure reads own",
     "offer only from structure",
     "own label is a wall fixture",
+    "scan has colour",
 )
 #: The features of a model fitted before the structure reading (issue 43): such a model is
 #: still read, evaluated on these columns only, and is never offered the structure's labels.
@@ -224,6 +225,7 @@ def vote_offers(
     min_support: float = 0.0,
     totals: tuple[int, float, float] | None = None,
     structure: StructureHint | None = None,
+    has_colour: bool = True,
 ) -> Offers:
     """Every offer of a segment or cell label to a point whose network label differs, except
     offers of a class the network gave the point less than ``min_support`` probability; and,
@@ -251,6 +253,9 @@ def vote_offers(
         from these points.
     structure : StructureHint, optional
         The geometry's floor, ceiling and wall reading per point; none when not given.
+    has_colour : bool
+        Whether the scan had usable colour: without it the segments merge more (a window or a
+        board joins its wall plane) and the colour-free network is the one labelling.
 
     Returns
     -------
@@ -305,6 +310,7 @@ def vote_offers(
             reads_own,
             only_structure,
             FIXTURE[own],
+            np.full(len(point), float(has_colour)),
         ]
     ).astype(np.float64)
     return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
@@ -453,6 +459,7 @@ def learned_labels(
     model: TreeEnsemble | None = None,
     totals: tuple[int, float, float] | None = None,
     structure: StructureHint | None = None,
+    has_colour: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     ``threshold``, else the network's label. An offer of a class the network gave the point
@@ -477,6 +484,7 @@ def learned_labels(
         min_support=min_support,
         totals=totals,
         structure=structure if model.weighs_structure else None,
+        has_colour=has_colour,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
     return best_offers(labels, offers.point, offers.label, p, threshold), offers.segment_votes

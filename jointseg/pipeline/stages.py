@@ -400,6 +400,7 @@ def _fusion_stage(
         config.fusion,
         main_plane=geo.main_plane,
         structure=structure_hint(geo),
+        has_colour=scan.rgb is not None,
     )
     report(progress, "fusion", 1.0)
     timings["fusion"] = time.perf_counter() - t

@@ -177,3 +177,14 @@ def test_the_shipped_model_never_saw_a_judging_room(shared_file) -> None:
     # bench/fusion_real.py's ScanNet judging rooms, every re-scan of them
     assert not [s for s in scans["ScanNet"] if s[:9] in ("scene0002", "scene0005", "scene0007")]
     assert MODEL_PATH.stat().st_size < 200_000
+
+
+def test_whether_the_scan_has_colour_reaches_the_features() -> None:
+    labels = np.r_[np.full(8, 2), np.full(2, 5)]
+    probs = probs_for([{int(c): 0.8} for c in labels])
+    column = FEATURES.index("scan has colour")
+    seg = np.zeros(10, np.int64)
+    with_colour = vote_offers(line(10), seg, 1, labels, probs)
+    without = vote_offers(line(10), seg, 1, labels, probs, has_colour=False)
+    assert len(with_colour.point) > 0
+    assert (with_colour.features[:, column] == 1).all() and (without.features[:, column] == 0).all()

@@ -351,6 +351,7 @@ def _vote(
             structure=StructureHint(
                 gathered.structure[members], gathered.structure_confidence[members]
             ),
+            has_colour=plan.has_rgb,
         )
         fused[members] = result.labels
         confidence[members] = result.confidence
