@@ -182,7 +182,7 @@ def _pick_offers(
     cell_label: np.ndarray,
     probs: np.ndarray,
     min_support: float,
-    structure_kind: np.ndarray | None = None,
+    structure: StructureHint | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points, offered classes, whether each offer comes from the segment (else the cell or
     the structure) and whether only the structure reading makes it.
@@ -201,8 +201,8 @@ def _pick_offers(
         supported = probs[point, offer] >= min_support
         point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
     only_structure = np.zeros(len(point), dtype=bool)
-    if structure_kind is not None:
-        sk = np.asarray(structure_kind, dtype=np.int64)
+    if structure is not None:
+        sk = np.asarray(structure.kind, dtype=np.int64)
         by_structure = np.flatnonzero(
             (sk >= 0) & (sk != labels) & (sk != seg_label) & (sk != cell_label)
         )
@@ -211,6 +211,25 @@ def _pick_offers(
         from_segment = np.concatenate([from_segment, np.zeros(len(by_structure), bool)])
         only_structure = np.concatenate([only_structure, np.ones(len(by_structure), bool)])
     return point, offer, from_segment, only_structure
+
+
+def _structure_columns(
+    structure: StructureHint | None,
+    point: np.ndarray,
+    offer: np.ndarray,
+    own: np.ndarray,
+    only_structure: np.ndarray,
+) -> list[np.ndarray]:
+    """The structure reading's features of each offer: how sure it is of the offer and of
+    the point's own label, whether only it makes the offer, whether the own label is a wall
+    fixture."""
+    reads_offer = reads_own = np.zeros(len(point))
+    if structure is not None:
+        kind = np.asarray(structure.kind, dtype=np.int64)
+        sure = np.asarray(structure.confidence, dtype=np.float64)[point]
+        reads_offer = np.where(kind[point] == offer, sure, 0.0)
+        reads_own = np.where(kind[point] == own, sure, 0.0)
+    return [reads_offer, reads_own, only_structure, FIXTURE[own]]
 
 
 def vote_offers(
@@ -233,14 +252,9 @@ def vote_offers(
 
     Parameters
     ----------
-    xyz : ndarray of shape (N, 3), metres
-    seg : ndarray of shape (N,), int
-        Segment 0..n_seg-1 of every point.
-    n_seg : int
-    labels : ndarray of shape (N,), int
-        The network's labels.
-    probs : ndarray of shape (N, C)
-        The network's probabilities (rows sum to 1).
+    xyz, seg, n_seg, labels, probs
+        Points (N, 3) in metres, their segment 0..n_seg-1, the network's labels and
+        probabilities (N, C), rows summing to 1.
     cell_size : float
         Side (m) of the cubic cells that cut segments into local voting units.
     main_plane : ndarray of shape (N,), bool, optional
@@ -249,17 +263,11 @@ def vote_offers(
         Least probability of the offered class at the point (0 keeps every offer).
     totals : (int, float, float), optional
         The whole scan's point count, mean normalised entropy and :func:`disagreement_share`
-        when these points are a part of it made of whole segments (a tiled run); default: taken
-        from these points.
+        when these points are a part of it made of whole segments (a tiled run).
     structure : StructureHint, optional
         The geometry's floor, ceiling and wall reading per point; none when not given.
     has_colour : bool
-        Whether the scan had usable colour: without it the segments merge more (a window or a
-        board joins its wall plane) and the colour-free network is the one labelling.
-
-    Returns
-    -------
-    Offers
+        Whether the scan had usable colour (without it, segments merge more).
     """
     n, n_classes = probs.shape
     labels = np.asarray(labels, dtype=np.int64)
@@ -275,18 +283,11 @@ def vote_offers(
     scan_points, scan_entropy, scan_disagreement = totals
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = _plane_share(seg, n_seg, seg_size, main_plane)
-    seg_label = seg_soft.argmax(axis=1)[seg]
-    cell_label = cell_soft.argmax(axis=1)[cell]
-    kind = None if structure is None else np.asarray(structure.kind, dtype=np.int64)
+    seg_label, cell_label = seg_soft.argmax(axis=1)[seg], cell_soft.argmax(axis=1)[cell]
     point, offer, from_segment, only_structure = _pick_offers(
-        labels, seg_label, cell_label, probs, min_support, kind
+        labels, seg_label, cell_label, probs, min_support, structure
     )
     s, c, own = seg[point], cell[point], labels[point]
-    reads_offer = reads_own = np.zeros(len(point))
-    if structure is not None and kind is not None:
-        sure = np.asarray(structure.confidence, dtype=np.float64)[point]
-        reads_offer = np.where(kind[point] == offer, sure, 0.0)
-        reads_own = np.where(kind[point] == own, sure, 0.0)
     features = np.column_stack(
         [
             _logit(probs[point, own]),
@@ -306,10 +307,7 @@ def vote_offers(
             from_segment,
             np.full(len(point), scan_entropy),
             np.full(len(point), scan_disagreement),
-            reads_offer,
-            reads_own,
-            only_structure,
-            FIXTURE[own],
+            *_structure_columns(structure, point, offer, own, only_structure),
             np.full(len(point), float(has_colour)),
         ]
     ).astype(np.float64)

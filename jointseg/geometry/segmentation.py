@@ -163,16 +163,21 @@ def segment(
     log.info("geometry: %d points, %d main planes, %d segments", n, len(found), regions.max() + 1)
     if not p.structure:
         return GeometryResult(segments, point_plane, infos, p, laps.timings)
-    # on the voxel centroids: an even density, and a fraction of the points
-    reading = read_structure(work.xyz, regions, max(spacing, work.voxel), seed=seed)
-    levels = [
-        None if z is None else z + float(centre[2]) for z in (reading.floor_z, reading.ceiling_z)
-    ]
-    kind = reading.point_kind(regions)[work.inverse]
-    confidence = reading.point_confidence(regions)[work.inverse]
+    found_structure = _structure(work, regions, spacing, float(centre[2]), seed)
     laps.lap("structure", 1.0)
+    return GeometryResult(segments, point_plane, infos, p, laps.timings, *found_structure)
+
+
+def _structure(
+    work: _WorkSet, regions: np.ndarray, spacing: float, z0: float, seed: int
+) -> tuple[np.ndarray, np.ndarray, float | None, float | None]:
+    """The structure reading on the voxel centroids (an even density, a fraction of the
+    points), carried to every point: class, confidence, floor and ceiling levels (scan z)."""
+    reading = read_structure(work.xyz, regions, max(spacing, work.voxel), seed=seed)
     log.info("geometry: structure %s", reading.counts())
-    return GeometryResult(segments, point_plane, infos, p, laps.timings, kind, confidence, *levels)
+    floor, ceiling = (None if z is None else z + z0 for z in (reading.floor_z, reading.ceiling_z))
+    kind = reading.point_kind(regions)[work.inverse]
+    return kind, reading.point_confidence(regions)[work.inverse], floor, ceiling
 
 
 def scan_params(

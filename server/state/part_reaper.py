@@ -78,20 +78,8 @@ def reap_parts(
             attempts=attempts,
             max_attempts=max_attempts,
         )
-        values: dict[str, Any]
-        if verdict == "cancelled":
-            values = {"status": "cancelled", "finished_at": now}
-        elif verdict == "failed":
-            error = f"{name} failed: {lost} on attempt {attempts} of {max_attempts}"
-            values = {"status": "failed", "error": error, "finished_at": now}
-        else:
-            values = {
-                "status": "queued",
-                "worker": None,
-                "progress": 0.0,
-                "heartbeat_at": None,
-                "queued_at": now,
-            }
+        error = f"{name} failed: {lost} on attempt {attempts} of {max_attempts}"
+        values = _verdict_values(verdict, error, now)
         if not transitions.move(session, JobTile, same, values, commit=False):
             continue
         log.warning("job %s: %s: %s; now %s", job_id, name, lost, values["status"])
@@ -118,6 +106,16 @@ def reap_parts(
     for job_id in cancelling:
         _settle(session, job_id, sweep)
     return sweep
+
+
+def _verdict_values(verdict: str, error: str, now: Any) -> dict[str, Any]:
+    """The part's new row values for a stale verdict: cancelled, failed or queued again."""
+    if verdict == "cancelled":
+        return {"status": "cancelled", "finished_at": now}
+    if verdict == "failed":
+        return {"status": "failed", "error": error, "finished_at": now}
+    return {"status": "queued", "worker": None, "progress": 0.0, "heartbeat_at": None,
+            "queued_at": now}  # fmt: skip
 
 
 def _settle(session: Session, job_id: str, sweep: Sweep) -> None:

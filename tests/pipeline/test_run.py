@@ -21,6 +21,7 @@ from jointseg.pipeline import (
     report_body,
     run,
 )
+from jointseg.pipeline.stages import structure_hint
 from jointseg.synth import make_room
 
 
@@ -58,7 +59,9 @@ def test_run_returns_every_stage_metrics_and_resolved_params(room, result) -> No
     assert result.params["fusion"]["mode"] == FusionParams().mode
     assert result.params["network"]["trained_on"] == "random initialisation (tests)"
     # the fusion stage is fuse() on the two first stages' outputs
-    again = fuse(room.xyz, result.segments, result.network_labels, result.network_probs)
+    geo = result.geometry
+    again = fuse(room.xyz, result.segments, result.network_labels, result.network_probs,
+                 main_plane=geo.main_plane, structure=structure_hint(geo))  # fmt: skip
     np.testing.assert_array_equal(again.labels, result.fused_labels)
 
 

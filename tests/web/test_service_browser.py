@@ -343,7 +343,8 @@ def test_a_long_job_error_keeps_every_rows_links_on_one_line(
     with service.client() as http:
         jobs = _jobs(http, tmp_path, random_weights)
     error = jobs["failed"]["error"]
-    assert len(error) > 300 and "not a readable PyTorch checkpoint" in error
+    # one line since job errors are bounded, still longer than the column is wide
+    assert len(error) > 120 and "not a readable PyTorch checkpoint" in error
     page = _open_page(browser, service)
     try:
         failed = page.locator(f'tr[data-job-id="{jobs["failed"]["id"]}"]')
