@@ -118,7 +118,9 @@ def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
         assert not locked.views and not locked.sessions
         # the right key opens the job of the link
         box.fill(KEY)
-        assert box.get_attribute("type") == "password"
+        # the field is drawn anew after a refusal; its script makes it a password field again
+        # (a style hides the characters until then)
+        wait_for(lambda: box.get_attribute("type") == "password", what="a password field")
         page.get_by_role("button", name="Sign in").click()
         shown(page)
         assert view_of(locked, "room").job_id == "room"
