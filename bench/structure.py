@@ -115,9 +115,10 @@ def before_model(ref: str) -> TreeEnsemble:
     """The vote model the library shipped at git ``ref``."""
     body = subprocess.run(["git", "show", f"{ref}:jointseg/fusion/vote_model.json"], cwd=ROOT,
                           capture_output=True, text=True, check=True).stdout  # fmt: skip
-    with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
-        fh.write(body)
-    return TreeEnsemble.from_json(Path(fh.name))
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "vote_model.json"
+        path.write_text(body)
+        return TreeEnsemble.from_json(path)
 
 
 def votes(item: Item, spec: str, predictors: dict, before: TreeEnsemble) -> dict[str, np.ndarray]:
