@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from jointseg.network.anchored import anchored_cloud
+from jointseg.network.randlanet.engine import FlatInputs
 from jointseg.network.randlanet.predict import RandLANetPredictor
 from jointseg.network.registry import load
 from jointseg.synth import make_room
@@ -29,24 +30,11 @@ from jointseg.synth import make_room
 Run = Callable[[list[np.ndarray]], np.ndarray]
 
 
-class Flat(torch.nn.Module):
-    """The model with its per-layer lists as separate inputs, as ONNX wants them."""
-
-    def __init__(self, model: torch.nn.Module, layers: int) -> None:
-        super().__init__()
-        self.model, self.layers = model, layers
-
-    def forward(self, *xs: torch.Tensor) -> torch.Tensor:
-        n = self.layers
-        parts = [list(xs[1 + i * n : 1 + (i + 1) * n]) for i in range(4)]
-        return self.model(xs[0], *parts)
-
-
 def onnx_bytes(model: torch.nn.Module, example: list[torch.Tensor], layers: int) -> bytes:
     """The model exported for inputs of exactly the example's shapes (a dynamic-shape export
     labels wrongly: the pooling's sizes are traced as constants)."""
     buffer = io.BytesIO()
-    torch.onnx.export(Flat(model, layers).eval(), tuple(example), buffer, dynamo=False,
+    torch.onnx.export(FlatInputs(model, layers).eval(), tuple(example), buffer, dynamo=False,
                       opset_version=17)  # fmt: skip
     return buffer.getvalue()
 
@@ -105,7 +93,7 @@ def main() -> None:
         model(inputs[0][0], *[list(inputs[0][1 + i * layers : 1 + (i + 1) * layers])
                               for i in range(4)])  # fmt: skip
         t = time.perf_counter()
-        ref = [Flat(model, layers)(*xs).numpy() for xs in inputs]
+        ref = [FlatInputs(model, layers)(*xs).numpy() for xs in inputs]
         torch_s = (time.perf_counter() - t) / len(inputs)
     print(f"{len(inputs)} crops of {inputs[0][0].shape[1]} points, {args.threads} threads\n")
     print("| engine | s per crop | speed-up | one-off (s) | max logit diff | labels as torch |")

@@ -14,6 +14,7 @@ models pull``, or JOINTSEG_DGCNN_WEIGHTS); the table says which networks ran.
 
     .venv/bin/python bench/presets.py [--part speed|accuracy|all] [--presets fast,standard,best]
         [--repeats 3] [--baseline-ref 9a93392] [--splits judging|tuning|all]
+        [--engines torch,openvino]
     .venv/bin/python bench/presets.py --part fusion [--splits tuning]
 
 ``--part fusion`` runs best once per scan and then its vote under other fusion settings, to
@@ -23,6 +24,7 @@ see whether a vote suited to the ensemble's probabilities adds what best lacks o
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -40,11 +42,14 @@ DATA = ROOT.parent / "shared" / "data"
 SCANNET_JUDGES = ("scene0002", "scene0005", "scene0007")
 
 
-def _segment(code: Path, room: Path, out: Path, quality: str | None) -> tuple[float, float]:
+def _segment(
+    code: Path, room: Path, out: Path, quality: str | None, config: Path | None = None
+) -> tuple[float, float]:
     """Whole-process seconds and peak GB of ``jointseg segment`` from the tree ``code``."""
     cmd = [sys.executable, "-c", PEAK_WRAPPER, sys.executable, "-m", "jointseg", "segment"]
     cmd += [str(room), "-o", str(out)] + ([] if quality is None else ["--quality", quality])
-    env = {**os.environ, "PYTHONPATH": str(code)}
+    cmd += [] if config is None else ["--config", str(config)]
+    env = {**os.environ, "PYTHONPATH": str(code), "JOINTSEG_CACHE": str(out.parent / "cache")}
     t = time.perf_counter()
     # run from the tree itself: ``python -m`` puts the working folder first on sys.path
     done = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=code, check=False)
@@ -54,7 +59,7 @@ def _segment(code: Path, room: Path, out: Path, quality: str | None) -> tuple[fl
     return wall, int(done.stderr.strip().splitlines()[-1]) / 1024**2
 
 
-def speed_part(presets: list[str], repeats: int, ref: str) -> None:
+def speed_part(presets: list[str], repeats: int, ref: str, engines: list[str]) -> None:
     with tempfile.TemporaryDirectory(prefix="jointseg-presets-") as tmp:
         folder = Path(tmp)
         room = folder / "room.ply"
@@ -66,12 +71,19 @@ def speed_part(presets: list[str], repeats: int, ref: str) -> None:
         subprocess.run(
             ["git", "-C", str(ROOT), "worktree", "add", "--detach", "-q", str(old), ref], check=True
         )
+        configs = {e: _engine_config(folder, e) for e in engines}
         try:
             runs: dict[str, list[tuple[float, float]]] = {}
+            if "openvino" in engines:  # the first run exports and compiles: timed apart
+                first = _segment(ROOT, room, folder / "o.ply", presets[0], configs["openvino"])
+                print(f"first openvino run (cold cache), {presets[0]}: {first[0]:.2f} s")
             for _ in range(repeats):  # interleaved, so a slow spell of the machine hits all
                 runs.setdefault("old", []).append(_segment(old, room, folder / "o.ply", None))
                 for name in presets:
-                    runs.setdefault(name, []).append(_segment(ROOT, room, folder / "o.ply", name))
+                    for engine in engines:
+                        label = name if engine == "torch" else f"{name}, {engine}"
+                        got = _segment(ROOT, room, folder / "o.ply", name, configs[engine])
+                        runs.setdefault(label, []).append(got)
         finally:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(old)])
     base = statistics.median(w for w, _ in runs["old"])
@@ -83,6 +95,15 @@ def speed_part(presets: list[str], repeats: int, ref: str) -> None:
         peak = max(p for _, p in rows)
         label = f"old ({ref})" if name == "old" else name
         print(f"| {label} | {wall:.2f} | {wall / base:.2f}x | {peak:.2f} |")
+
+
+def _engine_config(folder: Path, engine: str) -> Path | None:
+    """A config file choosing RandLA-Net's CPU engine (None: the default, torch)."""
+    if engine == "torch":
+        return None
+    path = folder / f"{engine}.json"
+    path.write_text(json.dumps({"network": {"randlanet": {"engine": engine}}}))
+    return path
 
 
 def _scans(split: str) -> dict[str, list[Path]]:
@@ -198,11 +219,15 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--baseline-ref", default="9a93392", help="git ref of the old code")
     parser.add_argument("--splits", choices=("judging", "tuning", "all"), default=None)
+    parser.add_argument(
+        "--engines", default="torch",
+        help="RandLA-Net's CPU engines timed in the speed part, e.g. torch,openvino",
+    )  # fmt: skip
     args = parser.parse_args()
     presets = [p for p in args.presets.split(",") if p]
     print(f"# quality presets, {time.strftime('%F')}")
     if args.part in ("speed", "all"):
-        speed_part(presets, args.repeats, args.baseline_ref)
+        speed_part(presets, args.repeats, args.baseline_ref, args.engines.split(","))
     if args.part in ("accuracy", "all"):
         accuracy_part(presets, args.splits or "all")
     if args.part == "fusion":

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -38,6 +38,7 @@ from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet.crops import Batch, build_batch
 from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
+from jointseg.network.randlanet.engine import CompiledForward, openvino_available
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.views import in_view
@@ -90,6 +91,27 @@ class RandLANetPredictor(NetworkPredictor):
         self.num_points = num_points or model.config.num_points
         self.params = params or RandLANetParams()
         self.min_possibility = self.params.coverage
+        self._compiled: CompiledForward | None = None
+
+    @property
+    def engine(self) -> str:
+        """What runs the forward pass: ``openvino`` when asked for and on the CPU, else
+        ``torch``."""
+        if self.device.type != "cpu" or self.params.engine == "torch":
+            return "torch"
+        if not openvino_available():
+            raise ConfigError(
+                "network.randlanet.engine 'openvino': install it with pip install "
+                "'jointseg[openvino]' (the openvino and onnx packages)"
+            )
+        return "openvino"
+
+    def _forward(self) -> Callable[..., torch.Tensor]:
+        if self.engine == "torch":
+            return self.model
+        if self._compiled is None:
+            self._compiled = CompiledForward(self.model, torch.get_num_threads())
+        return self._compiled
 
     def _batches(
         self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int
@@ -113,7 +135,7 @@ class RandLANetPredictor(NetworkPredictor):
         for view in range(views):
             check_cancel(cancel)
             features, coords = in_view(batch.features, batch.coords, view, views)
-            yield self.model(features, coords, batch.neighbours, batch.pools, batch.upsamples)
+            yield self._forward()(features, coords, batch.neighbours, batch.pools, batch.upsamples)
 
     def crop_sums(
         self,

@@ -10,6 +10,8 @@ per-layer neighbour searches run on the GPU (:mod:`jointseg.network.randlanet.kn
 
 from __future__ import annotations
 
+import logging
+import sys
 from collections.abc import Iterator
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -39,6 +41,8 @@ from jointseg.network.training.augment import (
 #: A crop's region reaches this much beyond the radius its points would span at the network's
 #: grid, so sparser sampling and cut regions still fill a crop.
 REGION_MARGIN = 1.6
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -184,6 +188,10 @@ def batch_stream(
 ) -> AbstractContextManager[Iterator[Batch | CropBatch]]:
     """The maker's batches in order: built by ``workers`` processes, or in this process (a step
     ahead in a thread when ``prefetch``)."""
+    if workers > 0 and "openvino" in sys.modules:
+        # OpenVINO's thread pools do not survive a fork (a forked worker segfaulted in CI)
+        log.warning("OpenVINO is loaded in this process: batches built here, not in workers")
+        workers = 0
     if workers > 0:
         # Batches hold 21 tensors; passing each as a named shared-memory file instead of a
         # file descriptor halves the training process's cost of receiving them (measured on

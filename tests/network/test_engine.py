@@ -1,0 +1,125 @@
+"""RandLA-Net's forward pass through OpenVINO (network.randlanet.engine "openvino"): the same
+labels as torch, compiled once per crop shape, the export kept in the cache for the next
+process.
+
+OpenVINO's thread pools do not survive a fork, and other tests in this process fork (training
+batch workers), so everything that loads OpenVINO runs in a child interpreter of its own.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+from jointseg.exceptions import ConfigError
+from jointseg.network.randlanet.engine import openvino_available
+from jointseg.network.randlanet.params import RandLANetParams
+from jointseg.network.registry import load
+
+pytestmark = pytest.mark.skipif(
+    not openvino_available(), reason="jointseg[openvino] is not installed"
+)
+
+SAME_LABELS = """
+import json, sys
+import numpy as np
+from jointseg.network.randlanet.params import RandLANetParams
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+room = make_room(21, points=60_000)
+plain = load("randlanet")
+fast = load("randlanet", params=RandLANetParams(engine="openvino"))
+a, b = plain.predict(room, seed=0), fast.predict(room, seed=0)
+print(json.dumps({"engines": [plain.engine, fast.engine],
+                  "agree": float((a.labels == b.labels).mean()),
+                  "max_prob_diff": float(np.abs(a.probs - b.probs).max()),
+                  "labels": b.labels[::97].tolist()}))
+"""
+
+SHAPES_BEYOND = """
+import json
+import numpy as np, torch
+from pathlib import Path
+from jointseg.network.anchored import anchored_cloud
+from jointseg.network.randlanet import engine as engine_module
+from jointseg.network.randlanet.engine import CompiledForward
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+engine_module.MAX_SHAPES = 0
+net = load("randlanet")
+folder = Path(__import__("sys").argv[1])
+forward = CompiledForward(net.model, threads=1, folder=folder)
+room = make_room(22, points=20_000)
+cloud = anchored_cloud([(room.xyz, room.rgb)], net.grid_size, room.xyz.min(axis=0))
+plan = net.plan(cloud, seed=0)
+batch, _ = next(iter(net._batches(cloud, plan, np.arange(1), 0)))
+args = (batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples)
+with torch.inference_mode():
+    # torch's own forward: the same up to the threads' summation order
+    same = bool(torch.allclose(forward(*args), net.model(*args), rtol=0, atol=1e-4))
+print(json.dumps({"same": same, "exports": len(list(folder.glob("*.onnx")))}))
+"""
+
+
+def in_child(code: str, cache: Path, *args: str) -> dict:
+    """Run ``code`` in a fresh interpreter with ``JOINTSEG_CACHE=cache``; its last JSON line."""
+    env = {**os.environ, "JOINTSEG_CACHE": str(cache)}
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code), *args],
+        env=env, capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) -> None:
+    first = in_child(SAME_LABELS, tmp_path)
+    assert first["engines"] == ["torch", "openvino"]
+    assert first["agree"] >= 0.995
+    assert first["max_prob_diff"] < 1e-3
+    exports = sorted((tmp_path / "openvino").glob("randlanet-*.onnx"))
+    assert len(exports) == 1  # every crop of the room has the one shape
+    stamp = exports[0].stat().st_mtime_ns
+    again = in_child(SAME_LABELS, tmp_path)
+    assert again["labels"] == first["labels"]
+    assert exports[0].stat().st_mtime_ns == stamp  # read from the cache, not exported again
+
+
+def test_shapes_beyond_the_compiled_ones_run_on_torch(tmp_path) -> None:
+    out = in_child(SHAPES_BEYOND, tmp_path, str(tmp_path / "ov"))
+    assert out == {"same": True, "exports": 0}  # torch's own output, nothing compiled
+
+
+def test_the_engine_is_torch_on_a_gpu_and_refused_when_missing(monkeypatch) -> None:
+    net = load("randlanet", params=RandLANetParams(engine="openvino"))
+    monkeypatch.setattr("jointseg.network.randlanet.predict.openvino_available", lambda: False)
+    with pytest.raises(ConfigError, match=r"jointseg\[openvino\]"):
+        _ = net.engine
+    monkeypatch.setattr(net, "device", torch.device("meta"))
+    assert net.engine == "torch"
+    assert "openvino" not in sys.modules  # nothing here loaded it
+
+
+def test_training_batches_stay_in_process_once_openvino_is_loaded(monkeypatch) -> None:
+    from jointseg.network.training.batches import batch_stream
+
+    class Maker:
+        def __len__(self) -> int:
+            return 2
+
+        def __getitem__(self, i: int) -> int:
+            return os.getpid() * 10 + i
+
+    monkeypatch.setitem(sys.modules, "openvino", object())  # stands for a loaded OpenVINO
+    with batch_stream(Maker(), workers=2, prefetch=False, pin=False) as items:  # type: ignore[arg-type]
+        got = list(items)
+    assert got == [os.getpid() * 10, os.getpid() * 10 + 1]  # built here, not in forked workers
