@@ -40,7 +40,7 @@ DATASET_NAMES = {"s3dis_area6": "S3DIS", "scannet": "ScanNet", "s3dis_fragment":
 #: out, RandLANetParams.absent_share), so no stale labels are reused.
 INFERENCE_VERSION = 3
 #: Part of every cached geometry output's key: bump it when the structure reading changes.
-STRUCTURE_VERSION = 5
+STRUCTURE_VERSION = 6
 
 #: Geometry settings compared (name -> GeometryParams overrides).
 GEOMETRY: dict[str, dict] = {

@@ -11,10 +11,12 @@ planes that make a room, though, look alike on every sensor:
   :data:`MIN_STOREY` above the floor;
 - **wall**: vertical planes that span much of the storey's height (or reach its top) and bound
   the scan (few points behind them, the room above a cabinet included), or that reach the
-  ceiling itself;
+  ceiling itself; lower vertical pieces (:data:`LOW_WALL` high) only where they bound the scan
+  (an RGB-D sweep sees many walls only between the furniture and the camera's reach);
 - **not structure**: everything else, among it table tops (horizontal, well between floor and
   ceiling), cabinet and bookcase faces (vertical, short, with the room's wall behind them) and
-  door leaves (vertical, door-sized, not reaching the ceiling).
+  door leaves (vertical, door-sized, not reaching a seen ceiling: without one, a wall captured
+  only to door height looks the same and is far more common).
 
 Each segment is summarised once (size, plane fit, height range, footprint), so the reading
 costs a few bincounts and one sort of a sub-sample, and works on a tile as on a whole scan.
@@ -46,7 +48,10 @@ FLOOR_BAND, STEP = 0.08, 0.3
 #: further down, is not ceiling).
 CEILING_BAND = 0.15
 #: A wall spans this share of the storey's height, or reaches this close (m) to its top.
-WALL_SPAN, WALL_TOP = 0.3, 0.6
+WALL_SPAN, WALL_TOP = 0.2, 0.6
+#: A lower vertical piece (at least this high, m) is a wall where it bounds the scan: an RGB-D
+#: sweep often sees a wall only between furniture and the camera's reach.
+LOW_WALL = 0.5
 #: The floor level lies at most this far (m) above the scan's lowest points.
 FLOOR_REACH = 0.5
 #: The least length (m) of a wall segment along the floor.
@@ -323,26 +328,25 @@ def _read_walls(
     top = ceiling_z if ceiling_z is not None else float(np.quantile(xyz[:, 2], 0.995))
     height = max(top - floor_z, 1e-3)
     span = s.z_high - np.maximum(s.z_low, floor_z)
-    tall = (
-        big
-        & s.vertical
-        & (s.length >= MIN_WALL_LENGTH)
-        & ((span >= WALL_SPAN * height) | (s.z_high >= top - WALL_TOP))
-    )
-    # a door leaf: door-sized, with the wall (or the storey) going on above it
+    upright = big & s.vertical & (s.length >= MIN_WALL_LENGTH)
+    tall = upright & ((span >= WALL_SPAN * height) | (s.z_high >= top - WALL_TOP))
+    # a door leaf: door-sized, with the wall going on above it up to a ceiling; without a seen
+    # ceiling a wall captured only up to door height looks the same, and is far more common
     door = (
         (s.length <= DOOR_LENGTH)
         & (s.z_high <= floor_z + DOOR_TOP)
         & (s.z_high <= top - 0.5 * WALL_TOP)
+        & (ceiling_z is not None)
     )
-    candidates = np.flatnonzero(tall & ~door)
+    candidates = np.flatnonzero((tall | (upright & (span >= LOW_WALL))) & ~door)
     if len(candidates) == 0:
         return
     behind = _behind_shares(xyz, s, candidates, rng)
     reaches = np.zeros(len(candidates), bool)
     if ceiling_z is not None:
         reaches = (s.z_high[candidates] >= ceiling_z - 0.15) & (s.length[candidates] >= 1.0)
-    wall = (behind <= BEHIND_SHARE) | reaches
+    # a low piece counts only where it bounds the scan
+    wall = (behind <= BEHIND_SHARE) | (reaches & tall[candidates])
     chosen = candidates[wall]
     kind[chosen] = WALL
     bounding = np.clip(1.0 - behind[wall] / (2 * BEHIND_SHARE), 0.0, 1.0)
