@@ -34,6 +34,7 @@ import numpy as np
 
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
+from jointseg.fusion.fixtures import implausible_doors
 from jointseg.fusion.guard import segment_cells
 from jointseg.grouping import group_sums, label_histogram, majority_label
 
@@ -219,17 +220,18 @@ def _structure_columns(
     offer: np.ndarray,
     own: np.ndarray,
     only_structure: np.ndarray,
+    fixture: np.ndarray,
 ) -> list[np.ndarray]:
     """The structure reading's features of each offer: how sure it is of the offer and of
     the point's own label, whether only it makes the offer, whether the own label is a wall
-    fixture."""
+    fixture of a believable size (``fixture``, per point)."""
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)
         sure = np.asarray(structure.confidence, dtype=np.float64)[point]
         reads_offer = np.where(kind[point] == offer, sure, 0.0)
         reads_own = np.where(kind[point] == own, sure, 0.0)
-    return [reads_offer, reads_own, only_structure, FIXTURE[own]]
+    return [reads_offer, reads_own, only_structure, fixture[point]]
 
 
 def vote_offers(
@@ -288,6 +290,7 @@ def vote_offers(
         labels, seg_label, cell_label, probs, min_support, structure
     )
     s, c, own = seg[point], cell[point], labels[point]
+    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels)
     features = np.column_stack(
         [
             _logit(probs[point, own]),
@@ -307,7 +310,7 @@ def vote_offers(
             from_segment,
             np.full(len(point), scan_entropy),
             np.full(len(point), scan_disagreement),
-            *_structure_columns(structure, point, offer, own, only_structure),
+            *_structure_columns(structure, point, offer, own, only_structure, fixture),
             np.full(len(point), float(has_colour)),
         ]
     ).astype(np.float64)

@@ -62,10 +62,35 @@ def test_walls_called_clutter_and_a_floor_called_chair_come_back() -> None:
     assert iou(truth, fused, FLOOR) >= 0.8
 
 
-@pytest.mark.parametrize("cls", ["bookcase", "table", "board", "window"])
+@pytest.mark.parametrize("cls", ["bookcase", "table", "board", "window", "door"])
 def test_what_stands_in_or_against_the_shell_keeps_a_sure_networks_label(cls: str) -> None:
     truth = room()[0].labels
     assert truth is not None
     fused = vote(truth, network(truth, 0.8))
     k = CLASS_INDEX[cls]
     assert np.mean(fused[truth == k] == k) >= 0.95
+
+
+def test_a_wall_stretch_called_door_comes_back(monkeypatch: pytest.MonkeyPatch) -> None:
+    scan, geo = room()
+    truth = scan.labels
+    assert truth is not None and geo.structure is not None
+    # a network lost on this sensor (a fifth of the points random, as above) calls a whole
+    # wall door: a stretch no door is as wide as
+    walls = np.flatnonzero((truth == WALL) & (geo.structure == WALL))
+    widest = np.bincount(geo.segments[walls]).argmax()
+    stretch = (geo.segments == widest) & (truth == WALL)
+    xy = scan.xyz[stretch, :2]
+    assert max(np.ptp(xy[:, 0]), np.ptp(xy[:, 1])) > 2.4
+    labels = truth.copy()
+    labels[stretch] = CLASS_INDEX["door"]
+    rng = np.random.default_rng(0)
+    noisy = rng.random(len(labels)) < 0.2
+    labels[noisy] = rng.integers(0, NUM_CLASSES, int(noisy.sum()))
+    probs = network(labels, 0.8)
+    assert np.mean(vote(labels, probs)[stretch] == WALL) >= 0.8
+    # believed as a door, the stretch keeps the network's label
+    monkeypatch.setattr(
+        "jointseg.fusion.learned.implausible_doors", lambda xyz, lab: np.zeros(len(lab), bool)
+    )
+    assert np.mean(vote(labels, probs)[stretch] == WALL) <= 0.2

@@ -1,0 +1,72 @@
+"""Which of the network's wall fixtures are believable (issue 43).
+
+The vote keeps a window, door or board that lies in a wall's plane where the network sees it:
+the structure reading cannot tell them from the wall. On scans from other sensors, though, the
+network calls whole stretches of wall "door". A door has a size: at most a double door with
+its frame wide, and a door leaf is tall. A "door" of the network's that is much wider, or wide
+and low, is a wall it mistook, and the vote need not protect it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from jointseg.classes import CLASS_INDEX
+
+DOOR = CLASS_INDEX["door"]
+#: Side (m) of the cells that join door points into one door.
+CELL = 0.1
+#: A door is at most this wide (m): a double door with its frame (S3DIS's widest, seen open,
+#: span 2.1 m).
+MAX_WIDTH = 2.4
+#: A door wider than LOW_WIDTH (m) is at least LOW_HEIGHT (m) high.
+LOW_WIDTH, LOW_HEIGHT = 1.4, 1.5
+#: Fewer door points than this are left alone (too few to measure).
+MIN_POINTS = 100
+
+
+def implausible_doors(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Points the network labelled door in doors of no believable size (bool, N); the scan is
+    levelled (z up, metres). Doors are the door points' connected CELL cells; a door's width is
+    its extent along its main horizontal direction."""
+    out = np.zeros(len(labels), dtype=bool)
+    idx = np.flatnonzero(np.asarray(labels) == DOOR)
+    if len(idx) < MIN_POINTS:
+        return out
+    cells = np.floor(np.asarray(xyz, dtype=np.float64)[idx] / CELL).astype(np.int64)
+    keys, cell_of = np.unique(cells, axis=0, return_inverse=True)
+    cell_of = cell_of.reshape(-1)
+    pairs = cKDTree(keys).query_pairs(np.sqrt(3) + 1e-6, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(keys),) * 2)
+    n_doors, door_of_cell = connected_components(graph, directed=False)
+    door = door_of_cell[cell_of]
+    width, height, count = _extents(xyz[idx], door, n_doors)
+    bad = (count >= MIN_POINTS) & (
+        (width > MAX_WIDTH) | ((width > LOW_WIDTH) & (height < LOW_HEIGHT))
+    )
+    out[idx[bad[door]]] = True
+    return out
+
+
+def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
+    """Per group: extent along its main horizontal direction, height, point count."""
+    count = np.bincount(group, minlength=n).astype(np.float64)
+    safe = np.maximum(count, 1)
+    mean = np.column_stack([np.bincount(group, xyz[:, i], n) / safe for i in range(2)])
+    d = xyz[:, :2] - mean[group]
+    cov = np.empty((n, 2, 2))
+    for i in range(2):
+        for j in range(i, 2):
+            cov[:, i, j] = cov[:, j, i] = np.bincount(group, d[:, i] * d[:, j], n) / safe
+    _, vectors = np.linalg.eigh(cov)
+    along = np.einsum("ni,ni->n", d, vectors[group, :, 1])
+    lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(lo, group, along)
+    np.maximum.at(hi, group, along)
+    zlo, zhi = np.full(n, np.inf), np.full(n, -np.inf)
+    np.minimum.at(zlo, group, xyz[:, 2])
+    np.maximum.at(zhi, group, xyz[:, 2])
+    return hi - lo, zhi - zlo, count

@@ -1,0 +1,56 @@
+"""Which of the network's doors are believable (issue 43): a door has a door's size."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from jointseg.classes import CLASS_INDEX
+from jointseg.fusion.fixtures import implausible_doors
+
+DOOR, WALL = CLASS_INDEX["door"], CLASS_INDEX["wall"]
+
+
+def panel(rng: np.random.Generator, x0: float, width: float, height: float) -> np.ndarray:
+    """A vertical panel in the plane y = 0 from x0, 2 cm spacing, a little noise."""
+    n = int(width * height / 0.02**2)
+    pts = np.column_stack(
+        [rng.uniform(x0, x0 + width, n), np.zeros(n), rng.uniform(0.0, height, n)]
+    )
+    return pts + rng.normal(0, 0.004, pts.shape)
+
+
+@pytest.mark.parametrize(
+    ("width", "height", "believable"),
+    [
+        (0.9, 2.05, True),  # a door leaf
+        (2.1, 2.2, True),  # a double door with its frame
+        (0.8, 0.9, True),  # the lower half of a leaf, as a sweep sees it
+        (3.0, 2.1, False),  # a stretch of wall the network called door
+        (1.9, 0.9, False),  # wide and low: a wall below a window, not a door
+    ],
+)
+def test_a_door_of_a_doors_size_is_believed(width: float, height: float, believable: bool) -> None:
+    rng = np.random.default_rng(0)
+    door = panel(rng, 0.0, width, height)
+    wall = panel(rng, width + 0.5, 3.0, 2.6)  # a wall labelled wall beside it is never flagged
+    xyz = np.vstack([door, wall])
+    labels = np.r_[np.full(len(door), DOOR), np.full(len(wall), WALL)]
+    flagged = implausible_doors(xyz, labels)
+    assert not flagged[len(door) :].any()
+    assert flagged[: len(door)].all() == (not believable)
+    assert flagged[: len(door)].any() == (not believable)  # the whole door, or none of it
+
+
+def test_two_doors_apart_are_judged_each_on_its_own() -> None:
+    rng = np.random.default_rng(1)
+    leaf = panel(rng, 0.0, 0.9, 2.0)
+    stretch = panel(rng, 4.0, 3.2, 2.0)  # 3 m on, a wide "door"
+    flagged = implausible_doors(np.vstack([leaf, stretch]), np.full(len(leaf) + len(stretch), DOOR))
+    assert not flagged[: len(leaf)].any() and flagged[len(leaf) :].all()
+
+
+def test_few_or_no_door_points_flag_nothing() -> None:
+    xyz = np.random.default_rng(2).uniform(0, 3, (50, 3))
+    assert not implausible_doors(xyz, np.full(50, DOOR)).any()
+    assert not implausible_doors(xyz, np.full(50, WALL)).any()
