@@ -29,7 +29,9 @@ import viser
 
 from jointseg.classes import NUM_CLASSES, PALETTE, UNLABELLED, UNLABELLED_COLOUR
 from jointseg.exceptions import JointsegError
-from server.messages import public_report_bytes
+from server.api.results import Download
+from server.messages import without_server_paths
+from web.downloads import LABELS, NEEDS_LAYOUT, download_body, file_name, has_layout
 from web.layout import (
     VIEW_DIRECTIONS,
     CameraPose,
@@ -79,6 +81,18 @@ HIDDEN_CLASS = (222, 226, 230)
 OPTIONAL = {TRUTH: "Ground truth panel", SEGMENTS: "Segments panel",
             CONFIDENCE: "Confidence panel", ERRORS: "Error map panel"}  # fmt: skip
 ROW, SINGLE = "Row of panels", "One large panel"
+#: Why the Downloads folder offers less than six files: no job shown, no report, no layout.
+NO_DOWNLOADS = (
+    "Show a job to download its files.",
+    "This job has no report: no report, objects.json or IFC to download.",
+    "This run found no objects or rooms: no objects.json or IFC to download.",
+)
+#: The download buttons, a row each: the scan's formats, the model, the report.
+DOWNLOAD_GROUPS: dict[str, tuple[Download, ...]] = {
+    "Points": ("ply", "las", "laz"),
+    "Model": ("objects", "ifc"),
+    "Report": ("report",),
+}
 #: Which label set hides a panel's points with their class.
 LABEL_KEY = {NETWORK.key: "network", CONFIDENCE.key: "network", TRUTH.key: "truth"}
 
@@ -227,8 +241,12 @@ class ClientView:
             self.boxes_box = gui.add_checkbox("Object boxes", True, hint="in the fused panel")
             self.objects_table = gui.add_html("")
         with gui.add_folder("Downloads"):
-            self.download_result = gui.add_button("Result", icon=viser.Icon.DOWNLOAD, disabled=True)
-            self.download_report = gui.add_button("Report", icon=viser.Icon.DOWNLOAD, disabled=True)
+            # the job page's six downloads, under the API's names (web.downloads)
+            self.downloads_note = gui.add_markdown(NO_DOWNLOADS[0])
+            self.download_groups = {
+                kinds: gui.add_button_group(title, [LABELS[k] for k in kinds], visible=False)
+                for title, kinds in DOWNLOAD_GROUPS.items()
+            }
 
     def _wire(self) -> None:
         self.picker.on_update(lambda _: self._picked())
@@ -247,8 +265,8 @@ class ClientView:
         self.clear_marks.on_click(lambda _: self._clear_marks())
         for cls, button in self.class_buttons.items():
             button.on_click(self._class_toggle(cls))
-        self.download_result.on_click(lambda _: self._send_download(result=True))
-        self.download_report.on_click(lambda _: self._send_download(result=False))
+        for kinds, group in self.download_groups.items():
+            group.on_click(self._download_click(kinds))
 
     def _changed(self, action: Callable[[], None]) -> None:
         """A control the user changed: act, then write the view into the address."""
@@ -377,7 +395,7 @@ class ClientView:
             self.tools.forget()
             self._root, self.job_id, self.data, self.shown = None, None, None, None
             self.frames, self.nodes, self._groups = {}, {}, {}
-            self.download_result.disabled = self.download_report.disabled = True
+            self._offer_downloads(None)
             self.scores_folder.visible = self.confusion_folder.visible = False
             self.objects_folder.visible = False
             self.boxes = None
@@ -409,8 +427,23 @@ class ClientView:
         self.single.options = tuple(titles)
         asked = next((p.title for p in data.panels if p.key == self.asked.single), None)
         self._set_value(self.single, asked or FUSED.title)
-        self.download_result.disabled = False
-        self.download_report.disabled = self.source.report_path(self.job_id or "") is None
+        self._offer_downloads(data)
+
+    def _offer_downloads(self, data: SceneData | None) -> None:
+        """Show the rows of downloads the shown job has (viser cannot disable a button group),
+        and say why any are missing."""
+        report = data is not None and self.source.report_path(self.job_id or "") is not None
+        layout = report and data is not None and has_layout(data.report)
+        for kinds, group in self.download_groups.items():
+            if NEEDS_LAYOUT & set(kinds):
+                group.visible = layout
+            elif "report" in kinds:
+                group.visible = report
+            else:
+                group.visible = data is not None
+        reason = 0 if data is None else 1 if not report else 2 if not layout else None
+        self.downloads_note.content = "" if reason is None else NO_DOWNLOADS[reason]
+        self.downloads_note.visible = reason is not None
 
     def _status_line(self) -> None:
         """How many points the browser draws now, of how many the scan has."""
@@ -817,24 +850,38 @@ class ClientView:
         stem = Path(entry.filename).stem if entry is not None else (job_id or "view")
         self.client.send_file_download(f"{stem}_view.png", buffer.getvalue(), save_immediately=True)
 
-    def _send_download(self, *, result: bool) -> None:
+    def _download_click(self, kinds: tuple[Download, ...]) -> Callable[[Any], None]:
+        by_label = {LABELS[k]: k for k in kinds}
+
+        def clicked(event: Any) -> None:
+            kind = by_label.get(str(event.target.value))
+            if kind is not None:
+                self.send_download(kind)
+
+        return clicked
+
+    def send_download(self, kind: Download) -> None:
+        """One of the shown job's downloads, sent over this tab's websocket (the tab holds no
+        key to fetch the API's address: :mod:`web.downloads`)."""
         job_id = self.job_id
         if job_id is None:
             return
-        path: Path | None = (
-            self.source.result_path(job_id) if result else self.source.report_path(job_id)
-        )
-        if path is None or not path.is_file():
-            self.client.add_notification("Nothing to download", f"{job_id} has no such file")
-            return
         entry = self._entries.get(job_id)
-        stem = Path(entry.filename).stem if entry is not None else job_id
-        name = f"{stem}_segmented{path.suffix}" if result else f"{stem}_report.json"
-        # a report names the weights' file only, as the API serves it (no path on the server)
+        name = file_name(None if entry is None else entry.filename, job_id, kind)
+        busy = self.client.add_notification(
+            f"Preparing {name}", "", loading=True, with_close_button=False
+        )
         try:
-            body = path.read_bytes() if result else public_report_bytes(path)
-        except (OSError, ValueError):  # the message would name the path: say what, not where
-            log.warning("job %s: its %s could not be read", job_id, path.name)
+            body = download_body(self.source, job_id, kind)
+        except JointsegError as exc:
+            log.warning("job %s: no %s download: %s", job_id, kind, exc)
+            message = without_server_paths(str(exc))
+            self.client.add_notification("Cannot download", message, color="red")
+            return
+        except (OSError, ValueError):  # the message would name a path: say what, not where
+            log.warning("job %s: its %s download could not be read", job_id, kind)
             self.client.add_notification("Cannot download", f"{job_id}: unreadable", color="red")
             return
+        finally:
+            busy.remove()
         self.client.send_file_download(name, body, save_immediately=True)

@@ -12,10 +12,11 @@ from pathlib import Path
 
 from jointseg.exceptions import JobNotFound
 from server.api.auth import Tenant
+from server.api.results import result_file
 from server.settings import Settings
 from server.state.db import make_engine, make_sessions
 from server.state.jobs import get_job, list_jobs
-from server.storage import Storage
+from server.storage import ResultFormat, Storage
 from web.sources import JobEntry
 
 #: Most jobs the picker lists.
@@ -84,6 +85,18 @@ class ServiceSource:
         except JobNotFound:
             return None
         return path if path.is_file() else None
+
+    def export_path(self, job_id: str, fmt: ResultFormat) -> Path:
+        """The job's result as ``fmt`` or its IFC model: the API's own conversion, kept in the
+        job's folder, so the viewer and ``GET /v1/jobs/{id}/result`` hand out the same file.
+
+        Raises
+        ------
+        JobNotFound
+            As :meth:`result_path`.
+        """
+        self.result_path(job_id)  # this tenant's, succeeded, and its files still there
+        return result_file(self.storage, job_id, fmt)
 
     def close(self) -> None:
         """Release the database connections."""

@@ -1,13 +1,14 @@
 """Where the viewer finds finished jobs: an interface, and a folder of result files.
 
-The viewer only needs a list of finished jobs (newest first) and two paths per job, so it runs
-the same on the job service's storage (:mod:`web.service_source`) and on a plain folder
+The viewer only needs a list of finished jobs (newest first) and a few paths per job, so it
+runs the same on the job service's storage (:mod:`web.service_source`) and on a plain folder
 (tests, or looking at results of ``jointseg segment`` without the service).
 """
 
 from __future__ import annotations
 
 import os
+import tempfile
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Protocol
 from pydantic import BaseModel, ConfigDict
 
 from jointseg.exceptions import JobNotFound
+from server.api.results import convert_result
+from server.storage import ResultFormat
 
 #: File types a folder source lists as results.
 RESULT_SUFFIXES = (".ply", ".las", ".laz")
@@ -53,15 +56,24 @@ class JobSource(Protocol):
         """The job's report.json, None when it has none."""
         ...
 
+    def export_path(self, job_id: str, fmt: ResultFormat) -> Path:
+        """The job's result as ``fmt`` (ply, las, laz) or its IFC model (ifc), made on the
+        first request; raises :class:`JobNotFound` as :meth:`result_path` does and
+        :class:`jointseg.exceptions.JobStateError` when the run found no objects or rooms."""
+        ...
+
 
 class DirectorySource:
     """Every result file in a folder is a finished job; its id is the file name's stem.
 
-    ``<id>.report.json`` (or ``<id>.json``) beside a result is its report.
+    ``<id>.report.json`` (or ``<id>.json``) beside a result is its report. Conversions for
+    downloads are made in a temporary folder of the source's own, never beside the results
+    (a LAS written there would be listed as another job).
     """
 
     def __init__(self, folder: str | os.PathLike[str]) -> None:
         self.folder = Path(folder)
+        self._exports: tempfile.TemporaryDirectory[str] | None = None  # made on first use
 
     def finished_jobs(self) -> list[JobEntry]:
         """Result files, newest first by modification time."""
@@ -97,3 +109,14 @@ class DirectorySource:
             if path.is_file():
                 return path
         return None
+
+    def export_path(self, job_id: str, fmt: ResultFormat) -> Path:
+        """The result as ``fmt``: the file itself when it is one, else a conversion (or the
+        report's IFC model) kept in the source's temporary folder."""
+        result = self.result_path(job_id)
+        if result.suffix.lower() == f".{fmt}":
+            return result
+        if self._exports is None:
+            self._exports = tempfile.TemporaryDirectory(prefix="jointseg-view-")
+        target = Path(self._exports.name) / f"{job_id}.{fmt}"
+        return convert_result(result, self.report_path(job_id), target, fmt, name=job_id)

@@ -7,6 +7,11 @@ The worker writes ``result.ply`` (every field of ``jointseg segment``); LAS and 
 from it with the same reader and writer on the first request and kept, so jobs nobody downloads
 as LAS cost nothing. A lock per file keeps two concurrent requests from converting twice; the
 atomic writer keeps a reader from ever seeing half a file.
+
+The job page and the viewer offer the same downloads under the same names
+(:data:`DOWNLOADS`, :func:`download_name`): the routes send the name in ``Content-Disposition``,
+the page saves under it, and the viewer, which holds no key, reads the files through these
+functions rather than through an address.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ import json
 import logging
 import threading
 from pathlib import Path
+from typing import Literal
+from urllib.parse import quote
 
 from jointseg.exceptions import JobStateError
 from jointseg.io import read_scan, write_scan
@@ -24,6 +31,11 @@ from server.storage import ResultFormat, Storage
 
 log = logging.getLogger(__name__)
 
+#: What a finished job offers to download: the segmented scan (ply, las, laz), its report, its
+#: objects and rooms (objects.json) and its IFC model.
+Download = Literal["ply", "las", "laz", "report", "objects", "ifc"]
+DOWNLOADS: tuple[Download, ...] = ("ply", "las", "laz", "report", "objects", "ifc")
+
 _locks: dict[Path, threading.Lock] = {}
 _locks_guard = threading.Lock()
 
@@ -31,6 +43,39 @@ _locks_guard = threading.Lock()
 def _lock_for(path: Path) -> threading.Lock:
     with _locks_guard:
         return _locks.setdefault(path, threading.Lock())
+
+
+def download_name(filename: str, kind: Download) -> str:
+    """The name a download of ``kind`` is saved under, from the uploaded file's name
+    (``office.e57`` gives ``office_segmented.laz``, ``office_report.json``, ``office.ifc``)."""
+    stem = filename.rsplit(".", 1)[0] or "result"
+    if kind == "report":
+        return f"{stem}_report.json"
+    if kind == "objects":
+        return f"{stem}_objects.json"
+    if kind == "ifc":
+        return f"{stem}.ifc"
+    return f"{stem}_segmented.{kind}"
+
+
+def content_disposition(name: str, disposition: str = "attachment") -> str:
+    """A ``Content-Disposition`` value naming ``name`` (RFC 6266 ``filename*`` when the name is
+    not plain ASCII), as Starlette's FileResponse writes it."""
+    quoted = quote(name)
+    if quoted != name:
+        return f"{disposition}; filename*=utf-8''{quoted}"
+    return f'{disposition}; filename="{name}"'
+
+
+def layout_from(report: Path) -> LayoutReport:
+    """The objects, rooms and walls a report.json holds.
+
+    Raises
+    ------
+    JobStateError
+        When the run found no objects or rooms.
+    """
+    return LayoutReport.from_report(json.loads(report.read_text(encoding="utf-8")))
 
 
 def layout_of(storage: Storage, job_id: str) -> LayoutReport:
@@ -44,7 +89,34 @@ def layout_of(storage: Storage, job_id: str) -> LayoutReport:
     path = storage.report_path(job_id)
     if not path.is_file():
         raise JobStateError(f"job {job_id} has no report")
-    return LayoutReport.from_report(json.loads(path.read_text(encoding="utf-8")))
+    return layout_from(path)
+
+
+def convert_result(
+    result: Path, report: Path | None, target: Path, fmt: ResultFormat, *, name: str
+) -> Path:
+    """``target``: the scan ``result`` written as ``fmt`` (ply, las, laz), or for ``ifc`` the IFC
+    model of ``report`` (named ``name``); made once, under a lock, and kept.
+
+    Raises
+    ------
+    JobStateError
+        For ``ifc`` without a report, or when the run found no objects or rooms.
+    """
+    if target.is_file():
+        return target
+    with _lock_for(target):
+        if not target.is_file() and fmt == "ifc":
+            if report is None or not report.is_file():
+                raise JobStateError(f"job {name} has no report")
+            write_ifc(layout_from(report), target, name=name)
+            log.info("job %s: IFC model written", name)
+        elif not target.is_file():
+            write_scan(read_scan(result, max_points=1 << 40), target)
+            log.info("job %s: result converted to %s", name, fmt)
+    with _locks_guard:
+        _locks.pop(target, None)
+    return target
 
 
 def result_file(storage: Storage, job_id: str, fmt: ResultFormat) -> Path:
@@ -59,15 +131,4 @@ def result_file(storage: Storage, job_id: str, fmt: ResultFormat) -> Path:
     if not ply.is_file():
         raise JobStateError(f"job {job_id} has no result")
     target = storage.result_path(job_id, fmt)
-    if target.is_file():
-        return target
-    with _lock_for(target):
-        if not target.is_file() and fmt == "ifc":
-            write_ifc(layout_of(storage, job_id), target, name=job_id)
-            log.info("job %s: IFC model written", job_id)
-        elif not target.is_file():
-            write_scan(read_scan(ply, max_points=1 << 40), target)
-            log.info("job %s: result converted to %s", job_id, fmt)
-    with _locks_guard:
-        _locks.pop(target, None)
-    return target
+    return convert_result(ply, storage.report_path(job_id), target, fmt, name=job_id)

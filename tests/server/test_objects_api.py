@@ -24,9 +24,14 @@ def test_a_job_serves_its_objects_rooms_and_ifc_model(service, scans, tmp_path: 
         assert layout["rooms"] and layout["walls"] and layout["objects"]
         report = http.get(f"/v1/jobs/{job_id}/report").json()
         assert layout["objects"] == report["objects"]
+        # each download names its file as the job page and the viewer save it (issue 45)
+        stem = source.name.rsplit(".", 1)[0]
+        for route, name in (("objects", "objects"), ("report", "report")):
+            header = http.get(f"/v1/jobs/{job_id}/{route}").headers["content-disposition"]
+            assert header == f'inline; filename="{stem}_{name}.json"'
         model = http.get(f"/v1/jobs/{job_id}/result", params={"format": "ifc"})
         assert model.status_code == 200
-        assert model.headers["content-disposition"].endswith('.ifc"')
+        assert model.headers["content-disposition"] == f'attachment; filename="{stem}.ifc"'
         (tmp_path / "model.ifc").write_bytes(model.content)
         opened = ifcopenshell.open(str(tmp_path / "model.ifc"))
         assert validation_errors(opened) == []

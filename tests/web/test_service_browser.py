@@ -25,6 +25,7 @@ from urllib.parse import parse_qs, quote, urlsplit
 import httpx
 import numpy as np
 import pytest
+from download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
 from shots import HIDE_TOASTS, palette_pixels, panel_spans, settled
 from viewer_pages import free_port, key_in, sign_in
 
@@ -146,7 +147,7 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         labelled = read_scan(path)
         # the page's download (fetch with the key, then a blob) gives the same bytes
         with page.expect_download(timeout=30_000) as download:
-            row.get_by_role("button", name="result").click()
+            _menu_item(row, "PLY").click()
         assert download.value.suggested_filename == "office_segmented.ply"
         assert Path(download.value.path()).read_bytes() == result.content
 
@@ -352,7 +353,7 @@ def test_a_long_job_error_keeps_every_rows_links_on_one_line(
         page.wait_for_selector(f'tr[data-job-id="{jobs["failed"]["id"]}"][data-status=failed]')
         done.locator("a.view-link").wait_for(timeout=15_000)
         (artifacts / "service_job_page_failed.png").write_bytes(page.screenshot())
-        for row, count in ((done, 4), (failed, 1)):  # view, result, report, delete / delete
+        for row, count in ((done, 3), (failed, 1)):  # view, download, delete / delete
             boxes = _boxes(row)
             assert len(boxes) == count
             assert max(b["y"] for b in boxes) - min(b["y"] for b in boxes) < 2, boxes
@@ -405,3 +406,88 @@ def test_no_link_of_the_job_page_carries_the_key(
             assert [u for u in urls if key_in(u, key)] == []
     finally:
         page.close()
+
+
+def _menu_item(row: Any, label: str) -> Any:
+    """The job page's download button ``label`` of a row, its menu opened (as a user does)."""
+    row.get_by_role("button", name="download", exact=True).click()
+    button = row.get_by_role("button", name=label, exact=True)
+    button.wait_for(timeout=5_000)
+    return button
+
+
+def _saved(page: Any, button: Any) -> tuple[str, bytes, str]:
+    """Click ``button`` and wait for the download it starts: its name, bytes and address."""
+    with page.expect_download(timeout=120_000) as info:
+        button.click()
+    download = info.value
+    return download.suggested_filename, Path(download.path()).read_bytes(), download.url
+
+
+def test_every_download_of_the_job_page_and_the_viewer_parses(
+    service: Running, browser: Any, artifacts: Path, tmp_path: Path, random_weights: Path
+) -> None:
+    """Issue 45, point 1: PLY, LAS, LAZ, report, objects.json and IFC from both pages, as each
+    page fetches them (the page: the API with the key in a header; the viewer: over its signed-in
+    websocket), the same bytes as the API's routes, and no key in any address either asked."""
+    with service.client() as http:
+        scan = write_scan(make_room(9, points=3000), tmp_path / "survey hall.ply")
+        config = {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0}
+        job = _finished(http, _submit(http, scan, config).json()["id"])
+        assert job["status"] == "succeeded"
+        base = f"/v1/jobs/{job['id']}"
+        routes = {k: f"{base}/result?format={k}" for k in ("ply", "las", "laz", "ifc")}
+        routes |= {k: f"{base}/{k}" for k in ("report", "objects")}
+        api = {kind: http.get(route) for kind, route in routes.items()}
+    assert all(r.status_code == 200 for r in api.values()), {k: r.text for k, r in api.items()}
+    addresses: list[str] = []
+    page = _open_page(browser, service)
+    page.context.on("request", lambda request: addresses.append(request.url))
+    page.context.on(  # the viewer's tab: its websocket's address too
+        "page", lambda tab: tab.on("websocket", lambda socket: addresses.append(socket.url))
+    )
+    try:
+        row = page.locator(f'tr[data-job-id="{job["id"]}"]')
+        row.locator("a.view-link").wait_for(timeout=15_000)
+        menu = row.locator(".download-menu")
+        _menu_item(row, "IFC")
+        (artifacts / "service_job_page_downloads.png").write_bytes(page.screenshot())
+        assert [b.inner_text() for b in menu.get_by_role("button").all()] == list(
+            PAGE_BUTTONS.values()
+        )
+        page.locator("h1").click()  # a click elsewhere closes the menu
+        assert menu.is_hidden()
+        got = {}
+        for kind, label in PAGE_BUTTONS.items():
+            name, body, url = _saved(page, _menu_item(row, label))
+            assert name == "survey hall" + SUFFIXES[kind]
+            addresses.append(url)
+            got[kind] = parsed(kind, body, 3000)
+            if kind == "objects":  # the API's JSON, as the route serialises it
+                assert got[kind] == api[kind].json()
+            else:
+                assert body == api[kind].content, kind
+        assert page.locator("#action-status").inner_text() == ""
+        assert menu.is_hidden()  # closed once a file was chosen
+
+        with page.expect_popup() as popup:
+            row.locator("a.view-link").click()
+        viewer = popup.value
+        viewer.set_viewport_size({"width": 1600, "height": 900})
+        sign_in(viewer, API_KEY)
+        viewer.get_by_text("points shown").wait_for(timeout=60_000)
+        for kind, label in VIEWER_BUTTONS.items():
+            button = viewer.get_by_role("button", name=label, exact=True)
+            name, body, url = _saved(viewer, button)
+            assert name == "survey hall" + SUFFIXES[kind]
+            addresses.append(url)
+            if kind in ("report", "objects"):
+                assert parsed(kind, body, 3000) == got[kind]
+            else:
+                parsed(kind, body, 3000)
+                assert body == api[kind].content, kind  # the API's own file
+        viewer.close()
+    finally:
+        page.close()
+    assert any("/v1/jobs/" in a for a in addresses) and any(a.startswith("ws") for a in addresses)
+    assert [a for a in addresses if key_in(a, API_KEY)] == []

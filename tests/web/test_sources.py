@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from jointseg.exceptions import AuthenticationError, JobNotFound
+from jointseg.exceptions import AuthenticationError, JobNotFound, JobStateError
 from web.sources import DirectorySource
 
 
@@ -27,6 +27,46 @@ def test_directory_source_lists_results_newest_first(results: Path, tmp_path: Pa
     assert source.result_path("old") == tmp_path / "old.ply"
     assert source.report_path("new") == tmp_path / "new.report.json"
     assert source.report_path("old") is None
+
+
+def test_directory_source_converts_downloads_away_from_the_results(
+    results: Path, tmp_path: Path
+) -> None:
+    import laspy
+
+    shutil.copy(results / "labelled.ply", tmp_path / "room.ply")
+    source = DirectorySource(tmp_path)
+    assert source.export_path("room", "ply") == tmp_path / "room.ply"  # the file itself
+    las = source.export_path("room", "laz")
+    assert las.parent != tmp_path and las.is_file()
+    assert laspy.read(las).header.point_count == 4000
+    assert source.export_path("room", "laz") == las  # made once, kept
+    assert [p.name for p in tmp_path.iterdir()] == ["room.ply"]  # nothing new to list
+    with pytest.raises(JobStateError, match="no report"):  # the IFC model needs the report
+        source.export_path("room", "ifc")
+    with pytest.raises(JobNotFound):
+        source.export_path("../room", "las")
+
+
+def test_download_names_follow_the_upload_and_survive_any_characters() -> None:
+    from server.api.results import DOWNLOADS, content_disposition, download_name
+
+    names = [download_name("hall 2.e57", kind) for kind in DOWNLOADS]
+    assert names == [
+        "hall 2_segmented.ply",
+        "hall 2_segmented.las",
+        "hall 2_segmented.laz",
+        "hall 2_report.json",
+        "hall 2_objects.json",
+        "hall 2.ifc",
+    ]
+    assert content_disposition("hall_2.ifc") == 'attachment; filename="hall_2.ifc"'
+    # a blank, a quote or a non-ASCII letter goes percent-encoded in filename* (RFC 6266), as
+    # Starlette's FileResponse writes it
+    assert content_disposition("hall 2.ifc") == "attachment; filename*=utf-8''hall%202.ifc"
+    assert content_disposition('Büro "A".ifc', "inline") == (
+        "inline; filename*=utf-8''B%C3%BCro%20%22A%22.ifc"
+    )
 
 
 @pytest.mark.parametrize("bad", ["missing", "../labelled", ".hidden", "a/b"])
@@ -135,6 +175,12 @@ def test_the_viewer_sees_what_its_key_sees_through_the_api(results: Path, tmp_pa
             with pytest.raises(JobNotFound, match="not found"):
                 one.result_path(ids[other])
             assert one.report_path(ids[other]) is None
+        # a download goes through the API's own conversion, to the same tenant only
+        assert one.export_path(ids["one"], "las") == storage.result_path(ids["one"], "las")
+        assert storage.result_path(ids["one"], "las").is_file()
+        with pytest.raises(JobNotFound, match="not found"):
+            one.export_path(ids["two"], "las")
+        assert not storage.result_path(ids["two"], "las").exists()
         assert {j.id for j in scope("boss").finished_jobs()} == set(ids.values())
         assert scope("boss").report_path(ids["two"]) == storage.report_path(ids["two"])
         with pytest.raises(AuthenticationError):  # a refused key sees nothing

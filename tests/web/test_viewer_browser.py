@@ -1,8 +1,8 @@
 """The viewer in Debian's headless chromium, on a folder of results made by the real pipeline.
 
 What a person checks by looking: the panels show the palette colours of the classes present,
-a class switched off disappears, several tabs view different jobs, downloads arrive, and
-switching jobs does not pile up memory.
+a class switched off disappears, several tabs view different jobs, every download arrives and
+parses, and switching jobs does not pile up memory.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
 from shots import HIDE_TOASTS, ink, palette_pixels, panel_spans, settled
 from viewer_pages import view_of
 
@@ -141,28 +142,36 @@ def test_tabs_view_different_jobs_and_the_picker_switches(
         bare.close()
 
 
-def test_downloads_send_the_result_and_the_report(browser: Any, viewer: Viewer, jobs: Path) -> None:
+def test_downloads_send_every_format_the_job_page_offers(
+    browser: Any, viewer: Viewer, jobs: Path
+) -> None:
     page = open_viewer(browser, viewer, "room")
+    points = load_scene(jobs / "room.ply").total_points
+    stored = json.loads((jobs / "room.report.json").read_text())
     try:
-        for button, name, source in (
-            ("Result", "room_segmented.ply", jobs / "room.ply"),
-            ("Report", "room_report.json", jobs / "room.report.json"),
-        ):
-            with page.expect_download(timeout=30_000) as info:
-                page.get_by_role("button", name=button).click()
-            assert info.value.suggested_filename == name
+        for kind, label in VIEWER_BUTTONS.items():
+            with page.expect_download(timeout=60_000) as info:
+                page.get_by_role("button", name=label, exact=True).click()
+            assert info.value.suggested_filename == "room" + SUFFIXES[kind]
             got = Path(info.value.path()).read_bytes()
-            if button == "Result":
-                assert got == source.read_bytes()
-                continue
-            # the report as the API serves it: the weights by file name, no path (issue 44)
-            stored = json.loads(source.read_text())
-            weights = stored["params"]["network"]["weights"]
-            assert Path(weights).is_absolute()
-            report = json.loads(got)
-            assert report == public_report(stored)
-            assert report["params"]["network"]["weights"] == Path(weights).name
-            assert str(Path(weights).parent) not in got.decode()
+            value = parsed(kind, got, points)
+            if kind == "ply":
+                assert got == (jobs / "room.ply").read_bytes()
+            elif kind == "objects":  # the report's objects and rooms, as the API serves them
+                assert value["objects"] == stored["objects"]
+                assert value["rooms"] == stored["rooms"]["rooms"]
+            elif kind == "report":
+                # the report as the API serves it: the weights by file name, no path (issue 44)
+                weights = stored["params"]["network"]["weights"]
+                assert Path(weights).is_absolute()
+                assert value == public_report(stored)
+                assert value["params"]["network"]["weights"] == Path(weights).name
+                assert str(Path(weights).parent) not in got.decode()
+        # conversions are made away from the results: the folder lists the same two jobs
+        assert sorted(p.name for p in jobs.iterdir() if p.suffix != ".json") == [
+            "bare.ply",
+            "room.ply",
+        ]
     finally:
         page.close()
 

@@ -128,13 +128,39 @@ function setupUpload() {
 }
 
 // ---------------------------------------------------------------- downloads
-async function download(path, filename) {
-  note("action-status", `downloading ${filename}...`);
+// A finished job's six downloads, each from the API's own route:
+// [button, path after the job's, what the file is for].
+const DOWNLOADS = [
+  ["PLY", "result?format=ply", "the points with every label field"],
+  ["LAS", "result?format=las", "the points for survey and CAD software"],
+  ["LAZ", "result?format=laz", "the same, compressed"],
+  ["report", "report", "timings, scores and settings (JSON)"],
+  ["objects", "objects", "objects, rooms and walls (JSON)"],
+  ["IFC", "result?format=ifc", "an IFC4 model for BIM software"],
+];
+
+// The file name the API gives in Content-Disposition (RFC 6266: filename* first), else `fallback`.
+function dispositionName(response, fallback) {
+  const header = response.headers.get("Content-Disposition") || "";
+  const extended = /filename\*=utf-8''([^;]+)/i.exec(header);
+  if (extended) {
+    try {
+      return decodeURIComponent(extended[1]);
+    } catch (_) {}
+  }
+  const plain = /filename="([^"]*)"/i.exec(header);
+  return plain ? plain[1] : fallback;
+}
+
+// Fetch with the key (a header, never the address), then save the body as a blob.
+async function download(path, label) {
+  note("action-status", `downloading ${label}...`);
   const response = await api(path);
   if (!response.ok) {
-    note("action-status", `download of ${filename} failed: ${await errorText(response)}`, true);
+    note("action-status", `download of ${label} failed: ${await errorText(response)}`, true);
     return;
   }
+  const filename = dispositionName(response, label);
   const url = URL.createObjectURL(await response.blob());
   const a = document.createElement("a");
   a.href = url;
@@ -203,12 +229,51 @@ function actionButton(text, onClick) {
   return button;
 }
 
+// "download" opens a menu of the six files (kept open across polls: the row is redrawn only when
+// its status changes); choosing one closes it, as does a click anywhere else.
+function downloadMenu(job) {
+  const wrapper = document.createElement("span");
+  wrapper.className = "downloads";
+  const menu = document.createElement("div");
+  menu.className = "download-menu";
+  menu.hidden = true;
+  const toggle = actionButton("download", () => {
+    menu.hidden = !menu.hidden;
+    toggle.setAttribute("aria-expanded", String(!menu.hidden));
+  });
+  toggle.setAttribute("aria-expanded", "false");
+  for (const [label, route, what] of DOWNLOADS) {
+    const button = actionButton(label, () => {
+      menu.hidden = true;
+      toggle.setAttribute("aria-expanded", "false");
+      download(`/v1/jobs/${job.id}/${route}`, label);
+    });
+    const hint = document.createElement("span");
+    hint.className = "note";
+    hint.textContent = what;
+    const item = document.createElement("div");
+    item.append(button, hint);
+    menu.append(item);
+  }
+  wrapper.append(toggle, menu);
+  return wrapper;
+}
+
+document.addEventListener("click", (event) => {
+  for (const wrapper of document.querySelectorAll(".downloads")) {
+    const menu = wrapper.querySelector(".download-menu");
+    if (!menu.hidden && !wrapper.contains(event.target)) {
+      menu.hidden = true;
+      wrapper.querySelector("button").setAttribute("aria-expanded", "false");
+    }
+  }
+});
+
 function renderActions(row, job) {
   if (row.dataset.actionsFor === job.status) return; // unchanged: keep the links under the mouse
   row.dataset.actionsFor = job.status;
   const td = cell(row, "actions");
   td.replaceChildren();
-  const stem = job.filename.replace(/\.[^.]*$/, "");
   if (job.status === "succeeded") {
     const view = document.createElement("a");
     view.href = viewerLink(job.id);
@@ -216,11 +281,7 @@ function renderActions(row, job) {
     view.rel = "noopener";
     view.textContent = "view";
     view.className = "view-link";
-    td.append(
-      view,
-      actionButton("result", () => download(`/v1/jobs/${job.id}/result`, `${stem}_segmented.ply`)),
-      actionButton("report", () => download(`/v1/jobs/${job.id}/report`, `${stem}_report.json`)),
-    );
+    td.append(view, downloadMenu(job));
   }
   const finished = ["succeeded", "failed", "cancelled"].includes(job.status);
   td.append(actionButton(finished ? "delete" : "cancel", () => removeJob(job)));

@@ -20,7 +20,7 @@ from jointseg.objects.records import LayoutReport
 from server.api.auth import Tenant, TenantDep, require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
 from server.api.errors import ERROR_RESPONSES, error_responses
-from server.api.results import layout_of, result_file
+from server.api.results import content_disposition, download_name, layout_of, result_file
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
 from server.messages import public_report_bytes
@@ -120,24 +120,25 @@ async def get_result(
     if view.status != "succeeded":
         raise JobStateError(f"job {job_id} is {view.status}; no result")
     path = await run_in_threadpool(result_file, services.storage, job_id, format)
-    stem = view.filename.rsplit(".", 1)[0]
-    if format == "ifc":
-        return FileResponse(path, media_type=IFC_MEDIA_TYPE, filename=f"{stem}.ifc")
-    return FileResponse(
-        path, media_type="application/octet-stream", filename=f"{stem}_segmented.{format}"
-    )
+    media = IFC_MEDIA_TYPE if format == "ifc" else "application/octet-stream"
+    return FileResponse(path, media_type=media, filename=download_name(view.filename, format))
 
 
 @jobs_router.get(
     "/jobs/{job_id}/objects", response_model=LayoutReport, responses=error_responses(409)
 )
-async def get_objects(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> LayoutReport:
+async def get_objects(
+    job_id: JobId, services: ServicesDep, tenant: TenantDep, response: Response
+) -> LayoutReport:
     """The objects, rooms and walls (with their doors and windows) the run found, as
     ``jointseg segment --objects`` writes them (409 until it succeeded, or without them)."""
     view = await run_in_threadpool(_current_view, services, job_id, tenant)
     if view.status != "succeeded":
         raise JobStateError(f"job {job_id} is {view.status}; no objects")
-    return await run_in_threadpool(layout_of, services.storage, job_id)
+    layout = await run_in_threadpool(layout_of, services.storage, job_id)
+    name = download_name(view.filename, "objects")
+    response.headers["Content-Disposition"] = content_disposition(name, "inline")
+    return layout
 
 
 @jobs_router.get(
@@ -152,7 +153,9 @@ async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) ->
     if view.status != "succeeded" or not path.is_file():
         raise JobStateError(f"job {job_id} is {view.status}; no report")
     body = await run_in_threadpool(public_report_bytes, path)
-    return Response(body, media_type="application/json")
+    name = download_name(view.filename, "report")
+    headers = {"Content-Disposition": content_disposition(name, "inline")}
+    return Response(body, media_type="application/json", headers=headers)
 
 
 def _current_view(services: Services, job_id: str, tenant: Tenant) -> JobView:

@@ -1,0 +1,60 @@
+"""The files a viewer tab offers to download: the job page's six, under the API's names.
+
+A surveyor wants the points as LAS or LAZ, a BIM engineer the IFC model, everyone the report.
+A tab holds no key (it is signed in with a session cookie: :mod:`web.sessions`), so it cannot
+fetch the API's addresses; it reads the same files through its source instead
+(:meth:`web.sources.JobSource.export_path`: on the service, the API's own conversion and cache)
+and sends the bytes over its websocket. No address is involved, so none can carry a key.
+"""
+
+from __future__ import annotations
+
+from jointseg.exceptions import JobNotFound
+from server.api.results import Download, download_name, layout_from
+from server.messages import public_report_bytes
+from web.sources import JobSource
+
+#: The buttons' labels.
+LABELS: dict[Download, str] = {
+    "ply": "PLY",
+    "las": "LAS",
+    "laz": "LAZ",
+    "report": "Report",
+    "objects": "objects.json",
+    "ifc": "IFC",
+}
+#: Downloads that need the report's objects and rooms.
+NEEDS_LAYOUT: frozenset[Download] = frozenset({"objects", "ifc"})
+
+
+def download_body(source: JobSource, job_id: str, kind: Download) -> bytes:
+    """The bytes of one download, as the API's route for it answers them.
+
+    The report names the weights by file name only (:func:`server.messages.public_report`);
+    objects.json is the report's objects and rooms, as ``GET /v1/jobs/{id}/objects`` gives.
+
+    Raises
+    ------
+    JobNotFound
+        The job is gone, not this tenant's, or has no report.
+    JobStateError
+        The run found no objects or rooms (objects.json, IFC).
+    """
+    if kind == "report" or kind == "objects":
+        report = source.report_path(job_id)
+        if report is None:
+            raise JobNotFound(f"job {job_id} has no report")
+        if kind == "report":
+            return public_report_bytes(report)
+        return layout_from(report).model_dump_json(indent=2).encode("utf-8")
+    return source.export_path(job_id, kind).read_bytes()
+
+
+def file_name(filename: str | None, job_id: str, kind: Download) -> str:
+    """The download's name: the API's for the job's file, else from its id."""
+    return download_name(filename or f"{job_id}.ply", kind)
+
+
+def has_layout(report: dict[str, object] | None) -> bool:
+    """Whether a report holds objects and rooms (objects.json and IFC can be made)."""
+    return isinstance(report, dict) and isinstance(report.get("rooms"), dict)
