@@ -4,8 +4,17 @@ per wall plane, IfcSlab for each room's floor and ceiling, IfcDoor and IfcWindow
 objects, IfcFurniture for tables, chairs, sofas and bookcases, IfcBuildingElementProxy for the
 rest.
 
-The model is in the levelled metric frame (z up, metres), as IFC expects, whatever the scan's
-own axes and units; the layout's user coordinates are mapped back through ``to_user``.
+The model is in the levelled metric frame (z up), whatever the scan's own axes and units; the
+layout's user coordinates are mapped back through ``to_user``. Its declared length unit is the
+millimetre (IfcOpenShell's default, what BIM tools expect), areas square metres. Placements,
+extrusions and profiles are given to IfcOpenShell's geometry API in metres, which converts
+them; every length set directly (OverallWidth/OverallHeight, the storey's Elevation,
+quantities) goes through :meth:`_Writer.length`, so none is left in metres by mistake.
+
+Quantities BIM tools schedule from: ``Qto_SpaceBaseQuantities`` and ``Pset_SpaceCommon`` on
+each space, ``Qto_WallBaseQuantities`` on walls, ``Qto_DoorBaseQuantities`` and
+``Qto_WindowBaseQuantities`` on doors and windows, all taken from the layout's records (the
+values ``objects.json`` holds).
 """
 
 from __future__ import annotations
@@ -18,11 +27,13 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.objects.params import ObjectParams
-from jointseg.objects.records import LayoutReport
+from jointseg.objects.records import LayoutReport, ObjectRecord, OpeningRecord, RoomRecord
 
 log = logging.getLogger(__name__)
 
 FURNITURE = {"table", "chair", "sofa", "bookcase"}
+#: Height given to a room's space when its ceiling was not found, metres.
+DEFAULT_ROOM_HEIGHT = 2.5
 
 
 def _placement(origin: np.ndarray, x_axis: np.ndarray) -> np.ndarray:
@@ -57,6 +68,7 @@ class _Writer:
         import ifcopenshell.api.context
         import ifcopenshell.api.geometry
         import ifcopenshell.api.project
+        import ifcopenshell.api.pset
         import ifcopenshell.api.root
         import ifcopenshell.api.spatial
         import ifcopenshell.api.unit
@@ -74,15 +86,51 @@ class _Writer:
             model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
             parent=context,
         )  # fmt: skip
-        site = api.root.create_entity(model, ifc_class="IfcSite", name="Site")
-        building = api.root.create_entity(model, ifc_class="IfcBuilding", name="Building")
-        self.storey = api.root.create_entity(
-            model, ifc_class="IfcBuildingStorey", name="Scanned storey"
-        )
-        api.aggregate.assign_object(model, products=[site], relating_object=project)
-        api.aggregate.assign_object(model, products=[building], relating_object=site)
-        api.aggregate.assign_object(model, products=[self.storey], relating_object=building)
+        from ifcopenshell.util.unit import calculate_unit_scale
+
+        # project units per SI unit: 1000 for millimetres, 1 for square metres
+        self.per_metre = 1.0 / calculate_unit_scale(model, "LENGTHUNIT")
+        self.per_square_metre = 1.0 / calculate_unit_scale(model, "AREAUNIT")
+        self.storey = self.spatial_tree(project)
         self.contained: list[Any] = []
+
+    def spatial_tree(self, project: Any) -> Any:
+        """Site > building > storey under ``project``; the storey placed at the floor's level
+        with that level as its Elevation (what a BIM tool makes its level from)."""
+        aggregate = self.api.aggregate.assign_object
+        site = self.entity("IfcSite", "Site")
+        building = self.entity("IfcBuilding", "Building")
+        storey = self.entity("IfcBuildingStorey", "Scanned storey")
+        aggregate(self.model, products=[site], relating_object=project)
+        aggregate(self.model, products=[building], relating_object=site)
+        aggregate(self.model, products=[storey], relating_object=building)
+        for product, z in ((site, 0.0), (building, 0.0), (storey, self.floor_z)):
+            matrix = _placement(np.array([0.0, 0.0, z]), np.array([1.0, 0.0]))
+            self.api.geometry.edit_object_placement(self.model, product=product, matrix=matrix)
+        storey.Elevation = self.length(self.floor_z)
+        return storey
+
+    def length(self, metres: float) -> float:
+        """A length in the model's declared unit."""
+        return float(metres) * self.per_metre
+
+    def area(self, square_metres: float) -> float:
+        """An area in the model's declared unit."""
+        return float(square_metres) * self.per_square_metre
+
+    def quantities(
+        self,
+        product: Any,
+        name: str,
+        lengths: dict[str, float | None],
+        areas: dict[str, float | None] | None = None,
+    ) -> None:
+        """A quantity set on ``product`` from SI values (metres, m²), converted to the model's
+        units; a value of None (not measured) is left out."""
+        values: dict[str, Any] = {k: self.length(v) for k, v in lengths.items() if v is not None}
+        values.update({k: self.area(v) for k, v in (areas or {}).items() if v is not None})
+        qto = self.api.pset.add_qto(self.model, product=product, name=name)
+        self.api.pset.edit_qto(self.model, qto=qto, properties=values)
 
     def work(self, points: Any) -> np.ndarray:
         p = np.atleast_2d(np.asarray(points, dtype=np.float64))
@@ -97,16 +145,19 @@ class _Writer:
         return self.api.root.create_entity(self.model, ifc_class=ifc_class, name=name)
 
     def rooms(self) -> None:
-        """An IfcSpace per room, extruded from its outline to its ceiling; a floor and a
-        ceiling slab under and over it."""
+        """An IfcSpace per room, extruded from its outline to its ceiling, with its quantities;
+        a floor and a ceiling slab under and over it."""
         spaces, slab_depth = [], self.params.slab_thickness
         add_slab = self.api.geometry.add_slab_representation
         for room in self.layout.rooms:
             outline = [(float(x), float(y)) for x, y in room.footprint]
-            height = room.ceiling_height or 2.5
+            height = room.ceiling_height or DEFAULT_ROOM_HEIGHT
             space = self.entity("IfcSpace", room.name)
             rep = add_slab(self.model, context=self.body, depth=height, polyline=outline)
-            self.place(space, rep, _placement(np.array([0.0, 0.0, self.floor_z]), np.ones(2)))
+            self.place(
+                space, rep, _placement(np.array([0.0, 0.0, self.floor_z]), np.array([1.0, 0.0]))
+            )
+            self.space_sets(space, room)
             spaces.append(space)
             for which, z in (
                 ("floor", self.floor_z - slab_depth),
@@ -122,8 +173,27 @@ class _Writer:
                 self.model, products=spaces, relating_object=self.storey
             )
 
+    def space_sets(self, space: Any, room: RoomRecord) -> None:
+        """``Pset_SpaceCommon`` (its kind as Reference, interior) and
+        ``Qto_SpaceBaseQuantities`` (floor area, perimeter, and heights where the ceiling
+        was found) from the room's record."""
+        pset = self.api.pset.add_pset(self.model, product=space, name="Pset_SpaceCommon")
+        self.api.pset.edit_pset(
+            self.model, pset=pset, properties={"Reference": room.kind, "IsExternal": False}
+        )
+        self.quantities(
+            space,
+            "Qto_SpaceBaseQuantities",
+            {
+                "Height": room.ceiling_height,
+                "FinishCeilingHeight": room.ceiling_height,
+                "GrossPerimeter": footprint_perimeter(room.footprint),
+            },
+            {"NetFloorArea": room.floor_area},
+        )
+
     def walls(self) -> None:
-        """An IfcWall per wall plane, of the default thickness."""
+        """An IfcWall per wall plane, of the default thickness, with its base quantities."""
         for wall in self.layout.walls:
             c = self.work(wall.corners)
             axis = c[1] - c[0]
@@ -133,10 +203,18 @@ class _Writer:
                 height=float(wall.height), thickness=self.params.wall_thickness,
             )  # fmt: skip
             self.place(entity, rep, _placement(c[0], axis))
+            self.quantities(
+                entity,
+                "Qto_WallBaseQuantities",
+                {"Length": wall.length, "Height": wall.height,
+                 "Width": self.params.wall_thickness},
+                {"GrossSideArea": wall.area, "NetSideArea": wall.net_area},
+            )  # fmt: skip
             self.contained.append(entity)
 
     def objects(self) -> None:
         """Doors, windows, furniture and proxies as boxes of their room-aligned size."""
+        openings = {o.object: o for wall in self.layout.walls for o in wall.openings}
         for obj in self.layout.objects:
             corners = self.work(obj.box)
             x_axis, y_axis = corners[1] - corners[0], corners[3] - corners[0]
@@ -150,22 +228,44 @@ class _Writer:
                 ifc_class, name = "IfcBuildingElementProxy", f"{obj.cls} fragment {obj.id}"
             entity = self.entity(ifc_class, name)
             if ifc_class in ("IfcDoor", "IfcWindow"):
-                entity.OverallWidth, entity.OverallHeight = max(sx, sy), sz
+                self.opening_sizes(entity, obj, openings.get(obj.id))
             # a box: a "wall" profile of the object's length, depth and height
             rep = self.api.geometry.add_wall_representation(
                 self.model, context=self.body, length=max(sx, 0.01), height=max(sz, 0.01),
                 thickness=max(sy, 0.01),
             )  # fmt: skip
-            origin = corners[0] + 0.5 * y_axis  # the wall profile is centred on its axis
             direction = x_axis if sx > 1e-6 else np.array([1.0, 0.0])
+            # the profile runs from its axis to the left of it (local +y): start on the box's
+            # side that keeps the box there
+            left = np.array([-direction[1], direction[0]])
+            origin = corners[0] if float(y_axis[:2] @ left) >= 0 else corners[3]
             self.place(entity, rep, _placement(origin, direction))
             self.contained.append(entity)
+
+    def opening_sizes(self, entity: Any, obj: ObjectRecord, opening: OpeningRecord | None) -> None:
+        """A door's or window's OverallWidth/OverallHeight and base quantities: its opening
+        in the wall where it has one (the size the wall's net area lost), else its box."""
+        if opening is not None:
+            width, height = opening.width, opening.height
+        else:
+            width, height = max(obj.size[0], obj.size[1]), obj.size[2]
+        entity.OverallWidth, entity.OverallHeight = self.length(width), self.length(height)
+        name = "Qto_DoorBaseQuantities" if entity.is_a("IfcDoor") else "Qto_WindowBaseQuantities"
+        self.quantities(entity, name, {"Width": width, "Height": height}, {"Area": width * height})
 
     def contain(self) -> None:
         if self.contained:
             self.api.spatial.assign_container(
                 self.model, products=self.contained, relating_structure=self.storey
             )
+
+
+def footprint_perimeter(footprint: list[tuple[float, float]]) -> float:
+    """The length of a closed outline (its last corner joined back to its first), metres."""
+    xy = np.asarray(footprint, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1).sum())
 
 
 def write_ifc(
