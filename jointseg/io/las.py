@@ -6,7 +6,8 @@ classification becomes labels, with 255 meaning unlabelled and values above 12 r
 unlabelled too, the raw classification then also kept as field ``classification``. A
 classification that is 0 everywhere in a file not written by jointseg means "never classified"
 and gives no labels. ``intensity`` (unless 0 everywhere) and every extra-bytes dimension become
-fields.
+fields. In a result file (below) labels come from ``input_classification`` instead, and a
+result's classification is never read as labels.
 
 Writing: LAS 1.4, point format 7 (6 when the scan has no colour), scale 0.1 mm (coarser when the
 extent needs it) with offsets at the minimum; colour × 257; labels in classification (-1 as 255)
@@ -14,7 +15,9 @@ and a small VLR saying so; every field as an extra-bytes dimension of its own dt
 ``f`` as ``f_0 .. f_{k-1}``). A field named ``intensity`` holding whole numbers in 0..65535 goes
 into the standard intensity dimension; a field whose name is another standard dimension (or a
 float intensity) is stored as ``extra_<name>``, which reads back as ``<name>`` from files written
-by jointseg.
+by jointseg. A result (a scan with ``fused_label``) has the fused classes in classification
+(64 + class, :mod:`jointseg.io.las_result`) and what classification would hold otherwise in the
+extra dimension ``input_classification``.
 """
 
 from __future__ import annotations
@@ -34,6 +37,15 @@ from jointseg.io.build import build_scan
 from jointseg.io.colour import ColourRange, merge_colour_ranges, to_rgb8
 from jointseg.io.fields import FieldColumn, field_columns
 from jointseg.io.labels import LabelSummary, label_summary, log_outside_labels, normalise_labels
+from jointseg.io.las_result import (
+    INPUT_CLASSIFICATION,
+    RESULT_BASE,
+    RESULT_FIELD,
+    RESULT_VLR_RECORD_ID,
+    check_full_byte,
+    lookup_vlr,
+    result_classification,
+)
 from jointseg.io.limits import (
     DEFAULT_MAX_INFLATION,
     ScanInfo,
@@ -111,12 +123,29 @@ def check_body_size(
         )
 
 
-def _labels_vlr(header: laspy.LasHeader) -> bool:
+def _has_marker(header: laspy.LasHeader, record_id: int) -> bool:
+    """Whether the header holds jointseg's VLR of that record id."""
     return any(
         getattr(v, "user_id", "") == LABELS_VLR_USER_ID
-        and getattr(v, "record_id", None) == LABELS_VLR_RECORD_ID
+        and getattr(v, "record_id", None) == record_id
         for v in header.vlrs
     )
+
+
+def _labels_vlr(header: laspy.LasHeader) -> bool:
+    return _has_marker(header, LABELS_VLR_RECORD_ID)
+
+
+def _result_vlr(header: laspy.LasHeader) -> bool:
+    return _has_marker(header, RESULT_VLR_RECORD_ID)
+
+
+def label_source(point_format: laspy.PointFormat) -> str:
+    """Where labels are read from: ``input_classification`` in a result file that has it (its
+    classification holds the result), else ``classification``."""
+    if INPUT_CLASSIFICATION in point_format.extra_dimension_names:
+        return INPUT_CLASSIFICATION
+    return "classification"
 
 
 def _written_by_jointseg(header: laspy.LasHeader) -> bool:
@@ -137,7 +166,8 @@ class LasFacts:
     colour : tuple of (float, float) or None
         Smallest and largest red/green/blue value; None when the point format has no colour.
     classified : bool
-        Some classification is not 0.
+        Some classification is not 0 (``input_classification`` in a result file that has it,
+        see :func:`label_source`).
     labels : LabelSummary
         Classification values that are no S3DIS class (nor 255).
     intensity : bool
@@ -171,7 +201,7 @@ def las_facts(points: laspy.PackedPointRecord, path: Path) -> LasFacts:
             min(int(arr[c].min()) for c in _RGB),
             max(int(arr[c].max()) for c in _RGB),
         )
-    cls = np.asarray(points.classification)
+    cls = np.asarray(points[label_source(points.point_format)])
     return LasFacts(
         colour=colour,
         classified=bool(cls.any()),
@@ -181,16 +211,31 @@ def las_facts(points: laspy.PackedPointRecord, path: Path) -> LasFacts:
 
 
 def reads_labels(header: laspy.LasHeader, facts: LasFacts) -> bool:
-    """Whether classification becomes labels: a file marked by jointseg, or one classified."""
+    """Whether the label source (:func:`label_source`) becomes labels: a file marked by
+    jointseg, or one classified; never the classification of a result file (the fused
+    classes, not ground truth)."""
+    source = label_source(header.point_format)
+    if source == "classification" and _result_vlr(header):
+        return False
     return _labels_vlr(header) or facts.classified
 
 
 def log_facts(header: laspy.LasHeader, facts: LasFacts, path: Path) -> None:
-    """Log, once per file, the warnings reading its points gives (odd classification values)."""
-    if reads_labels(header, facts):
-        log_outside_labels(
-            facts.labels, path=path, source="classification", raw_field="classification"
+    """Log, once per file, what reading its points tells (odd classification values, a
+    result's classification not read as labels)."""
+    source = label_source(header.point_format)
+    if _result_vlr(header) or source == INPUT_CLASSIFICATION:
+        logger.info(
+            "%s: a jointseg result: its classification holds the fused classes (%d + class, "
+            "also in fused_label); %s",
+            path,
+            RESULT_BASE,
+            "labels are read from input_classification"
+            if source == INPUT_CLASSIFICATION
+            else "it keeps no input labels, so it is read unlabelled",
         )
+    if reads_labels(header, facts):
+        log_outside_labels(facts.labels, path=path, source=source, raw_field="classification")
 
 
 def points_to_scan(
@@ -231,11 +276,12 @@ def points_to_scan(
         rgb = to_rgb8(np.stack([arr[c] for c in _RGB], axis=1), path=path, value_range=facts.colour)
     fields: dict[str, np.ndarray] = {}
     labels = None
+    source = label_source(points.point_format)
     if reads_labels(header, facts):
         labels, fields = normalise_labels(
-            np.asarray(points.classification),
+            np.asarray(points[source]),
             path=path,
-            source="classification",
+            source=source,
             raw_field="classification",
             unlabelled_values=(255,),
             summary=facts.labels,
@@ -245,6 +291,8 @@ def points_to_scan(
         fields["intensity"] = np.array(arr["intensity"])
     ours = _written_by_jointseg(header)
     for name in points.point_format.extra_dimension_names:
+        if name == INPUT_CLASSIFICATION:
+            continue  # the labels (and a raw classification field), as read from the input
         key = name
         if ours and name.startswith("extra_") and name[6:] not in fields:
             key = name[6:]  # undo the renaming done by write_las
@@ -397,8 +445,9 @@ def probe_las(
             offset=header.offset_to_point_data,
             shape=(header.point_count,),
         )
-        if "classification" in (dtype.names or ()):
-            cls = block["classification"]
+        source = label_source(fmt)
+        if source in (dtype.names or ()):
+            cls = block[source]
         else:
             cls = block["raw_classification"] & 0x1F
         has_labels = bool(cls.any())
@@ -407,9 +456,13 @@ def probe_las(
             block["red"].any() or block["green"].any() or block["blue"].any()
         )
         del block, cls
-    has_labels = has_labels or _labels_vlr(header)
+    has_labels = reads_labels(header, LasFacts(classified=has_labels))
     ours = _written_by_jointseg(header)
-    extra = [n[6:] if ours and n.startswith("extra_") else n for n in fmt.extra_dimension_names]
+    extra = [
+        n[6:] if ours and n.startswith("extra_") else n
+        for n in fmt.extra_dimension_names
+        if n != INPUT_CLASSIFICATION
+    ]
     return ScanInfo(
         path=str(path),
         format="laz" if header.are_points_compressed else "las",
@@ -484,6 +537,12 @@ class LasLayout:
         Column ``classification`` goes into the standard classification (under the labels).
     extras : dict of str to tuple of (str, numpy.dtype)
         Every other column: its extra-bytes dimension name and dtype.
+    result : bool
+        The scan is a result (it has ``fused_label``): classification holds the fused classes
+        (:mod:`jointseg.io.las_result`).
+    input_classification : bool
+        In a result, what classification would hold otherwise (the labels, or a raw
+        classification field) goes into the extra dimension ``input_classification``.
     """
 
     header: laspy.LasHeader
@@ -493,6 +552,8 @@ class LasLayout:
     std_intensity: bool
     std_classification: bool
     extras: dict[str, tuple[str, np.dtype]]
+    result: bool = False
+    input_classification: bool = False
 
 
 def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLayout:
@@ -502,7 +563,9 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
     while the extent ``hi - lo`` would overflow 32-bit integers; offsets at ``lo``; the labels
     VLR when ``like`` has labels; one extra-bytes dimension per field column. A field
     ``intensity`` (``classification``) goes into the standard dimension when ``like``'s values
-    are whole numbers in 0..65535 (0..255).
+    are whole numbers in 0..65535 (0..255). A result (``like`` has ``fused_label``) has its
+    fused classes in classification, the input's in ``input_classification``, the result and
+    Classification Lookup VLRs (:mod:`jointseg.io.las_result`).
 
     Parameters
     ----------
@@ -521,7 +584,8 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
     Raises
     ------
     ScanFormatError
-        On a field LAS cannot store (dtype or name too long).
+        On a field LAS cannot store (dtype or name too long), or a result with a field
+        ``input_classification`` of its own beside labels.
     """
     header = laspy.LasHeader(point_format=7 if like.rgb is not None else 6, version="1.4")
     header.generating_software = "jointseg"
@@ -544,20 +608,40 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
             continue
         dtype = _extra_dtype(column.dtype, name, path)
         extras[name] = (_extra_name(name, standard, path), dtype)
-    if extras:
-        header.add_extra_dims(
-            [laspy.ExtraBytesParams(name=dim, type=dtype) for dim, dtype in extras.values()]
-        )
-    if like.labels is not None:
-        header.vlrs.append(
-            laspy.VLR(
-                user_id=LABELS_VLR_USER_ID,
-                record_id=LABELS_VLR_RECORD_ID,
-                description="classification = S3DIS labels",
-                record_data=b"",
+    result = RESULT_FIELD in like.fields
+    keep_input = result and (like.labels is not None or std_cls)
+    dims = [laspy.ExtraBytesParams(name=dim, type=dtype) for dim, dtype in extras.values()]
+    if keep_input:
+        if INPUT_CLASSIFICATION in values:
+            raise ScanFormatError(
+                f"{path}: the scan has a field {INPUT_CLASSIFICATION!r} besides its labels or "
+                f"classification, which a result LAS keeps under that name; rename the field"
             )
-        )
-    return LasLayout(header, scale, lo, tuple(columns), std_intensity, std_cls, extras)
+        dims.append(laspy.ExtraBytesParams(name=INPUT_CLASSIFICATION, type=np.dtype(np.uint8)))
+    if dims:
+        header.add_extra_dims(dims)
+    header.vlrs.extend(_layout_vlrs(like, result, header.point_format.id, path))
+    return LasLayout(
+        header, scale, lo, tuple(columns), std_intensity, std_cls, extras, result, keep_input
+    )
+
+
+def _layout_vlrs(like: Scan, result: bool, point_format: int, path: Path) -> list[laspy.VLR]:
+    """The labels VLR when ``like`` has labels (naming where they are); for a result, the
+    jointseg result VLR and the Classification Lookup VLR."""
+
+    def marker(record_id: int, description: str) -> laspy.VLR:  # descriptions: 32 bytes
+        return laspy.VLR(LABELS_VLR_USER_ID, record_id, description, record_data=b"")
+
+    out = []
+    if like.labels is not None:
+        where = f"{INPUT_CLASSIFICATION} = labels" if result else "classification = S3DIS labels"
+        out.append(marker(LABELS_VLR_RECORD_ID, where))
+    if result:
+        check_full_byte(point_format, path)
+        out.append(marker(RESULT_VLR_RECORD_ID, f"classification = {RESULT_BASE}+{RESULT_FIELD}"))
+        out.append(lookup_vlr())
+    return out
 
 
 def _keep_input_grid(
@@ -593,11 +677,19 @@ def _fits(scales: np.ndarray, offsets: np.ndarray, lo: np.ndarray, hi: np.ndarra
     return bool(np.all(span < _INT32_SPAN))
 
 
-def las_record(scan: Scan, layout: LasLayout) -> laspy.ScaleAwarePointRecord:
+def las_record(
+    scan: Scan, layout: LasLayout, path: Path = Path("LAS")
+) -> laspy.ScaleAwarePointRecord:
     """The LAS point records of ``scan`` (all of it, or one chunk) in ``layout``.
 
     The values that decided the standard dimensions are not checked again here; a writer that
     took the layout from a sample checks each chunk with :func:`check_layout_fits`.
+
+    Raises
+    ------
+    ScanFormatError
+        For a result whose ``fused_label`` holds a value that is no class (``path`` names the
+        target file in the message).
     """
     record = laspy.ScaleAwarePointRecord.zeros(len(scan), header=layout.header)
     arr = record.array
@@ -608,19 +700,34 @@ def las_record(scan: Scan, layout: LasLayout) -> laspy.ScaleAwarePointRecord:
         for i, channel in enumerate(_RGB):
             arr[channel] = scan.rgb[:, i].astype(np.uint16) * np.uint16(257)
     columns = {col.name: col for col in layout.columns}
-    raw_cls = columns["classification"].take(scan.fields) if layout.std_classification else None
-    if scan.labels is not None:
-        cls = np.where(scan.labels < 0, 255, scan.labels).astype(np.uint8)
-        if raw_cls is not None:
-            cls = np.where(scan.labels < 0, raw_cls.astype(np.uint8), cls)
+    cls = _input_classification(scan, columns, layout)
+    if layout.result:
+        arr["classification"] = result_classification(
+            scan.fields[RESULT_FIELD], scan.fields.get("stray"), path=path
+        )
+        if layout.input_classification and cls is not None:
+            arr[INPUT_CLASSIFICATION] = cls
+    elif cls is not None:
         arr["classification"] = cls
-    elif raw_cls is not None:
-        arr["classification"] = raw_cls.astype(np.uint8)
     if layout.std_intensity:
         arr["intensity"] = columns["intensity"].take(scan.fields).astype(np.uint16)
     for name, (dim, dtype) in layout.extras.items():
         arr[dim] = columns[name].take(scan.fields).astype(dtype)
     return record
+
+
+def _input_classification(
+    scan: Scan, columns: dict[str, FieldColumn], layout: LasLayout
+) -> np.ndarray | None:
+    """The classification of a scan's own: its labels (-1 as 255, or as the raw
+    ``classification`` value where it has one), or that raw field; None when it has neither."""
+    raw = columns["classification"].take(scan.fields) if layout.std_classification else None
+    if scan.labels is None:
+        return None if raw is None else raw.astype(np.uint8)
+    cls = np.where(scan.labels < 0, 255, scan.labels).astype(np.uint8)
+    if raw is not None:
+        cls = np.where(scan.labels < 0, raw.astype(np.uint8), cls)
+    return cls
 
 
 def check_layout_fits(scan: Scan, layout: LasLayout, path: Path) -> None:
@@ -659,7 +766,8 @@ def check_layout_fits(scan: Scan, layout: LasLayout, path: Path) -> None:
 def write_las(
     scan: Scan, path: Path, *, compress: bool, progress: ProgressFn | None = None
 ) -> None:
-    """Write LAS 1.4 point format 7, or 6 without colour (LAZ when ``compress``).
+    """Write LAS 1.4 point format 7, or 6 without colour (LAZ when ``compress``); a result's
+    fused classes in classification (see :func:`las_layout`).
 
     Parameters
     ----------
@@ -682,7 +790,7 @@ def write_las(
     else:
         lo = hi = np.zeros(3)
     layout = las_layout(scan, lo, hi, path)
-    las = laspy.LasData(header=layout.header, points=las_record(scan, layout))
+    las = laspy.LasData(header=layout.header, points=las_record(scan, layout, path))
     report(progress, "write", 0.3)
     with atomic_open(path) as fh:
         try:

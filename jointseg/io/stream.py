@@ -57,6 +57,7 @@ from jointseg.io.las import (
     LasLayout,
     check_body_size,
     check_layout_fits,
+    label_source,
     las_facts,
     las_layout,
     las_meta,
@@ -271,10 +272,14 @@ def _las_first_pass(path: Path, header: laspy.LasHeader) -> LasFacts:
     """Gather :class:`LasFacts` over the whole file: colour range, classification, intensity.
 
     For LAZ with point formats 6-10 only the x/y, classification, intensity and colour layers
-    are decompressed; other LAZ files are decompressed whole, LAS files read whole.
+    are decompressed (and the extra bytes of a result file, whose labels are there); other LAZ
+    files are decompressed whole, LAS files read whole.
     """
     facts = LasFacts()
-    with open_reader(path, _FACTS_SELECTION) as reader:
+    selection = _FACTS_SELECTION
+    if label_source(header.point_format) != "classification":
+        selection = selection.decompress_all_extra_bytes()
+    with open_reader(path, selection) as reader:
         for points in _las_points(reader, header, path, _PASS_POINTS):
             facts = facts.merge(las_facts(points, path))
     return facts
@@ -648,7 +653,7 @@ class _LasWriter(ScanWriter):
         assert self._las is not None
         check_layout_fits(chunk, self._layout, self.path)
         try:
-            self._las.write_points(las_record(chunk, self._layout))
+            self._las.write_points(las_record(chunk, self._layout, self.path))
         except laspy.errors.LaspyException as exc:
             raise ScanFormatError(f"{self.path}: cannot write LAS: {exc}") from exc
 

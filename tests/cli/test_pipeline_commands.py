@@ -84,6 +84,15 @@ def test_segment_to_laz_of_an_unlabelled_scan(rooms: Path, random_weights, tmp_p
     scan = read_scan(out)
     assert FIELDS <= set(scan.fields)
     assert json.loads(report.read_text())["metrics"] is None
+    # LAS tools find the result in classification (64 + class, strays 1); jointseg does not
+    # take it for ground truth
+    import laspy
+
+    las = laspy.read(out)
+    fused, stray = scan.fields["fused_label"], scan.fields["stray"]
+    np.testing.assert_array_equal(las.classification, np.where(stray == 1, 1, 64 + fused))
+    assert "input_classification" not in las.point_format.extra_dimension_names
+    assert scan.labels is None
 
 
 def test_config_file_is_applied(rooms: Path, random_weights, tmp_path) -> None:

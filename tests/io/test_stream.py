@@ -41,6 +41,11 @@ def _variants(room: Scan) -> dict[str, Scan]:
             normal=np.random.default_rng(1).normal(size=(1500, 3)),
             flag=np.arange(1500) % 3 == 0,
         ),
+        # a pipeline's result: LAS classification holds it, the labels go to extra bytes
+        "result": room.with_fields(
+            fused_label=(np.arange(len(room)) % 13).astype(np.int32),
+            stray=(np.arange(len(room)) % 41 == 0).astype(np.uint8),
+        ),
     }
 
 
@@ -88,7 +93,9 @@ def read_chunked(path: Path, size: int, *, streams: bool | None = None) -> Scan:
 
 
 @pytest.mark.parametrize("size", SIZES)
-@pytest.mark.parametrize("variant", ["full", "bare", "labels_only", "colour_only", "many_fields"])
+@pytest.mark.parametrize(
+    "variant", ["full", "bare", "labels_only", "colour_only", "many_fields", "result"]
+)
 @pytest.mark.parametrize("ext", [".las", ".laz", ".ply"])
 def test_chunks_join_to_read_scan(tmp_path, room, ext, variant, size):
     path = write_scan(_variants(room)[variant], tmp_path / f"s{ext}")
@@ -316,7 +323,7 @@ def _las_points(path: Path) -> tuple[laspy.LasHeader, np.ndarray]:
 
 
 @pytest.mark.parametrize("size", [7, 1000])
-@pytest.mark.parametrize("variant", ["full", "bare", "labels_only", "many_fields"])
+@pytest.mark.parametrize("variant", ["full", "bare", "labels_only", "many_fields", "result"])
 @pytest.mark.parametrize("ext", [".las", ".laz", ".ply", ".pcd", ".npz"])
 def test_chunked_writing_gives_write_scans_file(tmp_path, room, ext, variant, size):
     scan = _variants(room)[variant]
