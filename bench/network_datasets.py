@@ -42,6 +42,11 @@ SCANNET_JUDGE = ("scene0002", "scene0007")
 SCANNET_VAL = ("scene0005",)
 
 
+def without_colour(scan: Scan) -> Scan:
+    """The scan as a sensor without colour delivers it."""
+    return Scan(xyz=scan.xyz, rgb=None, labels=scan.labels)
+
+
 def _files(folder: Path) -> list[Path]:
     return sorted(folder.glob("*.ply")) if folder.is_dir() else []
 
@@ -110,6 +115,9 @@ def main() -> None:
     parser.add_argument("--synth-rooms", type=int, default=4)
     parser.add_argument("--synth-floors", type=int, default=1)
     parser.add_argument("--synth-points", type=int, default=300_000)
+    parser.add_argument(
+        "--no-colour", action="store_true", help="score every scan without its colour"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     weights = args.weights or ["bundled"]
@@ -134,6 +142,8 @@ def main() -> None:
         print(f"# RandLA-Net absent_share {args.absent_share}")
     summary: list[tuple[str, list[tuple[float, float]]]] = []
     for dataset, scans in datasets(args).items():
+        if args.no_colour:
+            scans = [(n, lambda load=load: without_colour(load())) for n, load in scans]
         print(f"\n## {dataset}\n")
         print("| scan | points | " + " | ".join(names) + " |")
         print("|---|---|" + "---|" * len(names))

@@ -220,11 +220,13 @@ def _structure_columns(
     offer: np.ndarray,
     own: np.ndarray,
     only_structure: np.ndarray,
-    fixture: np.ndarray,
+    xyz: np.ndarray,
+    labels: np.ndarray,
 ) -> list[np.ndarray]:
     """The structure reading's features of each offer: how sure it is of the offer and of
     the point's own label, whether only it makes the offer, whether the own label is a wall
-    fixture of a believable size (``fixture``, per point)."""
+    fixture of a believable size (:func:`implausible_doors`)."""
+    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels)
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)
@@ -290,7 +292,6 @@ def vote_offers(
         labels, seg_label, cell_label, probs, min_support, structure
     )
     s, c, own = seg[point], cell[point], labels[point]
-    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels)
     features = np.column_stack(
         [
             _logit(probs[point, own]),
@@ -310,7 +311,7 @@ def vote_offers(
             from_segment,
             np.full(len(point), scan_entropy),
             np.full(len(point), scan_disagreement),
-            *_structure_columns(structure, point, offer, own, only_structure, fixture),
+            *_structure_columns(structure, point, offer, own, only_structure, xyz, labels),
             np.full(len(point), float(has_colour)),
         ]
     ).astype(np.float64)
