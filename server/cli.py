@@ -43,17 +43,41 @@ def load_settings(**overrides: Any) -> Settings:
         raise ConfigError(str(exc)) from exc
 
 
+def given(ctx: typer.Context, **values: Any) -> dict[str, Any]:
+    """The options typed on the command line, by name.
+
+    Why: the options show the settings' defaults in ``--help``, but an option left out must
+    not override what the environment or JOINTSEG_CONFIG says, so only the typed ones go to
+    :func:`load_settings`.
+    """
+    # by the source's name: typer carries its own copy of click, whose enum is not click's
+    sources = {name: getattr(ctx.get_parameter_source(name), "name", None) for name in values}
+    return {name: value for name, value in values.items() if sources[name] == "COMMANDLINE"}
+
+
+def _setting(default: Any, text: str, variable: str) -> Any:
+    """An option whose help names the setting's default and its environment variable.
+
+    The default is written out (this module must not import :class:`server.settings.Settings`:
+    see the module doc); a test holds each to Settings'.
+    """
+    return typer.Option(default, help=f"{text}; when not given: {variable} or JOINTSEG_CONFIG.")
+
+
 def serve(
-    host: str | None = typer.Option(None, help="API address [default: 127.0.0.1]."),
-    port: int | None = typer.Option(None, help="API port [default: 8000]."),
-    viewer_port: int | None = typer.Option(None, help="Viewer port [default: 8080]."),
-    data_dir: Path | None = typer.Option(None, help="Data directory [default: ./data]."),
-    workers: int | None = typer.Option(None, help="Worker processes [default: 1]."),
+    ctx: typer.Context,
+    host: str = _setting("127.0.0.1", "Address the API listens on", "JOINTSEG_HOST"),
+    port: int = _setting(8000, "Port of the API and the job page", "JOINTSEG_PORT"),
+    viewer_port: int = _setting(8080, "Port of the viewer", "JOINTSEG_VIEWER_PORT"),
+    data_dir: Path = _setting(Path("data"), "Uploads, results, job table", "JOINTSEG_DATA_DIR"),
+    workers: int = _setting(1, "Worker processes to start", "JOINTSEG_WORKERS"),
     viewer: bool = typer.Option(True, help="Also run the viewer and the job page (web/)."),
 ) -> None:
     """Run the job service: the API, the worker processes and the viewer (Ctrl-C stops all)."""
     settings = load_settings(
-        host=host, port=port, viewer_port=viewer_port, data_dir=data_dir, workers=workers
+        **given(
+            ctx, host=host, port=port, viewer_port=viewer_port, data_dir=data_dir, workers=workers
+        )
     )
     # deferred: the API stack (FastAPI, uvicorn, SQLAlchemy, Huey); see the module doc
     from server.serve_parts import ServeParts, load_serve_parts
@@ -64,10 +88,11 @@ def serve(
 
 
 def worker(
-    data_dir: Path | None = typer.Option(None, help="Data directory [default: ./data]."),
+    ctx: typer.Context,
+    data_dir: Path = _setting(Path("data"), "The API's data directory", "JOINTSEG_DATA_DIR"),
 ) -> None:
     """Run one worker process (any number, on any machine sharing the data directory)."""
-    settings = load_settings(data_dir=data_dir)
+    settings = load_settings(**given(ctx, data_dir=data_dir))
     # deferred: the worker stack (SQLAlchemy, Huey, the pipeline); see the module doc
     from server.worker.process import worker_main
 
