@@ -152,6 +152,8 @@ class ClientView:
         self._address_serial = 0
         self._address_due: threading.Timer | None = None
         self._address_last = 0.0
+        self._listed = False  # the picker has been sent a list
+        self._list_failed = False
         client.scene.set_background_image(
             np.broadcast_to(np.array(BACKGROUND, np.uint8), (4, 4, 3)).copy(), format="png"
         )
@@ -276,18 +278,56 @@ class ClientView:
         self.sync_address()
 
     def refresh_jobs(self) -> None:
-        """Reload the job picker's list (finished jobs, newest first); keep the current choice."""
+        """Reload the job picker's list (finished jobs, newest first), keeping the current
+        choice; then, if the shown job has gone (deleted, or no longer this key's), say so.
+
+        The viewer calls this every :data:`web.viewer.LIST_EVERY_S` seconds, so jobs deleted
+        or finished elsewhere leave or join the list without a reload; the picker is sent again
+        only when its list changed (an open dropdown is not redrawn under the mouse).
+        """
         try:
             jobs = list(self.source.finished_jobs())
         except Exception:  # the list is best effort: a database hiccup must not kill the tab
-            log.exception("listing finished jobs failed")
-            jobs = []
-        self._labels = {job.label: job.id for job in jobs}
-        self._entries = {job.id: job for job in jobs}
-        current = self.picker.value
-        self.picker.options = (PLACEHOLDER if jobs else NO_JOBS, *self._labels)
-        if current in self._labels:
-            self._set_value(self.picker, current)
+            if not self._list_failed:
+                log.exception("listing finished jobs failed")
+            self._list_failed = True
+            return  # keep the last list: a hiccup is no reason to call every job gone
+        self._list_failed = False
+        with self._lock:
+            known = dict(self._entries)
+            labels = {job.label: job.id for job in jobs}
+            self._entries = {job.id: job for job in jobs}
+            if labels != self._labels or not self._listed:
+                self._labels, self._listed = labels, True
+                current = self.picker.value
+                self._quiet, was = True, self._quiet
+                try:  # a choice that left the list falls back to the placeholder, quietly
+                    self.picker.options = (PLACEHOLDER if jobs else NO_JOBS, *labels)
+                finally:
+                    self._quiet = was
+                if current in labels:
+                    self._set_value(self.picker, current)
+            if self.job_id is not None and self.job_id not in self._entries:
+                self._check_shown(self.job_id, known.get(self.job_id))
+
+    def _check_shown(self, job_id: str, entry: JobEntry | None) -> None:
+        """The shown job is not in the list: beyond the list's length, or gone. When gone, its
+        panels are removed and the tab says so, rather than showing a job that is no more."""
+        try:
+            self.source.result_path(job_id)
+            return  # still there (the list holds the newest jobs only)
+        except JointsegError as exc:
+            log.info("client %d: job %s is gone: %s", self.client.client_id, job_id, exc)
+        name = f"{entry.filename} [{job_id[:8]}]" if entry is not None else job_id
+        self.clear()
+        self.status.content = (
+            f"**{name} was deleted** (or this key may no longer see it): nothing of it is "
+            "shown. Choose another job."
+        )
+        self.client.add_notification(
+            "Job deleted", f"{name} is no longer on the service.", color="red"
+        )
+        self.sync_address()
 
     def _set_value(self, handle: Any, value: Any) -> None:
         """Change a control without running its callbacks' effects."""

@@ -44,6 +44,9 @@ from web.view_state import viewer_link as state_link
 log = logging.getLogger(__name__)
 
 _JOB_PATH = re.compile(r"^/job/([^/?#]+)/?$")
+#: Seconds between two refreshes of every tab's job list (a deleted job leaves it, a finished
+#: one joins it, without a reload).
+LIST_EVERY_S = 2.0
 
 
 def viewer_link(base_url: str, job_id: str) -> str:
@@ -111,6 +114,9 @@ class Viewer:
         self.server.scene.world_axes.visible = False
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
+        self._stopping = threading.Event()
+        self._lists = threading.Thread(target=self._refresh_lists, name="job-lists", daemon=True)
+        self._lists.start()
         log.info("viewer listening on http://%s:%d", host, self.port)
 
     @property
@@ -211,6 +217,17 @@ class Viewer:
         log.info("viewer: client %d signed out", client.client_id)
         client.gui.add_html(cookie_html(self.cookie, None, 0, self._next_serial()))
 
+    def _refresh_lists(self) -> None:
+        """Every :data:`LIST_EVERY_S`, each tab's job list read again from its own source."""
+        while not self._stopping.wait(LIST_EVERY_S):
+            with self._views_lock:
+                views = list(self.views.values())
+            for view in views:
+                try:
+                    view.refresh_jobs()
+                except Exception:  # a tab closing under the refresh must not end the others'
+                    log.exception("refreshing a tab's job list failed")
+
     def _disconnect(self, client: viser.ClientHandle) -> None:
         with self._views_lock:
             view = self.views.pop(client.client_id, None)
@@ -245,4 +262,5 @@ class Viewer:
 
     def stop(self) -> None:
         """Close every connection and the port."""
+        self._stopping.set()
         self.server.stop()

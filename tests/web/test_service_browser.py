@@ -491,3 +491,68 @@ def test_every_download_of_the_job_page_and_the_viewer_parses(
         page.close()
     assert any("/v1/jobs/" in a for a in addresses) and any(a.startswith("ws") for a in addresses)
     assert [a for a in addresses if key_in(a, API_KEY)] == []
+
+
+def _picker_options(viewer: Any) -> list[str]:
+    """The viewer's job list as the user sees it: the *Job* dropdown opened, read, closed."""
+    viewer.get_by_label("Job", exact=True).click()
+    options = viewer.get_by_role("option")
+    options.first.wait_for(timeout=10_000)
+    names = [options.nth(i).inner_text() for i in range(options.count())]
+    viewer.keyboard.press("Escape")
+    return names
+
+
+def _until(check: Any, seconds: float, what: str) -> float:
+    """Wait until ``check()`` holds; the seconds it took."""
+    started = time.monotonic()
+    while not check():
+        assert time.monotonic() - started < seconds, f"{what} not within {seconds} s"
+        time.sleep(0.3)
+    return time.monotonic() - started
+
+
+def test_a_deleted_job_leaves_the_viewer_without_a_reload(
+    service: Running, browser: Any, tmp_path: Path, random_weights: Path
+) -> None:
+    """Issue 45, point 3: a job deleted through the API leaves the open viewer's list within a
+    few seconds; the job the viewer shows, deleted, is taken off the screen with a clear note."""
+    config = {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0}
+    with service.client() as http:
+        ids = {}
+        for name in ("shown", "other"):
+            scan = write_scan(make_room(10, points=2000), tmp_path / f"{name}.ply")
+            ids[name] = _finished(http, _submit(http, scan, config).json()["id"])["id"]
+        base = f"http://127.0.0.1:{service.viewer_port}"
+        ws = f"ws://127.0.0.1:{service.viewer_port}/job/{ids['shown']}"
+        viewer = browser.new_page(viewport={"width": 1600, "height": 900})
+        sockets: list[str] = []
+        viewer.on("websocket", lambda socket: sockets.append(socket.url))
+        try:
+            viewer.goto(f"{base}/?websocket={quote(ws, safe='')}")
+            sign_in(viewer, API_KEY)
+            viewer.get_by_text("points shown").wait_for(timeout=60_000)
+            listed = _picker_options(viewer)
+            assert any(n.startswith("other.ply") for n in listed), listed
+            assert any(n.startswith("shown.ply") for n in listed), listed
+
+            assert http.delete(f"/v1/jobs/{ids['other']}").status_code == 204
+            took = _until(
+                lambda: not any(n.startswith("other.ply") for n in _picker_options(viewer)),
+                10,
+                "the deleted job leaving the list",
+            )
+            assert any(n.startswith("shown.ply") for n in _picker_options(viewer))
+            assert viewer.get_by_text("points shown").is_visible()  # the shown job stays
+
+            assert http.delete(f"/v1/jobs/{ids['shown']}").status_code == 204
+            note = viewer.get_by_text(f"shown.ply [{ids['shown'][:8]}] was deleted")
+            note.wait_for(timeout=10_000)
+            assert viewer.get_by_text("points shown").count() == 0
+            assert not any(n.startswith("shown.ply") for n in _picker_options(viewer))
+            # the address no longer opens the deleted job
+            viewer.wait_for_function(f"!location.href.includes({json.dumps(ids['shown'])})")
+        finally:
+            viewer.close()
+    assert took < 10
+    assert len(sockets) == 1, sockets  # one connection all along: nothing was reloaded
