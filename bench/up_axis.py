@@ -339,10 +339,11 @@ def main() -> None:
     else:
         rows = gather_all(cases(args.views, args.seed), judge_all=True)
         args.cache.write_bytes(pickle.dumps(rows))
-    base_w, full_w = weigh.BASE_WEIGHTS, weigh.FULL_WEIGHTS
-    if args.fit:
+    if args.fit:  # the file's weighing is not read: it may be for other features
         base_w, full_w = fit([r for r in rows if not r["judging"]])
         write_model(base_w, full_w, rows)
+    else:
+        base_w, full_w = weigh.fitted_weights()
     print(f"{len(rows)} cases; gathering took {sum(r['seconds'] for r in rows):.0f} s")
     print("\nbefore the network (file, capture, geometry):\n")
     table(rows, base_w, full_w, use_net=False)

@@ -16,12 +16,12 @@ rooms; :mod:`jointseg.frame.weigh` weighs them with the file's word and the netw
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from jointseg.frame.model import MODEL_FILE, read_up_model, shipped_up_model, weight_vector
 from jointseg.geometry.alignment import estimate_normals
 from jointseg.voxels import voxel_index
 
@@ -37,13 +37,11 @@ LAYER = 0.08
 
 #: Height profiles: bins across the extent along a direction.
 PROFILE_BINS = 10
-#: Logistic weights of the axis step and of the sign step (see :func:`axis_features` and
-#: :func:`sign_features`), fitted in issue 31 on its tuning rooms (``bench/up_axis.py --fit`` at
-#: commit 586b150; today's bench fits the weighing over them, ``up_model.json``'s ``weigh``).
-MODEL_FILE = Path(__file__).with_name("up_model.json")
-_MODEL = json.loads(MODEL_FILE.read_text()) if MODEL_FILE.is_file() else {}
-AXIS_WEIGHTS = np.array(_MODEL.get("axis_weights", np.zeros(3 * PROFILE_BINS + 3)))
-SIGN_WEIGHTS = np.array(_MODEL.get("sign_weights", np.zeros(3 * PROFILE_BINS + 4)))
+#: Lengths of the logistic weights of the axis step and of the sign step (see
+#: :func:`axis_features` and :func:`sign_features`): ``up_model.json``'s ``axis_weights`` and
+#: ``sign_weights``, fitted in issue 31 on its tuning rooms (``bench/up_axis.py --fit`` at commit
+#: 586b150; today's bench fits the weighing over them, ``up_model.json``'s ``weigh``).
+AXIS_SIZE, SIGN_SIZE = 3 * PROFILE_BINS + 3, 3 * PROFILE_BINS + 4
 
 AXES: dict[str, np.ndarray] = {
     "+x": np.array([1.0, 0.0, 0.0]),
@@ -229,17 +227,27 @@ def _softmax(z: np.ndarray) -> np.ndarray:
     return e / e.sum()
 
 
+def model_weights(path: Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The axis step's and the sign step's logistic weights: the shipped model's (read once per
+    process) unless ``path`` names another file; a ConfigError naming the file when it is
+    missing, never zeros (an installation without it would decide up by chance)."""
+    body = shipped_up_model() if path is None else read_up_model(path)
+    where = MODEL_FILE if path is None else Path(path)
+    axis = weight_vector(body, "axis_weights", AXIS_SIZE, where)
+    return axis, weight_vector(body, "sign_weights", SIGN_SIZE, where)
+
+
 def axis_probabilities(sample: FrameSample) -> np.ndarray:
     """(3,): the geometry's probability that each file axis is the vertical one (the file's own
     evidence is weighed apart, :mod:`jointseg.frame.weigh`)."""
-    return _softmax(axis_features(sample) @ AXIS_WEIGHTS)
+    return _softmax(axis_features(sample) @ model_weights()[0])
 
 
 def sign_probability(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
     """The geometry's probability that +``axis`` rather than -``axis`` is up."""
     d = sample.directions[axis]
     d = d if d[axis] >= 0 else -d
-    score = float(sign_features(sample, d, metres_per_unit) @ SIGN_WEIGHTS)
+    score = float(sign_features(sample, d, metres_per_unit) @ model_weights()[1])
     return float(1.0 / (1.0 + np.exp(-np.clip(score, -50.0, 50.0))))
 
 

@@ -12,14 +12,15 @@ confidence is its probability, so a threshold on it means a share of right decis
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from jointseg.exceptions import ConfigError
 from jointseg.frame import judge
+from jointseg.frame.model import MODEL_FILE, read_up_model, shipped_up_model, weight_vector
 from jointseg.frame.sources import SIGNED_AXES, STRONG
 
 #: Feature names of one candidate; the network's come last and exist only for judged ones. The
@@ -51,14 +52,25 @@ KEEP_FLOOR = 0.2
 #: tall room taken as lying on its side) must not outvote everything else.
 MIN_P = 0.02
 
-MODEL_FILE = Path(__file__).with_name("up_model.json")
-_MODEL = json.loads(MODEL_FILE.read_text()) if MODEL_FILE.is_file() else {}
-_FITTED = _MODEL.get("weigh", {})
-_FITS = _FITTED.get("features") == list(FULL_FEATURES)
-#: Fitted weights: without the network (``base``) and with it (``full``).
-BASE_WEIGHTS = np.array(_FITTED["base"] if _FITS else [1.0] * len(BASE_FEATURES))
-_NET_GUESS = [5.0, 2.0, -2.0, 1.0, -1.0, 2.0, 1.0, 1.0]  # placeholders, one per judge feature
-FULL_WEIGHTS = np.array(_FITTED["full"] if _FITS else [1.0] * len(BASE_FEATURES) + _NET_GUESS)
+
+def fitted_weights(path: Path | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted weights without the network (``base``) and with it (``full``): the shipped
+    model's (read once per process) unless ``path`` names another file.
+
+    A model that is missing, or was fitted on other features than :data:`FULL_FEATURES`, is a
+    ConfigError naming the file: placeholder weights would decide up by chance, silently.
+    """
+    body = shipped_up_model() if path is None else read_up_model(path)
+    where = MODEL_FILE if path is None else Path(path)
+    fitted = body.get("weigh")
+    if not isinstance(fitted, dict) or fitted.get("features") != list(FULL_FEATURES):
+        found = fitted.get("features") if isinstance(fitted, dict) else None
+        raise ConfigError(
+            f"the up-axis model {where} weighs the features {found}, not {list(FULL_FEATURES)}; "
+            "refit it with `python bench/up_axis.py --fit`"
+        )
+    base = weight_vector(fitted, "base", len(BASE_FEATURES), where)
+    return base, weight_vector(fitted, "full", len(FULL_FEATURES), where)
 
 
 @dataclass(frozen=True)
@@ -183,7 +195,7 @@ def choose(p: np.ndarray, file_axis: str | None) -> str:
 
 
 def _base_p(evidence: Evidence, base_weights: np.ndarray | None) -> np.ndarray:
-    weights = BASE_WEIGHTS if base_weights is None else base_weights
+    weights = fitted_weights()[0] if base_weights is None else base_weights
     return softmax(evidence.base() @ weights)
 
 
@@ -218,7 +230,7 @@ def weigh(
     file_axis = evidence.file_axis
     if not judged:
         return Weighed(base_p, base_p, {}, file_axis)
-    weights = FULL_WEIGHTS if full_weights is None else full_weights
+    weights = fitted_weights()[1] if full_weights is None else full_weights
     z = np.full(6, -np.inf)
     for name, feats in judged.items():
         i = SIGNED_AXES.index(name)

@@ -344,7 +344,12 @@ class TreeEnsemble:
 
     @classmethod
     def from_json(cls, path: Path) -> TreeEnsemble:
-        """Read a model written by ``bench/fit_vote.py``."""
+        """Read a model written by ``bench/fit_vote.py``; a missing file is a ConfigError naming
+        it (an installation without the shipped model must not fuse without it)."""
+        if not path.is_file():
+            incomplete = ": the jointseg installation is incomplete; reinstall jointseg"
+            why = incomplete if path == MODEL_PATH else ""
+            raise ConfigError(f"the vote model {path} is missing{why}")
         try:
             body = json.loads(path.read_text())
             trees = body["trees"]

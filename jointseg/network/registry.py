@@ -23,7 +23,7 @@ from types import MappingProxyType
 
 from jointseg.exceptions import ConfigError
 from jointseg.network import published
-from jointseg.network.backends import Backend, Options, Predictor
+from jointseg.network.backends import WEIGHTS_DIR, Backend, Options, Predictor
 
 __all__ = [
     "BACKENDS",
@@ -219,10 +219,21 @@ def load(
     if path is None:
         raise ConfigError(f"no weights for {name!r}: {record.where_to_get}")
     if not path.is_file():
-        raise ConfigError(f"no weights for {name!r} at {path}: {record.where_to_get}")
+        raise ConfigError(_missing_weights(name, path, record))
     chosen = params if params is not None else options.get(name)
     size = batch_size or default_batch_size(device)
     return record.load(path, device=device, batch_size=size, options=chosen)
+
+
+def _missing_weights(name: str, path: Path, record: Backend) -> str:
+    """Why ``path`` cannot be loaded: a file missing from the package's own weights folder is an
+    incomplete installation (a wheel built without its package data), not weights to fetch."""
+    if path.resolve().parent == WEIGHTS_DIR.resolve():
+        return (
+            f"the bundled weights {path} for {name!r} are missing: the jointseg installation is "
+            "incomplete; reinstall jointseg"
+        )
+    return f"no weights for {name!r} at {path}: {record.where_to_get}"
 
 
 #: Crops (or blocks) per forward pass by default: on the CPU one at a time is fastest (measured
