@@ -133,7 +133,7 @@ class ClientView:
         self.frames: dict[str, viser.FrameHandle] = {}
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
         self.shown: np.ndarray | None = None  # rows of the scene data sent (point budget)
-        self.boxes: viser.LineSegmentsHandle | None = None
+        self.boxes: dict[int, viser.LineSegmentsHandle] | None = None  # by class; None: not sent
         self._groups: dict[str, dict[tuple[int, bool], np.ndarray]] = {}
         self._root: viser.FrameHandle | None = None
         self._root_path = ROOT
@@ -240,7 +240,9 @@ class ClientView:
         with gui.add_folder("Confusion", visible=False) as self.confusion_folder:
             self.confusion = gui.add_html("")
         with gui.add_folder("Objects and rooms", visible=False) as self.objects_folder:
-            self.boxes_box = gui.add_checkbox("Object boxes", True, hint="in the fused panel")
+            self.boxes_box = gui.add_checkbox(
+                "Object boxes", self.asked.boxes, hint="in the fused panel, with their class"
+            )
             self.objects_table = gui.add_html("")
         with gui.add_folder("Downloads"):
             # the job page's six downloads, under the API's names (web.downloads)
@@ -620,22 +622,28 @@ class ClientView:
             )
 
     def _send_boxes(self, data: SceneData) -> None:
-        """The objects' boxes, drawn once in the fused panel (the report's objects)."""
-        segments, colours = box_segments(data)
-        if not len(segments):
-            return
-        self.boxes = self.client.scene.add_line_segments(
-            f"{self._root_path}/fused/objects",
-            segments,
-            colours,
-            thickness=2.0,
-            thickness_units="screen",
-            visible=bool(self.boxes_box.value),
-        )
+        """The objects' boxes, drawn once in the fused panel (the report's objects), a node
+        per class so that they follow the class buttons."""
+        self.boxes = {
+            cls: self.client.scene.add_line_segments(
+                f"{self._root_path}/fused/objects_{class_title(cls)}",
+                segments,
+                colours,
+                thickness=2.0,
+                thickness_units="screen",
+                visible=self._box_visible(cls),
+            )
+            for cls, (segments, colours) in box_segments(data).items()
+        }
+
+    def _box_visible(self, cls: int) -> bool:
+        """Boxes are drawn when *Object boxes* is ticked and their class is shown."""
+        return bool(self.boxes_box.value) and cls not in self.hidden
 
     def _show_boxes(self) -> None:
-        if self.boxes is not None:
-            self.boxes.visible = bool(self.boxes_box.value)
+        with self._lock, self.client.atomic():
+            for cls, node in (self.boxes or {}).items():
+                node.visible = self._box_visible(cls)
 
     def _size(self, data: SceneData) -> float:
         return float(self.point_size.value) * max(data.spacing, 1e-4)
@@ -647,6 +655,7 @@ class ClientView:
         with self._lock, self.client.atomic():
             for (_, cls, changed), node in self.nodes.items():
                 node.visible = self._node_visible(cls, changed)
+            self._show_boxes()
             self._status_line()
 
     def _resize_points(self) -> None:
@@ -772,6 +781,7 @@ class ClientView:
             hidden=frozenset(self.hidden),
             panels=frozenset(p.key for p, want in self._wanted.items() if want),
             only_changed=bool(self.only_changed.value),
+            boxes=bool(self.boxes_box.value),
             point_size=float(self.point_size.value),
             single=single,
             budget=None if self.budget.value >= self.cache.max_points else int(self.budget.value),

@@ -20,6 +20,8 @@ from web.scene import SceneData
 EDGES = np.array(
     [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
 )
+#: The class of an object whose class name is not one of jointseg's.
+CLUTTER = CLASS_NAMES.index("clutter")
 _TABLE = 'style="width:100%;border-collapse:collapse;font-size:0.8em"'
 _CELL = 'style="padding:1px 4px;text-align:right"'
 _LEFT = 'style="padding:1px 4px;text-align:left"'
@@ -38,18 +40,22 @@ def rooms_of(data: SceneData) -> list[dict[str, Any]]:
     return rooms if isinstance(rooms, list) else []
 
 
-def box_segments(data: SceneData) -> tuple[np.ndarray, np.ndarray]:
+def box_segments(data: SceneData) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Every object's 12 box edges in scene coordinates, (E, 2, 3) float32, and their class
-    colours, (E, 2, 3) uint8."""
-    boxes, colours = [], []
+    colour, (E, 2, 3) uint8, by class: one node per class, so that hiding a class hides its
+    boxes with its points. An object of a class jointseg does not know counts as clutter."""
+    boxes: dict[int, list[np.ndarray]] = {}
     for obj in objects_of(data):
         corners = data.shown_xyz(np.asarray(obj["box"], dtype=np.float64))
-        boxes.append(corners[EDGES])
-        cls = CLASS_NAMES.index(obj["cls"]) if obj["cls"] in CLASS_NAMES else 12
-        colours.append(np.broadcast_to(PALETTE[cls], (12, 2, 3)))
-    if not boxes:
-        return np.zeros((0, 2, 3), np.float32), np.zeros((0, 2, 3), np.uint8)
-    return np.concatenate(boxes).astype(np.float32), np.concatenate(colours).astype(np.uint8)
+        cls = CLASS_NAMES.index(obj["cls"]) if obj["cls"] in CLASS_NAMES else CLUTTER
+        boxes.setdefault(cls, []).append(corners[EDGES])
+    return {
+        cls: (
+            np.concatenate(edges).astype(np.float32),
+            np.broadcast_to(PALETTE[cls], (12 * len(edges), 2, 3)).astype(np.uint8),
+        )
+        for cls, edges in sorted(boxes.items())
+    }
 
 
 def objects_html(data: SceneData) -> str | None:

@@ -6,7 +6,8 @@ written into it as the path and one query parameter,
 
     ws://HOST:PORT/job/<id>?v=<token>~<token>~...
 
-each token a letter, a dot and a value (``c.`` camera, ``h.`` hidden classes, ...). A single
+each token a letter, a dot and a value (``c.`` camera, ``h.`` hidden classes, ``x.0`` object
+boxes off, ...). A single
 parameter with ``~`` between tokens survives viser's own rewriting of the address bar, which
 puts the websocket address back unescaped (an ``&`` inside it would split it).
 
@@ -47,6 +48,7 @@ class ViewState:
     point_size: float | None = None
     single: str | None = None  # one large panel (its key) instead of the row
     budget: int | None = None
+    boxes: bool = True  # the objects' boxes drawn
 
 
 def _floats(text: str, count: int) -> tuple[float, ...] | None:
@@ -104,6 +106,8 @@ def _apply(state: ViewState, letter: str, value: str) -> ViewState:
         return replace(state, single=value or None) if re.fullmatch(r"[a-z]*", value) else state
     if letter == "b" and value.isdigit():
         return replace(state, budget=int(value))
+    if letter == "x":
+        return replace(state, boxes=value != "0")
     return state
 
 
@@ -127,6 +131,8 @@ def state_path(state: ViewState) -> str:
         tokens.append("l." + state.single)
     if state.budget is not None:
         tokens.append(f"b.{state.budget}")
+    if not state.boxes:
+        tokens.append("x.0")
     path = "/job/" + quote(state.job_id, safe="")
     return path + ("?v=" + "~".join(tokens) if tokens else "")
 

@@ -24,11 +24,19 @@ FULL = ViewState(
     point_size=1.5,
     single="fused",
     budget=50_000,
+    boxes=False,
 )
 
 
 def test_a_view_comes_back_from_its_path() -> None:
     assert parse_path(state_path(FULL)) == FULL
+
+
+def test_object_boxes_are_on_unless_a_link_says_off() -> None:
+    assert ViewState(job_id="j").boxes and "x." not in state_path(ViewState(job_id="j"))
+    assert "x.0" in state_path(FULL).split("~")
+    assert not parse_path("/job/j?v=x.0").boxes
+    assert parse_path("/job/j?v=x.1").boxes and parse_path("/job/j?v=o.1").boxes
 
 
 def test_the_path_has_no_character_viser_would_split_the_address_on() -> None:

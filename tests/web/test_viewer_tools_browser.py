@@ -438,8 +438,10 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     objects, rooms = report["objects"], report["rooms"]["rooms"]
     assert objects and rooms
     data = view.data
-    # every object's box: 12 edges each, in the fused panel
-    assert view.boxes is not None and view.boxes.points.shape == (12 * len(objects), 2, 3)
+    # every object's box: 12 edges each, in the fused panel, one node per class
+    assert view.boxes is not None
+    assert sum(node.points.shape[0] for node in view.boxes.values()) == 12 * len(objects)
+    assert {CLASS_NAMES[c] for c in view.boxes} == {o["cls"] for o in objects}
     body = page.locator("body").inner_text()
     assert "Objects and rooms" in body and rooms[0]["name"] in body
     chairs = sum(o["cls"] == "chair" for o in objects)
@@ -460,4 +462,65 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     (artifacts / "viewer_objects.png").write_bytes(page.screenshot())
     # the boxes can be switched off
     page.get_by_label("Object boxes", exact=True).uncheck()
-    wait_for(lambda: not view.boxes.visible, what="boxes hidden")
+    wait_for(lambda: not any(n.visible for n in view.boxes.values()), what="boxes hidden")
+
+
+# ------------------------------------------------------------------------ object boxes
+def changed_pixels(a: np.ndarray, b: np.ndarray, span: tuple[int, int]) -> int:
+    """Pixels that differ between two grabs inside one panel's columns."""
+    return int(np.count_nonzero((a[:, span[0] : span[1]] != b[:, span[0] : span[1]]).any(-1)))
+
+
+def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
+    browser: Any, viewer: Viewer, jobs: Path, artifacts: Path
+) -> None:
+    """Issue 45, point 4: hiding a class hides its objects' boxes with its points, and *Object
+    boxes* off is kept in the address, so the link opens with them off.
+
+    The boxes are told apart on the screen by switching them: with every class that has boxes
+    hidden, *Object boxes* on or off must draw the same pixels (no edge is left over)."""
+    page, view = settled_view(browser, viewer, "room")
+    other = None
+    try:
+        assert view.boxes is not None and len(view.boxes) >= 2
+        boxes = page.get_by_label("Object boxes", exact=True)
+        on = settled(page)
+        fused = panel_spans(on, 4)[2]
+        boxes.uncheck()
+        assert changed_pixels(on, settled(page), fused) > 200  # the edges show on the screen
+        boxes.check()
+        shown_classes = [c for c in view.boxes if view.class_shown(c)]
+        first = shown_classes[0]
+        page.get_by_role("button", name=CLASS_NAMES[first], exact=True).click()
+        wait_for(lambda: not view.boxes[first].visible, what="the class's boxes hidden")
+        assert all(n.visible for c, n in view.boxes.items() if c != first)  # the others stay
+        for cls in shown_classes[1:]:
+            page.get_by_role("button", name=CLASS_NAMES[cls], exact=True).click()
+        wait_for(lambda: not any(n.visible for n in view.boxes.values()), what="all hidden")
+        hidden = settled(page, min_ink=5000)
+        (artifacts / "viewer_boxes_classes_hidden.png").write_bytes(page.screenshot())
+        boxes.uncheck()
+        assert changed_pixels(hidden, settled(page, min_ink=5000), fused) <= 10
+        boxes.check()
+        for cls in shown_classes:
+            page.get_by_role("button", name=CLASS_NAMES[cls], exact=True).click()
+        wait_for(lambda: all(view.boxes[c].visible for c in shown_classes), what="boxes back")
+
+        # boxes off: the address says so, and a link opens with them off
+        assert "x.0" not in address(page)
+        boxes.uncheck()
+        wait_for(lambda: "x.0" in address(page), what="boxes off in the address")
+        other = open_page(browser, address(page))
+        shown(other)
+        copy = view_of(viewer, "room", exclude=(view,))
+        assert not other.get_by_label("Object boxes", exact=True).is_checked()
+        assert copy.boxes is not None and copy.boxes
+        assert not any(n.visible for n in copy.boxes.values())
+        # and on again: the token leaves the address
+        other.get_by_label("Object boxes", exact=True).check()
+        wait_for(lambda: "x.0" not in address(other), what="boxes on in the address")
+        assert all(n.visible for c, n in copy.boxes.items() if copy.class_shown(c))
+    finally:
+        page.close()
+        if other is not None:
+            other.close()
