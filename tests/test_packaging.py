@@ -41,53 +41,40 @@ LOADERS = (
 )
 
 
-def _tracked(*paths: str) -> list[str]:
-    """The files git tracks under ``paths`` (all of them when none is given)."""
-    out = subprocess.run(
-        ["git", "ls-files", *paths], cwd=ROOT, check=True, capture_output=True, text=True
-    ).stdout.split()
-    return sorted(out)
+def _source_files(*paths: str) -> list[str]:
+    """The files of the source tree under ``paths`` (all when none is given), as in the working
+    tree: those git tracks and those it would add (untracked, not ignored), so the wheel is built
+    from the same tree the checkout's run uses, work not yet added included. Ignored leftovers
+    (build/, egg-info) are not among them."""
+    command = ["git", "ls-files", "--cached", "--others", "--exclude-standard", *paths]
+    listed = subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True)
+    return sorted({name for name in listed.stdout.splitlines() if (ROOT / name).is_file()})
 
 
 def _fresh_copy(target: Path) -> Path:
-    """The tracked tree copied to ``target``: no build/ or egg-info left from an earlier build
+    """The source tree copied to ``target``: no build/ or egg-info left from an earlier build
     can add a file the project's own settings leave out."""
-    for name in _tracked():
-        if (ROOT / name).is_file():
-            (target / name).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(ROOT / name, target / name)
+    for name in _source_files():
+        (target / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(ROOT / name, target / name)
     return target
 
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The wheel built from a fresh copy of the tracked tree, once for this module's tests."""
+    """The wheel built from a fresh copy of the source tree, once for this module's tests."""
     if not (ROOT / ".git").exists():
-        pytest.skip("not a git checkout: the tracked files are unknown")
+        pytest.skip("not a git checkout: the source files are unknown")
     tmp = tmp_path_factory.mktemp("wheel")
     source = _fresh_copy(tmp / "src")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "wheel",
-            "-q",
-            "--no-deps",
-            "--no-build-isolation",
-            str(source),
-            "-w",
-            str(tmp / "dist"),
-        ],
-        check=True,
-        capture_output=True,
-    )
+    build = [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation"]
+    subprocess.run([*build, str(source), "-w", str(tmp / "dist")], check=True, capture_output=True)
     (built,) = (tmp / "dist").glob("jointseg-*.whl")
     return built
 
 
 def test_the_wheel_holds_every_data_file_of_the_packages(wheel: Path) -> None:
-    data = [f for f in _tracked(*PACKAGES) if not f.endswith(".py")]
+    data = [f for f in _source_files(*PACKAGES) if not f.endswith(".py")]
     assert "jointseg/frame/up_model.json" in data  # the list is the real one
     names = set(zipfile.ZipFile(wheel).namelist())
     missing = [f for f in data if f not in names]
