@@ -105,13 +105,13 @@ def _predict_in_frame(
     metric frame (strays set aside, then given their nearest kept point's), and the stray mask."""
     from jointseg.frame.colour import decide_colour
     from jointseg.frame.decide import decide_frame, work_scan
+    from jointseg.network.choice import colour_free_if_needed
     from jointseg.network.judge import crop_labeller
     from jointseg.pipeline.config import NetworkConfig
-    from jointseg.pipeline.stages import colour_free_if_needed
 
     config = NetworkConfig(name=name, weights=weights)
     usable = decide_colour(scan.rgb, params.colour).usable
-    chosen = colour_free_if_needed(predictor, config, usable)
+    chosen = colour_free_if_needed(predictor, config.choice(), usable)
     frame = decide_frame(scan, params, judge=crop_labeller(chosen))
     typer.echo(frame.summary(), err=True)
     for warning in frame.warnings:

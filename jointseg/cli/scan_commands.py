@@ -118,12 +118,12 @@ def _default_judge(scan: Any) -> Any:
 
     def label(xyz: Any, rgb: Any) -> Any:
         if not loaded:
+            from jointseg.network.choice import network_for
             from jointseg.network.judge import crop_labeller
             from jointseg.pipeline import load_predictor
-            from jointseg.pipeline.stages import network_for
 
             predictor = load_predictor(config.network)
-            loaded.append(crop_labeller(network_for(predictor, config.network, usable)))
+            loaded.append(crop_labeller(network_for(predictor, config.network.choice(), usable)))
         return loaded[0](xyz, rgb)
 
     return label

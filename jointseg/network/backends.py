@@ -60,6 +60,11 @@ class Predictor(Protocol):
         """The network itself, in eval mode on :attr:`device`."""
         ...
 
+    @property
+    def batch_size(self) -> int:
+        """Crops (or samples) per forward pass."""
+        ...
+
     def predict(
         self,
         scan: Scan,

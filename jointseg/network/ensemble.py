@@ -46,6 +46,10 @@ class EnsemblePredictor:
     def model(self) -> torch.nn.Module:
         return self.members[0].model
 
+    @property
+    def batch_size(self) -> int:
+        return self.members[0].batch_size
+
     def predict(
         self,
         scan: Scan,

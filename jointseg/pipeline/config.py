@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, PositiveInt, create_model, mo
 from jointseg.frame.params import FrameParams
 from jointseg.fusion import FusionParams
 from jointseg.geometry import GeometryParams
+from jointseg.network.choice import Choice
 from jointseg.network.devices import DEVICE_NAMES, check_device_name
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
 from jointseg.objects.params import ObjectParams
@@ -70,6 +71,19 @@ class NetworkSettings(BaseModel):
         if record is None or record.params is None:
             return None
         return getattr(self, record.name, None)
+
+    def choice(self) -> Choice:
+        """This section as :mod:`jointseg.network.choice` takes it."""
+        params = {r.name: getattr(self, r.name, None) for r in REGISTRY.values() if r.params}
+        return Choice(
+            name=self.name,
+            weights=self.weights,
+            device=self.device,
+            batch_size=self.batch_size,
+            colour_free=self.colour_free,
+            ensemble=self.ensemble,
+            params=params,
+        )
 
 
 def _backend_sections() -> dict[str, Any]:

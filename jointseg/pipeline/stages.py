@@ -1,34 +1,28 @@
-"""The whole method on one scan: network and geometry (side by side), then fusion, then metrics.
-
-The two first stages do not depend on each other, so they run in two threads: torch and
-scipy's KD-tree release the GIL in their heavy parts. One shared cancel token reaches both, and
-when either fails the other is stopped before the error propagates, so no stage keeps burning
-CPU after ``run`` has returned.
-"""
+"""The whole method on one scan: the frame, network and geometry (side by side,
+:mod:`jointseg.pipeline.side_by_side`), then fusion, objects and metrics."""
 
 from __future__ import annotations
 
 import logging
-import threading
 import time
-from collections.abc import Callable
-from concurrent.futures import FIRST_EXCEPTION, Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from jointseg.exceptions import Cancelled, ConfigError
+from jointseg.exceptions import ConfigError
 from jointseg.frame.colour import decide_colour
 from jointseg.frame.decide import Frame, decide_frame, work_scan
 from jointseg.fusion import FusionResult, StructureHint, fuse
-from jointseg.geometry import GeometryResult, ResolvedGeometryParams, segment
+from jointseg.geometry import GeometryResult
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
+from jointseg.network.choice import network_for
 from jointseg.network.judge import crop_labeller
 from jointseg.network.registry import load, resolve_weights
 from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
+from jointseg.pipeline.side_by_side import network_and_geometry
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
 
@@ -36,7 +30,6 @@ if TYPE_CHECKING:
     from jointseg.objects.layout import Layout
 
 log = logging.getLogger(__name__)
-T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -108,17 +101,6 @@ class PipelineResult:
     def fused_confidence(self) -> np.ndarray:
         """Fused confidence per point, (N,) float32 in [0, 1]."""
         return self.fusion.confidence
-
-
-class _AnyOf:
-    """A cancel token set when the caller's token or the pipeline's own stop event is."""
-
-    def __init__(self, outer: CancelToken | None, stop: threading.Event) -> None:
-        self.outer = outer
-        self.stop = stop
-
-    def is_set(self) -> bool:
-        return self.stop.is_set() or (self.outer is not None and self.outer.is_set())
 
 
 def load_predictor(config: NetworkConfig) -> Predictor:
@@ -271,7 +253,7 @@ def _frame_stage(
     timed as ``frame``."""
     t = time.perf_counter()
     usable = decide_colour(scan.rgb, config.frame.colour).usable
-    chosen = network_for(predictor, config.network, usable)
+    chosen = network_for(predictor, config.network.choice(), usable)
     frame = decide_frame(scan, config.frame, judge=crop_labeller(chosen))
     work, index = work_scan(scan, frame)
     report(progress, "frame", 1.0)
@@ -302,82 +284,6 @@ def expand(
             network_labels=fused.network_labels[index],
         ),
     )
-
-
-_COLOUR_FREE: dict[tuple[str, str | None, int], Predictor] = {}
-
-
-def colour_free_if_needed(
-    predictor: Predictor, config: NetworkConfig, usable_colour: bool
-) -> Predictor:
-    """The colour-free RandLA-Net instead of the colour one for a scan without usable colour
-    (``network.colour_free``: auto), or always (on); loaded once per process."""
-    from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
-
-    mode = config.colour_free
-    if mode == "off" or predictor.card.get("colour") is False:
-        return predictor
-    if mode == "auto" and (usable_colour or config.name != "randlanet"):
-        return predictor
-    if mode == "auto" and config.weights is not None:
-        return predictor  # the user chose these weights
-    device = getattr(predictor, "device", config.device)
-    where = None if device is None else str(device)
-    key = (str(COLOUR_FREE_WEIGHTS), where, config.batch_size or 0)
-    if key not in _COLOUR_FREE:
-        _COLOUR_FREE[key] = load(
-            "randlanet",
-            COLOUR_FREE_WEIGHTS,
-            device=where,
-            batch_size=getattr(predictor, "batch_size", config.batch_size),
-            params=config.options(),
-        )
-    log.info("no usable colour: using the colour-free network %s", COLOUR_FREE_WEIGHTS.name)
-    return _COLOUR_FREE[key]
-
-
-_MEMBERS: dict[tuple[str, str | None], Predictor] = {}
-
-
-def network_for(predictor: Predictor, config: NetworkConfig, usable_colour: bool) -> Predictor:
-    """The network a scan is labelled with: the colour-free one for a scan without colour
-    (:func:`colour_free_if_needed`), with every installed network averaged in when
-    ``config.ensemble`` (:func:`ensemble_of`)."""
-    chosen = colour_free_if_needed(predictor, config, usable_colour)
-    return ensemble_of(chosen, config, usable_colour) if config.ensemble else chosen
-
-
-def ensemble_of(
-    predictor: Predictor, config: NetworkConfig, usable_colour: bool = True
-) -> Predictor:
-    """``predictor`` with every other backend whose weights are on this machine, averaged
-    (:class:`~jointseg.network.ensemble.EnsemblePredictor`); itself when there is none. The
-    others are loaded once per process. On a scan without usable colour only colour-free
-    networks join: a network trained with colour and fed none pulls the mean down (best on
-    y-up millimetre scans without colour: 51.40 -> 48.11 fused on three Area_6 rooms)."""
-    from jointseg.network.ensemble import EnsemblePredictor
-    from jointseg.network.registry import REGISTRY, installed_backends
-
-    device = getattr(predictor, "device", config.device)
-    where = None if device is None else str(device)
-    members = [predictor]
-    for name in installed_backends():
-        if name == predictor.name:
-            continue
-        key = (name, where)
-        if key not in _MEMBERS:
-            record = REGISTRY[name]
-            options = getattr(config, name, None) if record.params is not None else None
-            _MEMBERS[key] = load(name, None, device=where, batch_size=None, params=options)
-        member = _MEMBERS[key]
-        if not usable_colour and member.card.get("colour", True) is not False:
-            log.info("ensemble: %s needs colour and the scan has none; left out", name)
-            continue
-        members.append(member)
-    if len(members) == 1:
-        log.info("ensemble: no other network has weights here; %s alone", predictor.name)
-        return predictor
-    return EnsemblePredictor(members)
 
 
 def _fusion_stage(
@@ -428,101 +334,13 @@ def _metrics(
     return metrics
 
 
-def network_and_geometry(
-    scan: Scan,
-    config: PipelineConfig,
-    network: Callable[[ProgressFn, CancelToken], T],
-    progress: ProgressFn | None,
-    cancel: CancelToken | None,
-    timings: dict[str, float],
-    *,
-    resolved: ResolvedGeometryParams | None = None,
-    geometry_scan: Scan | None = None,
-) -> tuple[T, GeometryResult]:
-    """The network (``network(progress, cancel)``) and the geometry, side by side when
-    ``config.concurrent`` (their times go into ``timings``); ``resolved`` fixes the geometry's
-    thresholds and ``geometry_scan`` gives the geometry fewer points than the network (a tile
-    of a big scan: the network needs a wider margin than the geometry).
-
-    Raises
-    ------
-    Cancelled
-        When ``cancel`` was set; the other stage is stopped first.
-    """
-    lock = threading.Lock()
-
-    def serialised(stage: str, fraction: float) -> None:
-        if progress is not None:
-            with lock:
-                progress(stage, fraction)
-
-    stop = threading.Event()
-    token = _AnyOf(cancel, stop)
-    seed = config.seed
-
-    def network_stage() -> T:
-        return network(serialised, token)
-
-    def geometry_stage() -> GeometryResult:
-        return segment(
-            geometry_scan if geometry_scan is not None else scan,
-            config.geometry,
-            serialised,
-            token,
-            seed=seed,
-            resolved=resolved,
-        )
-
-    if config.concurrent:
-        return _both(network_stage, geometry_stage, stop, cancel, timings)
-    return _timed(network_stage, timings, "network"), _timed(geometry_stage, timings, "geometry")
-
-
-def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
-    t = time.perf_counter()
-    out = fn()
-    timings[name] = time.perf_counter() - t
-    return out
-
-
-def _both(
-    network_stage: Callable[[], T],
-    geometry_stage: Callable[[], GeometryResult],
-    stop: threading.Event,
-    cancel: CancelToken | None,
-    timings: dict[str, float],
-) -> tuple[T, GeometryResult]:
-    """Run both stages in two threads; the first failure stops the other, then is raised."""
-    with ThreadPoolExecutor(max_workers=2, thread_name_prefix="jointseg-stage") as pool:
-        net_f: Future[T] = pool.submit(_timed, network_stage, timings, "network")
-        geo_f: Future[GeometryResult] = pool.submit(_timed, geometry_stage, timings, "geometry")
-        both: list[Future[Any]] = [net_f, geo_f]
-        try:
-            wait(both, return_when=FIRST_EXCEPTION)
-        except BaseException:
-            stop.set()  # e.g. Ctrl-C: stop both stages rather than wait for them to finish
-            raise
-        if any(f.done() and f.exception() is not None for f in both):
-            stop.set()
-        # leaving the block waits for the other stage, which stops at its next check
-    errors = [e for e in (net_f.exception(), geo_f.exception()) if e is not None]
-    if errors:
-        stop.set()
-        if cancel is not None and cancel.is_set():
-            raise Cancelled("cancelled by request")
-        # the stage that failed first, not the one it stopped
-        real = [e for e in errors if not isinstance(e, Cancelled)]
-        raise (real or errors)[0]
-    return net_f.result(), geo_f.result()
-
-
 def _resolved_params(
     config: PipelineConfig, predictor: Predictor, geometry: GeometryResult
 ) -> dict[str, Any]:
     """The parameters a run used, as JSON-ready values (geometry's adaptive ones resolved)."""
     network = config.network
     weights = resolve_weights(network.name, network.weights)
-    device = getattr(predictor, "device", network.device)  # stand-in predictors may have none
+    device = predictor.device
     options = network.options()
     if predictor.card.get("colour") is False and network.weights is None:
         from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
@@ -538,7 +356,7 @@ def _resolved_params(
             "weights": None if weights is None else str(weights),
             "colour": predictor.card.get("colour", True) is not False,
             "device": None if device is None else str(device),
-            "batch_size": getattr(predictor, "batch_size", network.batch_size),
+            "batch_size": predictor.batch_size,
             "trained_on": predictor.card.get("data"),
             **({} if options is None else {network.name: options.model_dump()}),
         },

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from jointseg.io import write_scan
+from jointseg.network.choice import network_for
 from jointseg.network.ensemble import EnsemblePredictor
 from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 from jointseg.network.registry import load
 from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file
-from jointseg.pipeline.stages import network_for
 from jointseg.synth import make_floor, make_room
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
@@ -83,9 +83,9 @@ def test_best_averages_only_colour_free_networks_on_a_scan_without_colour(
     monkeypatch.setenv("JOINTSEG_DGCNN_WEIGHTS", str(dgcnn_random_weights))
     config = PipelineConfig.model_validate({"quality": "best"}).network
     predictor = load_predictor(config)
-    coloured = network_for(predictor, config, usable_colour=True)
+    coloured = network_for(predictor, config.choice(), usable_colour=True)
     assert [m.name for m in getattr(coloured, "members", [])] == ["randlanet", "dgcnn"]
-    plain = network_for(predictor, config, usable_colour=False)
+    plain = network_for(predictor, config.choice(), usable_colour=False)
     assert not hasattr(plain, "members") and plain.name == "randlanet"
     assert plain.card.get("colour") is False
 

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+import torch
 from pydantic import ValidationError
 
 from jointseg.exceptions import Cancelled, ConfigError
@@ -133,9 +134,14 @@ def test_a_preset_cancel_raises_at_once(room, config) -> None:
 
 
 class SlowNetwork:
-    """A stand-in predictor that runs until its cancel token is set (or 30 s)."""
+    """A stand-in predictor (the :class:`~jointseg.network.backends.Predictor` protocol) that
+    runs until its cancel token is set (or 30 s)."""
 
+    name = "slow"
     card = {"data": "none"}
+    device = torch.device("cpu")
+    model = None  # no loaded network: the frame stage does not ask it to judge
+    batch_size = 1
 
     def __init__(self) -> None:
         self.stopped_by_token = False

@@ -30,9 +30,10 @@ from jointseg.fusion.learned import normalised_entropy
 from jointseg.geometry import GeometryResult
 from jointseg.network.anchored import CropPlan, crops_inside
 from jointseg.network.backends import Predictor, TilePredictor
+from jointseg.network.choice import network_for
 from jointseg.network.results import CellSums, NetworkResult
 from jointseg.pipeline.config import PipelineConfig
-from jointseg.pipeline.stages import network_and_geometry, network_for
+from jointseg.pipeline.side_by_side import network_and_geometry
 from jointseg.pipeline.tiled.store import TileBox, TilePlan, load_tile, read_plan, tile_folder
 from jointseg.progress import CancelToken, ProgressFn, check_cancel
 from jointseg.scan import Scan
@@ -246,7 +247,7 @@ def run_tile(
     plan = plan or read_plan(workdir)
     if plan.frame is not None:
         usable = plan.frame["colour"] == "rgb"
-        predictor = network_for(predictor, config.network, usable)
+        predictor = network_for(predictor, config.network.choice(), usable)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     scan, box, core, segmented = _load_outer(workdir, plan, index)

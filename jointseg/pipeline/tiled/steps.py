@@ -23,10 +23,10 @@ from jointseg.exceptions import ConfigError
 from jointseg.frame.judge import LabelFn
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.network.backends import Predictor
+from jointseg.network.choice import network_for
 from jointseg.network.judge import crop_labeller
 from jointseg.objects.records import LayoutReport, report_sections
 from jointseg.pipeline.config import PipelineConfig
-from jointseg.pipeline.stages import network_for
 from jointseg.pipeline.tiled import frame
 from jointseg.pipeline.tiled.merge import MergedScan, merge
 from jointseg.pipeline.tiled.objects import TiledLayout, chunk_inputs, tiled_layout
@@ -131,12 +131,12 @@ def plan(
     ScanFormatError, ConfigError, Cancelled
     """
     def judge_for(usable: bool) -> LabelFn | None:
-        return crop_labeller(network_for(predictor, config.network, usable))
+        return crop_labeller(network_for(predictor, config.network.choice(), usable))
 
     decided, bulk = frame.decide(source, config.frame, max_points, judge_for)
     log.info("%s", decided["summary"])
     stream = frame.StreamFrame(decided, bulk)
-    predictor = network_for(predictor, config.network, stream.colour_usable)
+    predictor = network_for(predictor, config.network.choice(), stream.colour_usable)
     with open_chunks(source, max_points=max_points) as chunks:
         tracked = frame.Tracked(iter(chunks.chunks(CHUNK_POINTS)), stream)
         return prepare(
