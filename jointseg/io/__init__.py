@@ -20,9 +20,9 @@ import os
 from pathlib import Path
 
 from jointseg.exceptions import ScanFormatError, library_reason
-from jointseg.io.dispatch import INPUT_ERRORS, prepare_input, prepare_output
+from jointseg.io.dispatch import prepare_input, prepare_output
 from jointseg.io.formats import READ_EXTENSIONS, WRITE_EXTENSIONS, detect_format, get_format
-from jointseg.io.limits import DEFAULT_MAX_INFLATION, DEFAULT_MAX_POINTS, ScanInfo
+from jointseg.io.limits import DEFAULT_MAX_INFLATION, DEFAULT_MAX_POINTS, INPUT_ERRORS, ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
 

@@ -7,7 +7,6 @@
 from __future__ import annotations
 
 import os
-import zipfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,9 +15,6 @@ from jointseg.io.formats import detect_format, writer_for
 from jointseg.io.limits import check_input_file
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
-
-#: Errors third-party readers raise on bad input that a format module did not already wrap.
-INPUT_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile)
 
 
 def prepare_input(path: str | os.PathLike[str], max_points: int) -> tuple[Path, str]:

@@ -1,7 +1,7 @@
 """Which file extensions name which format, and which module reads, probes and writes it.
 
 Kept in one table so the CLI's help, the upload API's checks and the dispatch in
-:mod:`jointseg.io` cannot disagree.
+:mod:`jointseg.io` and :mod:`jointseg.io.stream` cannot disagree.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from functools import partial
 from pathlib import Path
 
 from jointseg.exceptions import ScanFormatError, UnsupportedFormatError
-from jointseg.io import arrays, e57, las, mesh, pcd, ply, s3dis, text
+from jointseg.io import arrays, e57, las, las_stream, mesh, pcd, ply, ply_stream, s3dis, text
+from jointseg.io.chunks import ChunkOpener, WriterOpener
 from jointseg.io.limits import ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
@@ -27,7 +28,10 @@ class Format:
     """One supported format: its name and the functions handling it.
 
     ``inflates`` marks formats whose body may be compressed, so their reader and prober take
-    ``max_inflation`` (what a header declares against the file's size).
+    ``max_inflation`` (what a header declares against the file's size). ``open_chunks`` and
+    ``open_writer`` read and write the format chunk by chunk in bounded memory
+    (:mod:`jointseg.io.stream`); a format without them is read whole and sliced, or written
+    whole at the end.
     """
 
     name: str
@@ -35,6 +39,8 @@ class Format:
     probe: Prober
     write: Writer | None = None
     inflates: bool = False
+    open_chunks: ChunkOpener | None = None
+    open_writer: WriterOpener | None = None
 
     def limits(self, max_points: int, max_inflation: float) -> dict[str, float]:
         """The keyword arguments bounding this format's reader and prober."""
@@ -43,14 +49,30 @@ class Format:
         return {"max_points": max_points}
 
 
+def _las_format(name: str, *, compress: bool) -> Format:
+    """LAS and LAZ: one reader and streaming for both; the writer compresses for LAZ."""
+    return Format(
+        name,
+        las.read_las,
+        las.probe_las,
+        partial(las.write_las, compress=compress),
+        inflates=True,
+        open_chunks=las_stream.open_las_chunks,
+        open_writer=las_stream.LasChunkWriter,
+    )
+
+
 FORMATS: dict[str, Format] = {
-    "ply": Format("ply", mesh.read_ply_file, mesh.probe_ply_file, ply.write_ply),
-    "las": Format(
-        "las", las.read_las, las.probe_las, partial(las.write_las, compress=False), inflates=True
+    "ply": Format(
+        "ply",
+        mesh.read_ply_file,
+        mesh.probe_ply_file,
+        ply.write_ply,
+        open_chunks=ply_stream.open_ply_chunks,
+        open_writer=ply_stream.PlyChunkWriter,
     ),
-    "laz": Format(
-        "laz", las.read_las, las.probe_las, partial(las.write_las, compress=True), inflates=True
-    ),
+    "las": _las_format("las", compress=False),
+    "laz": _las_format("laz", compress=True),
     "e57": Format("e57", e57.read_e57, e57.probe_e57, inflates=True),
     "pcd": Format("pcd", pcd.read_pcd, pcd.probe_pcd, pcd.write_pcd, inflates=True),
     "txt": Format(

@@ -1,11 +1,13 @@
 """What is checked before a scan's body is read, so bad or oversized inputs cost nothing.
 
-Holds the point limit every reader takes, the plain checks on the input path, and
-:class:`ScanInfo`, what a probe reports from those cheap looks.
+Holds the point limit every reader takes, the plain checks on the input path, the library
+errors that mean a bad input (:data:`INPUT_ERRORS`), and :class:`ScanInfo`, what a probe
+reports from those cheap looks.
 """
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict
@@ -20,6 +22,8 @@ DEFAULT_MAX_POINTS: int = 50_000_000
 #: near it; a 6 KB LAZ whose header claims 40 M points (200,000 times) is refused before
 #: anything is allocated. The job service sets a lower one (``JOINTSEG_MAX_INFLATION``).
 DEFAULT_MAX_INFLATION: float = 10_000.0
+#: Errors third-party readers raise on bad input that a format module did not already wrap.
+INPUT_ERRORS = (OSError, ValueError, EOFError, zipfile.BadZipFile)
 
 
 class ScanInfo(BaseModel):

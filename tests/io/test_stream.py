@@ -15,7 +15,8 @@ import pytest
 from plyfile import PlyData, PlyElement
 
 from jointseg.exceptions import ConfigError
-from jointseg.io import ScanFormatError, read_scan, stream, write_scan
+from jointseg.io import ScanFormatError, chunks, read_scan, write_scan
+from jointseg.io.formats import FORMATS
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.scan import Scan
 from jointseg.synth import make_room
@@ -463,7 +464,7 @@ def _peak_bytes(work) -> int:
 
 def test_chunked_reading_and_writing_memory_follows_the_chunk(tmp_path, monkeypatch):
     """numpy reports its buffers to tracemalloc, so peaks are deterministic (no timing)."""
-    monkeypatch.setattr(stream, "_PASS_POINTS", 10_000)  # the first pass: 250 k per step
+    monkeypatch.setattr(chunks, "PASS_POINTS", 10_000)  # the first pass: 250 k per step
     scan = random_scan(200_000, seed=9)
     path = write_scan(scan, tmp_path / "big.laz")
     del scan
@@ -494,3 +495,10 @@ def test_chunked_reading_and_writing_memory_follows_the_chunk(tmp_path, monkeypa
 
 def test_scan_chunks_is_exported_type(tmp_path, room):
     assert isinstance(open_chunks(write_scan(room, tmp_path / "r.npz")), ScanChunks)
+
+
+def test_the_format_table_names_what_streams():
+    """open_chunks/open_writer dispatch through the Format records; the rest fall back."""
+    assert {n for n, f in FORMATS.items() if f.open_chunks is not None} == {"las", "laz", "ply"}
+    assert {n for n, f in FORMATS.items() if f.open_writer is not None} == {"las", "laz", "ply"}
+    assert all(f.write is not None for f in FORMATS.values() if f.open_writer is not None)
