@@ -306,7 +306,12 @@ def answer(page: Any, pattern: str) -> re.Match[str]:
             found.append(m)
         return m is not None
 
-    wait_for(seen, what=f"an answer matching {pattern!r}")
+    try:
+        wait_for(seen, what=f"an answer matching {pattern!r}")
+    except AssertionError as exc:  # say what the viewer told instead
+        shown = page.locator("body").inner_text()
+        told = [line for line in shown.splitlines() if ":" in line or line.startswith("Point x")]
+        raise AssertionError(f"{exc}; the viewer told: {told[-12:]}") from None
     return found[0]
 
 
