@@ -33,6 +33,7 @@ serve: setup
 
 lint: setup
 	$(BIN)/ruff check jointseg server web tests bench docs/hooks
+	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks
 	$(BIN)/mypy
 
 pytest: setup

@@ -226,9 +226,7 @@ def _nll(w: np.ndarray, rows: list[dict], full: bool, base_w: np.ndarray, l2: fl
             top = [SIGNED_AXES.index(a) for a in names]
             if r["truth"] not in names:
                 continue
-            x = np.array(
-                [np.concatenate([base[i], r["net"][SIGNED_AXES[i]]]) for i in top]
-            )
+            x = np.array([np.concatenate([base[i], r["net"][SIGNED_AXES[i]]]) for i in top])
             t = names.index(r["truth"])
         else:
             x, t = base, SIGNED_AXES.index(r["truth"])
@@ -389,8 +387,10 @@ def miou_part() -> None:
         split = "judging" if judging else "tuning"
         decided = f"{auto.frame.up.axis} ({auto.frame.up.confidence:.2f}) | {auto.frame.levelled}"
         print(f"| {path.stem} | {split} | {decided} | {' | '.join(cells)} |")
-    print(f"\nkept +z: {kept} / {total}; judging scans' fused mIoU auto - forced: "
-          f"max |diff| {max(abs(d) for d in diffs):.2f} points over {len(diffs)} scans")
+    print(
+        f"\nkept +z: {kept} / {total}; judging scans' fused mIoU auto - forced: "
+        f"max |diff| {max(abs(d) for d in diffs):.2f} points over {len(diffs)} scans"
+    )
 
 
 def write_model(base_w: np.ndarray, full_w: np.ndarray, rows: list[dict]) -> None:

@@ -351,9 +351,7 @@ def decide_up(
         "capture": g.capture.report(),
         "room_like": g.evidence.room_like,
         "network_asked": bool(judged),
-        "geometry": dict(
-            zip(SIGNED_AXES, np.round(g.evidence.geometry, 4).tolist(), strict=True)
-        ),
+        "geometry": dict(zip(SIGNED_AXES, np.round(g.evidence.geometry, 4).tolist(), strict=True)),
         **result.report(),
     }
     return estimate, how, report

@@ -169,6 +169,7 @@ class Weighed:
 
     def report(self) -> dict[str, Any]:
         """The ``frame.up.evidence`` probabilities for report.json."""
+
         def rounded(p: np.ndarray) -> dict[str, float]:
             return {a: round(float(v), 4) for a, v in zip(SIGNED_AXES, p, strict=True)}
 

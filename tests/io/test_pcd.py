@@ -232,8 +232,10 @@ def test_max_points(tmp_path):
 
 def test_the_viewpoint_and_an_organised_size_are_kept_for_the_frame_stage(tmp_path):
     _binary_pcd(tmp_path / "o.pcd", n=4, height=3)
-    text = (tmp_path / "o.pcd").read_bytes().replace(
-        b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0 0 0 0 1 0 0"
+    text = (
+        (tmp_path / "o.pcd")
+        .read_bytes()
+        .replace(b"VIEWPOINT 0 0 0 1 0 0 0", b"VIEWPOINT 0 0 0 0 1 0 0")
     )
     (tmp_path / "v.pcd").write_bytes(text)
     scan = read_scan(tmp_path / "v.pcd")

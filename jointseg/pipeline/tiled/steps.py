@@ -130,6 +130,7 @@ def plan(
     ------
     ScanFormatError, ConfigError, Cancelled
     """
+
     def judge_for(usable: bool) -> LabelFn | None:
         return crop_labeller(network_for(predictor, config.network.choice(), usable))
 
