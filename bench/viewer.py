@@ -337,7 +337,7 @@ def serve_viewer(folder: Path, port: int) -> None:
                 "total": int(data.total_points),
                 "panels": len(view.visible_panels()),
                 "per_panel": max(
-                    sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == p.key)
+                    sum(n.points.shape[0] for k, n in view.panels.nodes.items() if k[0] == p.key)
                     for p in view.visible_panels()
                 ),
             }

@@ -88,7 +88,7 @@ def view_of(viewer: Any, job_id: str) -> Any:
 
 
 def aim(view: Any, panel: str, row: int, back: np.ndarray, distance: float = 2.5) -> None:
-    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.frames[panel].position)
+    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.panels.frames[panel].position)
     camera = view.client.camera
     camera.position = target + distance * back
     camera.look_at = target
@@ -215,12 +215,14 @@ def _orbit_rate(browser: Any, viewer: Any, budget: int, seconds: float) -> tuple
     page = browser.new_page(viewport={"width": 1600, "height": 900})
     page.goto(viewer.link("big"))
     page.get_by_text("points shown").wait_for(timeout=120_000)
+    from web.scene import SEGMENTS
+
     view = view_of(viewer, "big")
-    view.segments_box.value = True
-    view.budget.value = budget
-    wait(lambda: view.shown is None or view.shown.size <= budget, 120)
+    view.ui.panel_boxes[SEGMENTS].value = True
+    view.ui.budget.value = budget
+    wait(lambda: view.panels.shown is None or view.panels.shown.size <= budget, 120)
     time.sleep(3.0)
-    sent = sum(n.points.shape[0] for k, n in view.nodes.items() if k[0] == "fused")
+    sent = sum(n.points.shape[0] for k, n in view.panels.nodes.items() if k[0] == "fused")
     stop = threading.Event()
     camera = view.client.camera
     centre, radius = (

@@ -9,10 +9,16 @@ and sends the bytes over its websocket. No address is involved, so none can carr
 
 from __future__ import annotations
 
-from jointseg.exceptions import JobNotFound
+import logging
+
+import viser
+
+from jointseg.exceptions import JobNotFound, JointsegError
 from server.api.results import Download, download_name, layout_from
-from server.messages import public_report_bytes
+from server.messages import public_report_bytes, without_server_paths
 from web.sources import JobSource
+
+log = logging.getLogger(__name__)
 
 #: The buttons' labels.
 LABELS: dict[Download, str] = {
@@ -58,3 +64,29 @@ def file_name(filename: str | None, job_id: str, kind: Download) -> str:
 def has_layout(report: dict[str, object] | None) -> bool:
     """Whether a report holds objects and rooms (objects.json and IFC can be made)."""
     return isinstance(report, dict) and isinstance(report.get("rooms"), dict)
+
+
+def send_download(
+    client: viser.ClientHandle,
+    source: JobSource,
+    job_id: str,
+    kind: Download,
+    filename: str | None = None,
+) -> None:
+    """One of a job's downloads, sent over the tab's websocket as ``filename``'s download name;
+    a download that cannot be made is told in a notification, never with a server path."""
+    name = file_name(filename, job_id, kind)
+    busy = client.add_notification(f"Preparing {name}", "", loading=True, with_close_button=False)
+    try:
+        body = download_body(source, job_id, kind)
+    except JointsegError as exc:
+        log.warning("job %s: no %s download: %s", job_id, kind, exc)
+        client.add_notification("Cannot download", without_server_paths(str(exc)), color="red")
+        return
+    except (OSError, ValueError):  # the message would name a path: say what, not where
+        log.warning("job %s: its %s download could not be read", job_id, kind)
+        client.add_notification("Cannot download", f"{job_id}: unreadable", color="red")
+        return
+    finally:
+        busy.remove()
+    client.send_file_download(name, body, save_immediately=True)

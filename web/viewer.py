@@ -171,7 +171,7 @@ class Viewer:
         if state.job_id is not None:
             view.select(state.job_id)
         else:
-            view.sync_address()
+            view.address.sync()
 
     def _next_serial(self) -> int:
         with self._views_lock:
@@ -232,7 +232,7 @@ class Viewer:
         with self._views_lock:
             view = self.views.pop(client.client_id, None)
         if view is not None:
-            view.data = None  # drop the tab's reference to its points at once
+            view.close()
         release_soon()  # and give the freed memory back once viser has dropped the tab
 
     def _request(self, client: viser.ClientHandle) -> object | None:

@@ -84,7 +84,7 @@ def test_a_result_over_the_cap_shows_at_most_the_cap_spread_over_the_whole_scan(
         drawn, total = (int(g.replace(",", "")) for g in found.groups())
         assert total == POINTS
         view = view_of(capped, "big")
-        visible = [n for k, n in view.nodes.items() if k[0] == "fused" and n.visible]
+        visible = [n for k, n in view.panels.nodes.items() if k[0] == "fused" and n.visible]
         assert drawn == sum(n.points.shape[0] for n in visible)
 
         # and sent at most the cap per panel: each panel's nodes hold the same shown points
@@ -92,12 +92,12 @@ def test_a_result_over_the_cap_shows_at_most_the_cap_spread_over_the_whole_scan(
         assert data is not None
         shown = data.xyz.shape[0]
         assert CAP // 4 < drawn < shown <= CAP
-        panels = {key for key, _, _ in view.nodes}
+        panels = {key for key, _, _ in view.panels.nodes}
         assert panels == {"raw", "network", "fused", "truth"}
         for panel in panels:
-            clouds = [n.points for k, n in view.nodes.items() if k[0] == panel]
+            clouds = [n.points for k, n in view.panels.nodes.items() if k[0] == panel]
             assert sum(c.shape[0] for c in clouds) == shown <= CAP
-        raw = np.concatenate([n.points for k, n in view.nodes.items() if k[0] == "raw"])
+        raw = np.concatenate([n.points for k, n in view.panels.nodes.items() if k[0] == "raw"])
         assert np.array_equal(np.unique(raw, axis=0), np.unique(data.xyz, axis=0))
 
         # the shown points are real points of the file, with their own labels, taken from

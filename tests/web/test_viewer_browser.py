@@ -212,7 +212,7 @@ def test_switching_jobs_replaces_the_clouds_without_growing_memory(
                 job = ("bare", "room")[i % 2]
                 assert view.show_job(job)
                 settled(page)
-                nodes[job] = len(view.nodes)
+                nodes[job] = len(view.panels.nodes)
                 if i == 1:
                     baseline = resting_memory()
             grown = resting_memory() - baseline
@@ -221,8 +221,8 @@ def test_switching_jobs_replaces_the_clouds_without_growing_memory(
         shown = view.data
         assert shown is not None
         # one job's nodes at a time (one per class and change flag and panel), never more
-        assert len(view.nodes) == nodes["room"]
-        assert all(key[0] in ("raw", "network", "fused", "truth") for key in view.nodes)
+        assert len(view.panels.nodes) == nodes["room"]
+        assert all(key[0] in ("raw", "network", "fused", "truth") for key in view.panels.nodes)
         assert len(viewer.cache) <= 2
         # four switches after the baseline: keeping what each switch sends (the panels' copies
         # of the points) or loads would add at least 4 x 0.8 MB; the rest is allocator noise

@@ -25,6 +25,7 @@ from viewer_pages import free_port, key_in, view_of
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
 from web.layout import panel_offsets
+from web.scene import SEGMENTS
 from web.sources import DirectorySource
 from web.viewer import Viewer
 
@@ -188,10 +189,10 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         data = view.data
         assert data is not None and view.job_id == "bare"
         expected = panel_offsets(data.extent, 3)
-        frames = [view.frames[k] for k in ("raw", "network", "fused")]
+        frames = [view.panels.frames[k] for k in ("raw", "network", "fused")]
         assert np.allclose([f.position for f in frames], expected)
         # nothing of the first job is left in the scene
-        assert all(key[0] in ("raw", "network", "fused") for key in view.nodes)
+        assert all(key[0] in ("raw", "network", "fused") for key in view.panels.nodes)
         # a scan without labels leaves the ground truth box unticked and disabled
         box = page.get_by_label("Ground truth panel", exact=True)
         assert not box.is_checked() and box.is_disabled()
@@ -249,46 +250,46 @@ def test_five_and_seven_panels_fit_the_view(browser: Any, viewer: Viewer, artifa
 
 
 # ------------------------------------------------------------------------- click tools
-def clear_point(data: Any, rows: np.ndarray, back: np.ndarray, clearance: float) -> int:
-    """A drawn row whose line of sight towards ``back`` passes no other drawn point closer than
-    ``clearance`` (so a click on it hits it, not something in front), nor, just in front of it,
-    a neighbour within a few centimetres of the line (a ray hits the first point within a
-    point's size of it: on a tilted surface that may be the next point up the slope)."""
+def clear_point(
+    data: Any,
+    rows: np.ndarray,
+    back: np.ndarray,
+    clearance: float,
+    candidates: np.ndarray | None = None,
+) -> int:
+    """A row of ``candidates`` (default: ``rows``) whose line of sight towards ``back`` passes
+    no other drawn point (``rows``: every point drawn) closer than ``clearance`` (so a click on
+    it hits it, not something in front), nor, just in front of it, a neighbour within a few
+    centimetres of the line (a ray hits the first point within a point's size of it: on a
+    tilted surface that may be the next point up the slope)."""
     xyz = data.xyz[rows].astype(np.float64)
-    order = np.random.default_rng(0).permutation(rows.size)
-    for i in order[:400]:
-        rel = xyz - xyz[i]
+    pool = rows if candidates is None else candidates
+    for i in np.random.default_rng(0).permutation(pool)[:400]:
+        rel = xyz - data.xyz[i]
         along = rel @ back
         off = np.linalg.norm(rel - along[:, None] * back, axis=1)
         blocked = ((along > 0.15) & (off < clearance)) | ((along > 0.005) & (off < 0.03))
         if not np.any(blocked):
-            return int(rows[i])
+            return int(i)
     raise AssertionError("no clear point")
 
 
 def visible_rows(view: Any, panel: str) -> np.ndarray:
-    key = {"network": "network", "truth": "truth"}.get(panel, "fused")
-    parts = [idx for (c, ch), idx in view._groups[key].items() if view._node_visible(c, ch)]
-    return view._rows(np.concatenate(parts))
+    return np.asarray(view.panels.drawn_rows(panel))
 
 
 def aim(page: Any, view: Any, panel: str, row: int, back: np.ndarray) -> None:
-    """Point the camera of ``view`` at ``row`` of ``panel`` from direction ``back``; wait for
-    the browser to report it."""
-    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.frames[panel].position)
-    camera = view.client.camera
+    """Point the camera of ``view`` at ``row`` of ``panel`` from direction ``back``; wait until
+    the browser reports it back (setting the pose changes the server's copy at once: a click
+    sent before the browser applied it would go through the old pose)."""
+    target = view.data.xyz[row].astype(np.float64) + np.asarray(view.panels.frames[panel].position)
     position = target + 2.5 * back
-    camera.up_direction = (0.0, 0.0, 1.0)
-    camera.position = position
-    camera.look_at = target
+    view.camera.place(position, target)
+    camera = view.client.camera
     wait_for(
-        lambda: (
-            np.allclose(camera.position, position, atol=1e-3)
-            and np.allclose(camera.look_at, target, atol=1e-3)
-        ),
+        lambda: view.camera.reported(position, target),
         what=f"the camera {camera.position} {camera.look_at} != {position} {target}",
     )
-    time.sleep(0.5)
 
 
 def click_centre(page: Any) -> None:
@@ -349,14 +350,13 @@ def test_a_click_tells_a_known_points_labels_object_and_room_and_two_clicks_meas
         page.get_by_label("Click to", exact=True).click()
         page.get_by_role("option", name="Measure distance").click()
         page.get_by_text("Click two points.").wait_for(timeout=10_000)
-        far = data.xyz[rows].astype(np.float64)
-        second = None
-        for _ in range(20):
-            candidate = clear_point(data, rows, BACK, 0.25)
-            if np.linalg.norm(far[np.searchsorted(rows, candidate)] - data.xyz[first]) > 1.0:
+        second, pool = None, rows
+        for _ in range(20):  # a clear point a metre or more away (every drawn point may hide it)
+            candidate = clear_point(data, rows, BACK, 0.25, candidates=pool)
+            if np.linalg.norm(data.xyz[candidate] - data.xyz[first]) > 1.0:
                 second = candidate
                 break
-            rows = rows[rows != candidate]
+            pool = pool[pool != candidate]
         assert second is not None
         aim(page, view, "fused", first, BACK)
         click_centre(page)
@@ -384,7 +384,7 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
         page.get_by_role("button", name="wall", exact=True).click()
         page.get_by_label("Segments panel", exact=True).check()
         page.get_by_role("button", name="Top").click()
-        wait_for(lambda: not view._camera_auto, what="the preset view")
+        wait_for(lambda: not view.camera.auto, what="the preset view")
         wait_for(lambda: "c." in address(page) and "p." in address(page), what="the address")
         link = address(page)
         before = np.asarray(view.client.camera.position)
@@ -397,7 +397,7 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
         )
         assert np.allclose(copy.client.camera.look_at, view.client.camera.look_at, atol=2e-3)
         assert copy.hidden == view.hidden and 2 in copy.hidden
-        assert copy.segments_box.value and not copy.class_shown(2)
+        assert copy.ui.panel_boxes[SEGMENTS].value and not copy.class_shown(2)
         assert len(panel_spans(settled(other), 5)) == 5
     finally:
         page.close()
@@ -428,7 +428,7 @@ def test_the_screenshot_button_downloads_a_png_and_the_point_budget_caps_the_poi
         # the status line names the budget once every panel is sent again
         page.get_by_text(re.compile(r"budget 5,000 of")).wait_for(timeout=30_000)
         for panel in ("raw", "network", "fused", "truth"):
-            sent = sum(n.points.shape[0] for k, n in list(view.nodes.items()) if k[0] == panel)
+            sent = sum(n.points.shape[0] for k, n in list(view.panels.nodes.items()) if k[0] == panel)
             assert sent == 5000, (panel, sent)
         assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
     finally:
@@ -444,9 +444,9 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     assert objects and rooms
     data = view.data
     # every object's box: 12 edges each, in the fused panel, one node per class
-    assert view.boxes is not None
-    assert sum(node.points.shape[0] for node in view.boxes.values()) == 12 * len(objects)
-    assert {CLASS_NAMES[c] for c in view.boxes} == {o["cls"] for o in objects}
+    assert view.panels.boxes is not None
+    assert sum(node.points.shape[0] for node in view.panels.boxes.values()) == 12 * len(objects)
+    assert {CLASS_NAMES[c] for c in view.panels.boxes} == {o["cls"] for o in objects}
     body = page.locator("body").inner_text()
     assert "Objects and rooms" in body and rooms[0]["name"] in body
     chairs = sum(o["cls"] == "chair" for o in objects)
@@ -455,8 +455,8 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     page.get_by_label("Click to", exact=True).click()
     page.get_by_role("option", name="Pick a point").click()
     rows = visible_rows(view, "fused")
-    rows = rows[data.instance[rows] >= 0]
-    target = clear_point(data, rows, BACK, 0.25)
+    # an object's point that no drawn point hides (a wall in front of a board on it does)
+    target = clear_point(data, rows, BACK, 0.25, candidates=rows[data.instance[rows] >= 0])
     aim(page, view, "fused", target, BACK)
     click_centre(page)
     m = answer(page, r"object: (\w+) (\d+)")
@@ -467,7 +467,7 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     (artifacts / "viewer_objects.png").write_bytes(page.screenshot())
     # the boxes can be switched off
     page.get_by_label("Object boxes", exact=True).uncheck()
-    wait_for(lambda: not any(n.visible for n in view.boxes.values()), what="boxes hidden")
+    wait_for(lambda: not any(n.visible for n in view.panels.boxes.values()), what="boxes hidden")
 
 
 # ------------------------------------------------------------------------ object boxes
@@ -487,21 +487,21 @@ def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
     page, view = settled_view(browser, viewer, "room")
     other = None
     try:
-        assert view.boxes is not None and len(view.boxes) >= 2
+        assert view.panels.boxes is not None and len(view.panels.boxes) >= 2
         boxes = page.get_by_label("Object boxes", exact=True)
         on = settled(page)
         fused = panel_spans(on, 4)[2]
         boxes.uncheck()
         assert changed_pixels(on, settled(page), fused) > 200  # the edges show on the screen
         boxes.check()
-        shown_classes = [c for c in view.boxes if view.class_shown(c)]
+        shown_classes = [c for c in view.panels.boxes if view.class_shown(c)]
         first = shown_classes[0]
         page.get_by_role("button", name=CLASS_NAMES[first], exact=True).click()
-        wait_for(lambda: not view.boxes[first].visible, what="the class's boxes hidden")
-        assert all(n.visible for c, n in view.boxes.items() if c != first)  # the others stay
+        wait_for(lambda: not view.panels.boxes[first].visible, what="the class's boxes hidden")
+        assert all(n.visible for c, n in view.panels.boxes.items() if c != first)  # the others stay
         for cls in shown_classes[1:]:
             page.get_by_role("button", name=CLASS_NAMES[cls], exact=True).click()
-        wait_for(lambda: not any(n.visible for n in view.boxes.values()), what="all hidden")
+        wait_for(lambda: not any(n.visible for n in view.panels.boxes.values()), what="all hidden")
         hidden = settled(page, min_ink=5000)
         (artifacts / "viewer_boxes_classes_hidden.png").write_bytes(page.screenshot())
         boxes.uncheck()
@@ -509,7 +509,7 @@ def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
         boxes.check()
         for cls in shown_classes:
             page.get_by_role("button", name=CLASS_NAMES[cls], exact=True).click()
-        wait_for(lambda: all(view.boxes[c].visible for c in shown_classes), what="boxes back")
+        wait_for(lambda: all(view.panels.boxes[c].visible for c in shown_classes), what="boxes back")
 
         # boxes off: the address says so, and a link opens with them off
         assert "x.0" not in address(page)
@@ -519,12 +519,12 @@ def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
         shown(other)
         copy = view_of(viewer, "room", exclude=(view,))
         assert not other.get_by_label("Object boxes", exact=True).is_checked()
-        assert copy.boxes is not None and copy.boxes
-        assert not any(n.visible for n in copy.boxes.values())
+        assert copy.panels.boxes is not None and copy.panels.boxes
+        assert not any(n.visible for n in copy.panels.boxes.values())
         # and on again: the token leaves the address
         other.get_by_label("Object boxes", exact=True).check()
         wait_for(lambda: "x.0" not in address(other), what="boxes on in the address")
-        assert all(n.visible for c, n in copy.boxes.items() if copy.class_shown(c))
+        assert all(n.visible for c, n in copy.panels.boxes.items() if copy.class_shown(c))
     finally:
         page.close()
         if other is not None:

@@ -1,0 +1,88 @@
+"""A tab's job picker: the finished jobs its source lists, kept current without a reload.
+
+The viewer re-reads every tab's list every :data:`web.viewer.LIST_EVERY_S` seconds, so jobs
+deleted or finished elsewhere leave or join the list; the picker is sent again only when its
+list changed (an open dropdown is not redrawn under the mouse). A failed listing keeps the last
+list: a database hiccup is no reason to call every job gone.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import viser
+
+from jointseg.exceptions import JointsegError
+from web.controls import NO_JOBS, PLACEHOLDER
+from web.sources import JobEntry, JobSource
+
+log = logging.getLogger(__name__)
+
+
+class JobList:
+    """The finished jobs of one tab's source and the picker that offers them.
+
+    Parameters
+    ----------
+    picker : viser.GuiDropdownHandle
+        The *Job* dropdown.
+    source : JobSource
+    """
+
+    def __init__(self, picker: viser.GuiDropdownHandle[str], source: JobSource) -> None:
+        self.picker = picker
+        self.source = source
+        self.entries: dict[str, JobEntry] = {}
+        self._labels: dict[str, str] = {}  # picker text -> job id
+        self._listed = False  # the picker has been sent a list
+        self._failed = False
+
+    def refresh(self) -> dict[str, JobEntry] | None:
+        """Read the list again and send it to the picker when it changed, keeping the current
+        choice (a choice that left the list falls back to the placeholder). Returns the entries
+        known before, or None when the listing failed (nothing changed)."""
+        try:
+            jobs = list(self.source.finished_jobs())
+        except Exception:  # the list is best effort: a hiccup must not kill the tab
+            if not self._failed:
+                log.exception("listing finished jobs failed")
+            self._failed = True
+            return None
+        self._failed = False
+        known = dict(self.entries)
+        labels = {job.label: job.id for job in jobs}
+        self.entries = {job.id: job for job in jobs}
+        if labels != self._labels or not self._listed:
+            self._labels, self._listed = labels, True
+            current = self.picker.value
+            self.picker.options = (PLACEHOLDER if jobs else NO_JOBS, *labels)
+            if current in labels:
+                self.picker.value = current  # type: ignore[misc]  # viser types it read-only
+        return known
+
+    def gone(self, job_id: str) -> bool:
+        """Whether a job is no longer on the source (deleted, or no longer this key's)."""
+        try:
+            self.source.result_path(job_id)
+        except JointsegError as exc:
+            log.info("job %s is gone: %s", job_id, exc)
+            return True
+        return False
+
+    def job_of(self, label: str) -> str | None:
+        """The job id behind a picker text (None for the placeholder)."""
+        return self._labels.get(label)
+
+    def label_of(self, job_id: str) -> str | None:
+        """The picker text of a job (None when it is not listed)."""
+        return next((label for label, i in self._labels.items() if i == job_id), None)
+
+    def name(self, job_id: str) -> str:
+        """``file.ply [abcd1234]`` for a listed job, else its id."""
+        entry = self.entries.get(job_id)
+        return f"{entry.filename} [{job_id[:8]}]" if entry is not None else job_id
+
+    def filename(self, job_id: str | None) -> str | None:
+        """The uploaded file's name of a listed job."""
+        entry = self.entries.get(job_id or "")
+        return None if entry is None else entry.filename

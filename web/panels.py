@@ -1,0 +1,240 @@
+"""One job's panels in one tab's scene: the nodes sent, which are drawn, and what a ray hits.
+
+A job's points are sent once per panel, split into one node per (class, changed by fusion)
+group: hiding a class, showing only the changed points or resizing points are property updates,
+not new uploads. Every job is drawn below a scene path of its own (``/jointseg/<n>``): a node
+removed and added again under the same name in one update can keep its old position in the
+browser, which laid a three-panel job over a four-panel job's slots.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import viser
+
+from web.layout import title_position
+from web.legend import class_title
+from web.objects_view import box_segments
+from web.picking import pick
+from web.scene import CONFIDENCE, NETWORK, TRUTH, Panel, SceneData, group_points
+from web.tools import Picked
+
+ROOT = "/jointseg"
+#: Default point size as a multiple of the shown points' spacing.
+POINT_SIZE = 2.0
+#: Which label set hides a panel's points with their class.
+LABEL_KEY = {NETWORK.key: "network", CONFIDENCE.key: "network", TRUTH.key: "truth"}
+
+Groups = dict[tuple[int, bool], np.ndarray]
+
+
+class PanelScene:
+    """The scene nodes of the job a tab shows.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+        The tab's scene (``client.scene``).
+    hidden : set of int
+        Hidden classes, shared with the view (the class buttons change it).
+    """
+
+    def __init__(self, scene: viser.SceneApi, hidden: set[int]) -> None:
+        self.scene = scene
+        self.hidden = hidden
+        self.only_changed = False
+        self.boxes_on = True
+        self.size_factor = POINT_SIZE  # point size as a multiple of the spacing
+        self.data: SceneData | None = None
+        self.shown: np.ndarray | None = None  # rows of the scene data sent (point budget)
+        self.frames: dict[str, viser.FrameHandle] = {}
+        self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
+        self.boxes: dict[int, viser.LineSegmentsHandle] | None = None  # by class; None: not sent
+        self.groups: dict[str, Groups] = {}
+        self.root_path = ROOT
+        self._root: viser.FrameHandle | None = None
+        self._generation = 0
+
+    def start(self, data: SceneData, budget: int) -> str:
+        """Make ``data`` the shown job, at most ``budget`` points per panel; the scene path of
+        its new root (nothing is drawn until :meth:`lay_out`)."""
+        self.clear()
+        self.data = data
+        self._select(data, budget)
+        self._generation += 1
+        self.root_path = f"{ROOT}/{self._generation}"
+        self._root = self.scene.add_frame(self.root_path, show_axes=False)
+        return self.root_path
+
+    def clear(self) -> None:
+        """Remove the shown job's nodes (every panel node is below its root)."""
+        if self._root is not None:
+            self._root.remove()
+        self._root, self.data, self.shown, self.boxes = None, None, None, None
+        self.frames, self.nodes, self.groups = {}, {}, {}
+
+    def _select(self, data: SceneData, budget: int) -> None:
+        """The rows sent to this browser (at most the point budget per panel) and their groups."""
+        n = data.xyz.shape[0]
+        # an even random subset of what the viewer loaded (itself thinned evenly for big
+        # files): exactly the budget, the same rows every time for one budget
+        rng = np.random.default_rng(budget)
+        self.shown = None if n <= budget else np.sort(rng.choice(n, budget, replace=False))
+
+        def sel(a: np.ndarray) -> np.ndarray:
+            return a if self.shown is None else a[self.shown]
+
+        changed = sel(data.changed)
+        self.groups = {
+            "network": group_points(sel(data.network), changed),
+            "fused": group_points(sel(data.fused), changed),
+        }
+        if data.truth is not None:
+            self.groups["truth"] = group_points(sel(data.truth), changed)
+
+    def rows(self, positions: np.ndarray) -> np.ndarray:
+        """Rows of the scene data of positions among the points sent."""
+        return positions if self.shown is None else self.shown[positions]
+
+    def lay_out(self, panels: tuple[Panel, ...], offsets: np.ndarray) -> None:
+        """Put ``panels`` at ``offsets`` (sending any not sent yet), hide the others."""
+        data = self.data
+        if data is None:
+            return
+        for panel, offset in zip(panels, offsets, strict=True):
+            if panel.key not in self.frames:
+                self._send_panel(panel, data)
+            self.frames[panel.key].position = offset
+            if panel.key == "fused" and self.boxes is None:
+                self._send_boxes(data)
+        keys = {p.key for p in panels}
+        for key, frame in self.frames.items():
+            frame.visible = key in keys
+        self.apply_visibility()
+
+    def _send_panel(self, panel: Panel, data: SceneData) -> None:
+        path = f"{self.root_path}/{panel.key}"
+        self.frames[panel.key] = self.scene.add_frame(path, show_axes=False)
+        self.scene.add_label(
+            f"{path}/title",
+            panel.title,
+            position=title_position(data.extent),
+            anchor="bottom-center",
+            font_screen_scale=1.4,
+        )
+        rows = slice(None) if self.shown is None else self.shown
+        xyz, colours = data.xyz[rows], data.colours_of(panel)[rows]
+        size = self.point_size()
+        for (cls, changed), index in self.groups[LABEL_KEY.get(panel.key, "fused")].items():
+            self.nodes[(panel.key, cls, changed)] = self.scene.add_point_cloud(
+                f"{path}/{class_title(cls)}_{'changed' if changed else 'kept'}",
+                xyz[index],
+                colours[index],
+                point_size=size,
+                point_shape="square",
+                point_shading="flat",
+                precision="float32",
+                visible=self.node_visible(cls, changed),
+            )
+
+    def _send_boxes(self, data: SceneData) -> None:
+        """The objects' boxes, drawn once in the fused panel (the report's objects), a node
+        per class so that they follow the class buttons."""
+        self.boxes = {
+            cls: self.scene.add_line_segments(
+                f"{self.root_path}/fused/objects_{class_title(cls)}",
+                segments,
+                colours,
+                thickness=2.0,
+                thickness_units="screen",
+                visible=self.box_visible(cls),
+            )
+            for cls, (segments, colours) in box_segments(data).items()
+        }
+
+    def node_visible(self, cls: int, changed: bool) -> bool:
+        """A group is drawn when its class is shown, and it changed or all points are shown."""
+        return cls not in self.hidden and (changed or not self.only_changed)
+
+    def box_visible(self, cls: int) -> bool:
+        """Boxes are drawn when *Object boxes* is ticked and their class is shown."""
+        return self.boxes_on and cls not in self.hidden
+
+    def apply_visibility(self) -> None:
+        """Show and hide the nodes by the class buttons, *only changed* and *Object boxes*."""
+        for (_, cls, changed), node in self.nodes.items():
+            node.visible = self.node_visible(cls, changed)
+        for cls, box in (self.boxes or {}).items():
+            box.visible = self.box_visible(cls)
+
+    def point_size(self) -> float:
+        """The drawn points' size in metres."""
+        spacing = 1e-4 if self.data is None else max(self.data.spacing, 1e-4)
+        return float(self.size_factor) * spacing
+
+    def resize(self) -> None:
+        """Give every node the current point size."""
+        size = self.point_size()
+        for node in self.nodes.values():
+            node.point_size = size
+
+    def drawn_rows(self, panel: Panel | str) -> np.ndarray:
+        """Rows of the scene data drawn in a panel now (by its key or itself), ascending."""
+        key = panel if isinstance(panel, str) else panel.key
+        groups = self.groups.get(LABEL_KEY.get(key, "fused"), {})
+        drawn = [idx for (cls, ch), idx in groups.items() if self.node_visible(cls, ch)]
+        if not drawn:
+            return np.zeros(0, dtype=np.int64)
+        return np.sort(self.rows(np.concatenate(drawn)))
+
+    def drawn(self, panel: Panel) -> int:
+        """How many points a panel draws now."""
+        groups = self.groups.get(LABEL_KEY.get(panel.key, "fused"), {})
+        return sum(idx.size for (cls, ch), idx in groups.items() if self.node_visible(cls, ch))
+
+    def status(self, name: str, panels: tuple[Panel, ...]) -> str:
+        """The status line: how many points the browser draws now (in the one panel shown, or
+        the fused one), of how many the scan has, and why fewer are sent."""
+        data = self.data
+        if data is None:
+            return "No job shown."
+        fused = next((p for p in panels if p.key == "fused"), panels[0] if panels else None)
+        panel = panels[0] if len(panels) == 1 else fused
+        drawn = 0 if panel is None else self.drawn(panel)
+        loaded = data.xyz.shape[0]
+        sent = loaded if self.shown is None else self.shown.size
+        notes = []
+        if data.voxel is not None:
+            notes.append(f"voxel {data.voxel * 100:.1f} cm")
+        if sent < loaded:
+            notes.append(f"budget {sent:,} of {loaded:,} loaded")
+        note = f" ({', '.join(notes)})" if notes else ""
+        where = "" if panel is None else f" in {panel.title}"
+        return f"**{name}**: {drawn:,} of {data.total_points:,} points shown{where}{note}."
+
+    def pick(
+        self,
+        origin: np.ndarray,
+        direction: np.ndarray,
+        panels: tuple[Panel, ...],
+        tolerance: float,
+    ) -> Picked | None:
+        """The drawn point a ray (world coordinates) hits first, over ``panels``."""
+        data = self.data
+        if data is None:
+            return None
+        best: tuple[float, Picked] | None = None
+        for panel in panels:
+            frame = self.frames.get(panel.key)
+            rows = self.drawn_rows(panel)
+            if frame is None or rows.size == 0:
+                continue
+            local_origin = origin - np.asarray(frame.position, dtype=np.float64)
+            found = pick(data.xyz[rows], local_origin, direction, tolerance)
+            if found is None:
+                continue
+            row = int(rows[found])
+            depth = float((data.xyz[row] - local_origin) @ direction)
+            if best is None or depth < best[0]:
+                best = (depth, Picked(panel.key, row, data.xyz[row].astype(np.float64)))
+        return None if best is None else best[1]
