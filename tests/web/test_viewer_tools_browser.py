@@ -428,7 +428,9 @@ def test_the_screenshot_button_downloads_a_png_and_the_point_budget_caps_the_poi
         # the status line names the budget once every panel is sent again
         page.get_by_text(re.compile(r"budget 5,000 of")).wait_for(timeout=30_000)
         for panel in ("raw", "network", "fused", "truth"):
-            sent = sum(n.points.shape[0] for k, n in list(view.panels.nodes.items()) if k[0] == panel)
+            sent = sum(
+                n.points.shape[0] for k, n in list(view.panels.nodes.items()) if k[0] == panel
+            )
             assert sent == 5000, (panel, sent)
         assert len(panel_spans(settled(page, min_ink=2000), 4)) == 4
     finally:
@@ -509,7 +511,9 @@ def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
         boxes.check()
         for cls in shown_classes:
             page.get_by_role("button", name=CLASS_NAMES[cls], exact=True).click()
-        wait_for(lambda: all(view.panels.boxes[c].visible for c in shown_classes), what="boxes back")
+        wait_for(
+            lambda: all(view.panels.boxes[c].visible for c in shown_classes), what="boxes back"
+        )
 
         # boxes off: the address says so, and a link opens with them off
         assert "x.0" not in address(page)
