@@ -186,3 +186,22 @@ def test_frozen_norms_keep_their_statistics_while_the_weights_learn(tiny_trainin
     assert any(not torch.equal(start[k], after[k]) for k in weights)
     kept = all(torch.equal(start[k], after[k]) for k in stats)
     assert kept == frozen
+
+
+def test_the_carried_folders_name_their_datasets_terms(tmp_path: Path) -> None:
+    """The cards of the run's checkpoints name S3DIS's and ScanNet's terms of use: the carried
+    folders are named as the datasets (a folder called 'a6' read as user data)."""
+    from jointseg.network.training.sources import (
+        S3DIS_TERMS,
+        SCANNET_TERMS,
+        parse_source,
+        terms_for,
+    )
+
+    rng = np.random.default_rng(0)
+    for folder in ("s3dis_area6", "scannet"):
+        xyz = rng.uniform(0, 3, (500, 3))
+        write_arrays(xyz, None, np.zeros(500, np.int64), tmp_path / folder / "room.npz")
+    cfg = train_config("colour", RunOptions(data=tmp_path, out=tmp_path / "out"))
+    terms = {terms_for(parse_source(spec)) for spec in cfg.data}
+    assert terms == {S3DIS_TERMS, SCANNET_TERMS}

@@ -50,7 +50,8 @@ JUDGING = ("scene0002_", "scene0007_")
 #: Validation scans (one per source where present).
 VALIDATION = ("area6_office_4", "scene0005_*", "synth_000")
 #: Each source's share of the training crops (renormalised over the sources carried).
-SHARES = {"a6": 0.5, "scannet": 0.35, "synth": 0.15}
+#: (Folders named as the datasets, so that the cards name the datasets' terms of use.)
+SHARES = {"s3dis_area6": 0.5, "scannet": 0.35, "synth": 0.15}
 #: Coordinates are stored on a binary lattice (1/128 m) so that they compress well.
 LATTICE = 128.0
 #: What each network of the run starts from and how it learns.
@@ -86,14 +87,14 @@ def write_arrays(xyz: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, pa
 
 
 def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) -> dict:
-    """Write the carried training data under ``out`` (``a6/``, ``scannet/``, ``synth/`` and
+    """Write the carried training data under ``out`` (``s3dis_area6/``, ``scannet/``, ``synth/`` and
     ``manifest.json``); ``shared`` None packs synthetic rooms only (the test suite's run)."""
     from jointseg.io import read_scan
     from jointseg.synth import make_room
 
     files: dict[str, list[str]] = {}
     total = 0
-    folders = {"a6": "s3dis_area6", "scannet": "scannet"}
+    folders = {"s3dis_area6": "s3dis_area6", "scannet": "scannet"}
     for name, folder in folders.items():
         if shared is None or not (shared / folder).is_dir():
             continue
@@ -153,7 +154,7 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
     data, work = opts.data, work_dir(opts.out)
     present = [s for s in SHARES if (data / s).is_dir()]
     if not present:
-        raise SystemExit(f"{data}: no a6/, scannet/ or synth/ folder; run 'pack' first")
+        raise SystemExit(f"{data}: no s3dis_area6/, scannet/ or synth/ folder; run 'pack' first")
     total = sum(SHARES[s] for s in present)
     full = work / f"{name}.pt"
     recipe = dict(RECIPE[name])
