@@ -15,6 +15,7 @@ from rich.markup import escape
 
 from jointseg.cli import (
     client_commands,
+    fit_commands,
     geometry_command,
     network_commands,
     objects_command,
@@ -37,6 +38,7 @@ network_commands.register(app)
 objects_command.register(app)
 pipeline_commands.register(app)
 client_commands.register(app)
+fit_commands.register(app)
 
 #: Entry-point group through which other packages add commands (server: serve, worker); each
 #: entry point is a callable ``register(app: typer.Typer)``.

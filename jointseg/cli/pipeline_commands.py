@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from jointseg.cli.geometry_command import load_params_file
 from jointseg.cli.progress_bar import progress_bar
+from jointseg.config_file import load_params_file
 from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.io import DEFAULT_MAX_POINTS, READ_EXTENSIONS, probe_scan, read_scan
 from jointseg.io.atomic import atomic_open

@@ -226,13 +226,23 @@ class Gathered:
     units: list[UnitsDecision]
 
 
-def gather(scan: Scan, sample: gravity.FrameSample, params: FrameParams) -> Gathered:
-    """The file's word, the kind of capture and the geometry, per signed axis."""
+def gather(
+    scan: Scan,
+    sample: gravity.FrameSample,
+    params: FrameParams,
+    geometry: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Gathered:
+    """The file's word, the kind of capture and the geometry, per signed axis; ``geometry``:
+    the axis and sign steps' weights, the shipped model's unless given (a fit of the weighing
+    over another model's steps)."""
     said = file_evidence(scan)
     capture = capture_kind(scan.xyz)
     units = [_units(scan, params, sample, i) for i in range(3)]
-    axis_p = gravity.axis_probabilities(sample)
-    sign_p = np.array([gravity.sign_probability(sample, i, units[i].metres) for i in range(3)])
+    axis_w, sign_w = gravity.model_weights() if geometry is None else geometry
+    axis_p = gravity.axis_probabilities(sample, axis_w)
+    sign_p = np.array(
+        [gravity.sign_probability(sample, i, units[i].metres, sign_w) for i in range(3)]
+    )
     top = int(np.argmax(axis_p))
     tall = sample.extent(sample.directions[top]) * units[top].metres >= MIN_ROOM_HEIGHT_M
     evidence = weigh.Evidence(

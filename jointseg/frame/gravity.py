@@ -40,7 +40,8 @@ PROFILE_BINS = 10
 #: Lengths of the logistic weights of the axis step and of the sign step (see
 #: :func:`axis_features` and :func:`sign_features`): ``up_model.json``'s ``axis_weights`` and
 #: ``sign_weights``, fitted in issue 31 on its tuning rooms (``bench/up_axis.py --fit`` at commit
-#: 586b150; today's bench fits the weighing over them, ``up_model.json``'s ``weigh``).
+#: 586b150; `jointseg fit up-axis` fits the weighing over them, ``up_model.json``'s ``weigh``,
+#: and copies them; ``up_model.provenance.json`` says what is known of both).
 AXIS_SIZE, SIGN_SIZE = 3 * PROFILE_BINS + 3, 3 * PROFILE_BINS + 4
 
 AXES: dict[str, np.ndarray] = {
@@ -237,17 +238,23 @@ def model_weights(path: Path | None = None) -> tuple[np.ndarray, np.ndarray]:
     return axis, weight_vector(body, "sign_weights", SIGN_SIZE, where)
 
 
-def axis_probabilities(sample: FrameSample) -> np.ndarray:
+def axis_probabilities(sample: FrameSample, weights: np.ndarray | None = None) -> np.ndarray:
     """(3,): the geometry's probability that each file axis is the vertical one (the file's own
-    evidence is weighed apart, :mod:`jointseg.frame.weigh`)."""
-    return _softmax(axis_features(sample) @ model_weights()[0])
+    evidence is weighed apart, :mod:`jointseg.frame.weigh`); ``weights``: the shipped model's
+    unless given (a fit weighing another model's steps)."""
+    w = model_weights()[0] if weights is None else weights
+    return _softmax(axis_features(sample) @ w)
 
 
-def sign_probability(sample: FrameSample, axis: int, metres_per_unit: float) -> float:
-    """The geometry's probability that +``axis`` rather than -``axis`` is up."""
+def sign_probability(
+    sample: FrameSample, axis: int, metres_per_unit: float, weights: np.ndarray | None = None
+) -> float:
+    """The geometry's probability that +``axis`` rather than -``axis`` is up (``weights``: the
+    shipped model's unless given)."""
     d = sample.directions[axis]
     d = d if d[axis] >= 0 else -d
-    score = float(sign_features(sample, d, metres_per_unit) @ model_weights()[1])
+    w = model_weights()[1] if weights is None else weights
+    score = float(sign_features(sample, d, metres_per_unit) @ w)
     return float(1.0 / (1.0 + np.exp(-np.clip(score, -50.0, 50.0))))
 
 

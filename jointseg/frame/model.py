@@ -20,8 +20,9 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 
-#: The model shipped with the library: written by ``bench/up_axis.py --fit``, declared as
-#: package data in pyproject.toml.
+#: The model shipped with the library: written by `jointseg fit up-axis`
+#: (:mod:`jointseg.frame.fit`) with its provenance beside it, declared as package data in
+#: pyproject.toml.
 MODEL_FILE = Path(__file__).with_name("up_model.json")
 
 
@@ -66,7 +67,7 @@ def weight_vector(body: Mapping[str, Any], key: str, size: int, path: Path) -> n
     if value is None or vector.shape != (size,) or not np.all(np.isfinite(vector)):
         raise ConfigError(
             f"the up-axis model {path}: {key!r} must be {size} finite numbers; refit it with "
-            "`python bench/up_axis.py --fit`"
+            "`jointseg fit up-axis --plan fit/up_axis.json`"
         )
     vector.flags.writeable = False
     return vector

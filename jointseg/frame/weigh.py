@@ -5,9 +5,10 @@ file's own prior (:mod:`jointseg.frame.sources`), the scan's geometry (the fitte
 :mod:`jointseg.frame.gravity`, counted apart for room-like scans and for single views or
 slices, whose extremes are not floor and ceiling), the camera convention of a single view
 (:mod:`jointseg.frame.capture`) and, for the few most likely candidates, the network's verdict
-(:mod:`jointseg.frame.judge`). A conditional logit over the candidates, fitted by
-``bench/up_axis.py --fit`` on tuning scans, turns them into probabilities; the decision's
-confidence is its probability, so a threshold on it means a share of right decisions.
+(:mod:`jointseg.frame.judge`). A conditional logit over the candidates, fitted by `jointseg fit
+up-axis` (:mod:`jointseg.frame.fit`) on tuning scans, turns them into probabilities; the
+decision's confidence is its probability, so a threshold on it means a share of right
+decisions.
 """
 
 from __future__ import annotations
@@ -67,7 +68,7 @@ def fitted_weights(path: Path | None = None) -> tuple[np.ndarray, np.ndarray]:
         found = fitted.get("features") if isinstance(fitted, dict) else None
         raise ConfigError(
             f"the up-axis model {where} weighs the features {found}, not {list(FULL_FEATURES)}; "
-            "refit it with `python bench/up_axis.py --fit`"
+            "refit it with `jointseg fit up-axis --plan fit/up_axis.json`"
         )
     base = weight_vector(fitted, "base", len(BASE_FEATURES), where)
     return base, weight_vector(fitted, "full", len(FULL_FEATURES), where)

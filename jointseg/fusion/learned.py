@@ -15,7 +15,7 @@ of the whole scan that tell a network that is at home on this sensor from one th
 mean entropy, and the share of points whose label differs from their segment's majority (a
 confident network that often contradicts the geometry is confidently wrong, and its segments'
 majorities are no better than its points). A gradient-boosted
-tree ensemble over these (``vote_model.json``, fitted by ``bench/fit_vote.py`` on tuning scans
+tree ensemble over these (``vote_model.json``, fitted by `jointseg fit vote` on tuning scans
 of S3DIS, ScanNet and synthetic rooms, labelled by strong, weak and distorted networks, never on
 the judging scans) gives P(the offer is right);
 a point takes its most probable offer above the threshold. The model is plain JSON evaluated
@@ -344,7 +344,7 @@ class TreeEnsemble:
 
     @classmethod
     def from_json(cls, path: Path) -> TreeEnsemble:
-        """Read a model written by ``bench/fit_vote.py``; a missing file is a ConfigError naming
+        """Read a model written by `jointseg fit vote`; a missing file is a ConfigError naming
         it (an installation without the shipped model must not fuse without it)."""
         if not path.is_file():
             incomplete = ": the jointseg installation is incomplete; reinstall jointseg"

@@ -1,0 +1,217 @@
+"""`jointseg fit vote` (issue 46, point 2): the learned vote fitted in the package from named
+tuning scans is the same file every time, says what it was made from, and is a model the vote
+reads and follows; bad inputs are errors that say what is wrong. Small labelled rooms and the
+stand-in labeller (the truth with patchy mistakes) keep each fit to seconds."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jointseg.cli import main
+from jointseg.exceptions import ConfigError
+from jointseg.fitting.provenance import arrays_sha256, file_sha256, read_provenance
+from jointseg.fitting.scans import TuningScan, content_key
+from jointseg.fusion.fit import read_plan
+from jointseg.fusion.fit_trees import fit_vote
+from jointseg.fusion.learned import TreeEnsemble, best_offers, learned_labels, vote_offers
+from jointseg.geometry import segment
+from jointseg.io import write_scan
+from jointseg.metrics import evaluate
+from jointseg.scan import Scan
+from jointseg.synth import make_room
+
+POINTS = 8000
+
+
+def write_plan(folder: Path, body: dict) -> Path:
+    path = folder / "plan.json"
+    path.write_text(json.dumps(body))
+    return path
+
+
+def one_dataset(folder: Path, scans: str, network: str = "stand-in") -> Path:
+    """A plan of one dataset, ``scans`` labelled by ``network``."""
+    dataset = {"name": "d", "scans": [scans], "labellers": [{"network": network}]}
+    return write_plan(folder, {"datasets": [dataset]})
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder holding one labelled room file and a plan: the file as it is and without its
+    colour, and one generated room, all labelled by the stand-in."""
+    folder = tmp_path_factory.mktemp("vote_fit")
+    (folder / "rooms").mkdir()
+    write_scan(make_room(3, points=POINTS), folder / "rooms" / "room3.ply")
+    write_plan(
+        folder,
+        {
+            "datasets": [
+                {"name": "files", "scans": ["rooms"], "labellers": [{"network": "stand-in"}]},
+                {
+                    "name": "files no colour",
+                    "scans": ["rooms/room3.ply"],
+                    "variant": "no colour",
+                    "labellers": [{"network": "stand-in", "distortion": "underconfident"}],
+                    "weight": 0.5,
+                },
+                {
+                    "name": "synthetic",
+                    "synthetic": {"first_seed": 7000, "rooms": 1, "points": POINTS},
+                    "labellers": [{"network": "stand-in"}],
+                },
+            ],
+            "fit": {"trees": 8, "depth": 2, "min_leaf": 20},
+        },
+    )
+    return folder
+
+
+@pytest.fixture(scope="module")
+def fitted(inputs: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The plan fitted twice, into two folders (the second through a cache)."""
+    outs = []
+    for i, cache in enumerate((None, tmp_path_factory.mktemp("cache"))):
+        out = tmp_path_factory.mktemp(f"out{i}") / "vote_model.json"
+        fit_vote(read_plan(inputs / "plan.json"), inputs, out, command="test", cache=cache)
+        outs.append(out)
+    return outs[0], outs[1]
+
+
+def test_the_same_plan_gives_the_same_file(fitted: tuple[Path, Path]) -> None:
+    first, second = fitted
+    assert first.read_bytes() == second.read_bytes()
+    body = json.loads(first.read_text())
+    assert len(body["trees"]) >= 1 and "date" not in json.dumps(body["card"])
+
+
+def test_the_provenance_names_every_input_by_its_content(
+    inputs: Path, fitted: tuple[Path, Path]
+) -> None:
+    model = fitted[0]
+    record = read_provenance(model.with_name("vote_model.provenance.json"))
+    assert record.model == "vote_model.json"
+    assert record.model_sha256 == hashlib.sha256(model.read_bytes()).hexdigest()
+    assert record.command == "test" and record.date and record.code.jointseg
+    room_sha = file_sha256(inputs / "rooms" / "room3.ply")
+    by_dataset = {(s.dataset, s.name): s for s in record.scans}
+    assert by_dataset[("files", "room3")].sha256 == room_sha
+    assert by_dataset[("files", "room3")].path == "rooms/room3.ply"
+    no_colour = by_dataset[("files no colour", "room3")]
+    assert no_colour.sha256 == room_sha and no_colour.made == "colour removed"
+    room = make_room(7000, points=POINTS, shape="box")
+    generated = by_dataset[("synthetic", "room 7000 (box)")]
+    assert generated.sha256 == arrays_sha256(room.xyz, room.rgb, room.labels)
+    assert [labeller.name for labeller in record.labellers] == ["stand-in"]
+    assert record.plan["datasets"][1]["weight"] == 0.5
+
+
+def test_the_fitted_model_is_read_and_followed_by_the_vote(fitted: tuple[Path, Path]) -> None:
+    model = TreeEnsemble.from_json(fitted[0])
+    room = make_room(3, points=POINTS)
+    assert room.labels is not None
+    from jointseg.fitting.outputs import stand_in
+
+    noisy = stand_in(TuningScan("r", room, content_key(room.xyz, room.labels)))
+    labels, probs = noisy["labels"].astype(np.int64), noisy["probs"].astype(np.float32)
+    geo = segment(room, seed=0)
+    n_seg = int(geo.segments.max()) + 1
+    fused, _ = learned_labels(
+        room.xyz, geo.segments, n_seg, labels, probs, threshold=0.5, model=model
+    )
+    offers = vote_offers(room.xyz, geo.segments, n_seg, labels, probs, cell_size=model.cell_size)
+    p = model.probability(offers.features)
+    assert p.std() > 0  # the model tells offers apart
+    np.testing.assert_array_equal(fused, best_offers(labels, offers.point, offers.label, p, 0.5))
+    network = evaluate(room.labels, labels).miou or 0.0
+    assert (evaluate(room.labels, fused).miou or 0.0) > network  # it learned to mend mistakes
+
+
+def test_a_scan_without_labels_is_an_error_naming_it(tmp_path: Path) -> None:
+    room = make_room(4, points=3000)
+    write_scan(Scan(room.xyz, room.rgb), tmp_path / "bare.ply")
+    plan = one_dataset(tmp_path, "bare.ply")
+    with pytest.raises(ConfigError, match="bare.ply: no label field"):
+        fit_vote(read_plan(plan), tmp_path, tmp_path / "m.json", command="test")
+    assert not (tmp_path / "m.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("dataset", "message"),
+    [
+        ({"name": "d", "labellers": [{"network": "stand-in"}]}, "names no scans"),
+        ({"name": "d", "scans": ["x.ply"], "labellers": []}, "labellers"),
+        ({"name": "d", "scans": ["x.ply"], "labellers": [{"network": "x", "distortion": "odd"}]},
+         "distortion"),
+    ],
+)  # fmt: skip
+def test_a_bad_plan_is_an_error_naming_the_field(
+    tmp_path: Path, dataset: dict, message: str
+) -> None:
+    with pytest.raises(ConfigError, match=message):
+        read_plan(write_plan(tmp_path, {"datasets": [dataset]}))
+
+
+def test_an_unknown_labeller_or_missing_scans_are_errors(tmp_path: Path) -> None:
+    write_scan(make_room(4, points=3000), tmp_path / "room.ply")
+    for labeller, message in [("resnet:w.pt", "unknown network 'resnet'"),
+                              ("randlanet:gone.pt", "no weights file")]:  # fmt: skip
+        plan = one_dataset(tmp_path, "room.ply", labeller)
+        with pytest.raises(ConfigError, match=message):
+            fit_vote(read_plan(plan), tmp_path, tmp_path / "m.json", command="test")
+    (tmp_path / "empty").mkdir()
+    plan = one_dataset(tmp_path, "empty")
+    with pytest.raises(ConfigError, match="a folder without scan files"):
+        fit_vote(read_plan(plan), tmp_path, tmp_path / "m.json", command="test")
+
+
+def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
+    try:
+        main(list(args))
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+def test_the_command_fits_with_a_network_and_records_how_to_run_it_again(
+    tmp_path: Path, random_weights: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    write_scan(make_room(5, points=POINTS), tmp_path / "room5.ply")
+    labellers = [{"network": "stand-in"}, {"network": f"randlanet:{random_weights}"}]
+    plan = write_plan(
+        tmp_path,
+        {"datasets": [{"name": "d", "scans": ["room5.ply"], "labellers": labellers}],
+         "fit": {"trees": 3, "min_leaf": 20}},
+    )  # fmt: skip
+    outs = []
+    for name in ("a", "b"):
+        out = tmp_path / name / "vote.json"
+        code, err = run_here(capsys, "fit", "vote", "--plan", str(plan), "-o", str(out),
+                             "--depth", "3", "--no-monotonic")  # fmt: skip
+        assert code == 0, err
+        assert f"-> {out}" in err
+        outs.append(out)
+    assert outs[0].read_bytes() == outs[1].read_bytes()
+    body = json.loads(outs[0].read_text())
+    assert body["card"]["max_depth"] == 3 and body["card"]["monotonic"] is False
+    record = read_provenance(tmp_path / "a" / "vote.provenance.json")
+    assert record.command == (
+        f"jointseg fit vote --plan {plan} --out {outs[0]} --depth 3 --no-monotonic"
+    )
+    network = record.labellers[1]
+    assert network.name == "random.pt" and network.sha256 == file_sha256(random_weights)
+
+
+def test_the_command_says_what_is_wrong_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plan = one_dataset(tmp_path, "room.ply", "nope")
+    write_scan(make_room(4, points=3000), tmp_path / "room.ply")
+    code, err = run_here(capsys, "fit", "vote", "--plan", str(plan), "--out", str(tmp_path / "m"))
+    assert code == 2
+    assert "error: labeller 'nope': unknown network 'nope'" in err and "Traceback" not in err
