@@ -28,6 +28,7 @@ from typing import Any
 import httpx
 import numpy as np
 import schemathesis
+from helpers.report import header
 from helpers.service import start_service
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -37,6 +38,7 @@ from schemathesis.checks import (
     response_schema_conformance,
     status_code_conformance,
 )
+from schemathesis.core.result import Err
 
 from jointseg.io import write_scan
 from jointseg.scan import Scan
@@ -190,6 +192,7 @@ def main() -> None:
     parser.add_argument("--examples", type=int, default=100, help="examples per operation")
     parser.add_argument("--workers", type=int, default=1, help="workers of the service")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     rows: list[Row] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -198,7 +201,11 @@ def main() -> None:
         try:
             seeds = _seeds(url, data, args.workers)
             schema = schemathesis.openapi.from_url(f"{url}/openapi.json")
-            operations = [result.ok() for result in schema.get_all_operations()]
+            operations = []
+            for result in schema.get_all_operations():
+                if isinstance(result, Err):
+                    raise result.err()  # a schema the fuzzer cannot read is itself the finding
+                operations.append(result.ok())
             # deletions last, so the seeded jobs are there for the other operations
             operations.sort(key=lambda op: op.method.upper() == "DELETE")
             for operation in operations:

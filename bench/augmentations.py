@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from helpers.report import header
 from scipy.spatial import cKDTree
 
 from jointseg.io import read_scan
@@ -140,6 +141,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=4096)
     ap.add_argument("--real", action="store_true", help="an Area_6 room instead of a synthetic one")
     args = ap.parse_args()
+    header()
     if args.real:
         room = read_scan(SHARED / "s3dis_area6" / "area6_office_3.ply")
         name = "area6_office_3"
@@ -156,8 +158,8 @@ def main() -> None:
         b = np.array([fn(c) for c in with_it])
         mid = np.nanmean if "(mean)" in stat else np.nanmedian
         print(f"| {label} | {stat} | {mid(a):.3g} | {mid(b):.3g} | {np.nanmax(b):.3g} |")
-    for label, update in (("partial room", {"partial": 1.0}), ("holes", {"holes": 1.0})):
-        b = missing_share(cloud, update, args.crops, args.points)
+    for label, part in (("partial room", {"partial": 1.0}), ("holes", {"holes": 1.0})):
+        b = missing_share(cloud, dict(part), args.crops, args.points)
         a = missing_share(cloud, {}, args.crops, args.points)
         print(f"| {label} | surface missing | {np.nanmedian(a):.3g} | {np.nanmedian(b):.3g} "
               f"| {np.nanmax(b):.3g} |")  # fmt: skip

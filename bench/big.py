@@ -31,15 +31,18 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from helpers.inputs import cached_floor
 from helpers.measure import PEAK_WRAPPER
+from helpers.report import header
 
 
-def segment(scan: Path, out: Path, tile_points: int, ifc: bool = False) -> dict[str, float]:
-    """`jointseg segment` on ``scan`` in a child process: wall time, peak RSS, stage times;
-    with ``ifc``, objects.json and an IFC model written too (the ``+ifc`` modes)."""
+def segment(scan: Path, out: Path, tile_points: int, ifc: bool = False) -> dict[str, Any]:
+    """`jointseg segment` on ``scan`` in a child process: wall time, peak RSS, stage times
+    (seconds), and for a failed run why; with ``ifc``, objects.json and an IFC model written
+    too (the ``+ifc`` modes)."""
     report = out.with_suffix(".json")
     cmd = [sys.executable, "-c", PEAK_WRAPPER, sys.executable, "-m", "jointseg", "segment"]
     cmd += [str(scan), "-o", str(out), "--report", str(report)]
@@ -83,6 +86,7 @@ def main() -> None:
     parser.add_argument("--agree-max", type=int, default=4_000_000, help="compare labels up to")
     parser.add_argument("--keep", type=Path, help="keep the generated floors in this folder")
     args = parser.parse_args()
+    header()
     sizes = sorted(int(s) for s in args.sizes.split(",") if s)
     modes = [m for m in args.modes.split(",") if m]
     today = time.strftime("%F")

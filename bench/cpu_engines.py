@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from helpers.report import header
 
 from jointseg.network.anchored import anchored_cloud
 from jointseg.network.randlanet.engine import FlatInputs
@@ -34,8 +35,9 @@ def onnx_bytes(model: torch.nn.Module, example: list[torch.Tensor], layers: int)
     """The model exported for inputs of exactly the example's shapes (a dynamic-shape export
     labels wrongly: the pooling's sizes are traced as constants)."""
     buffer = io.BytesIO()
-    torch.onnx.export(FlatInputs(model, layers).eval(), tuple(example), buffer, dynamo=False,
-                      opset_version=17)  # fmt: skip
+    # torch's stub names paths only; export writes to any binary file object (its docs say so)
+    torch.onnx.export(FlatInputs(model, layers).eval(), tuple(example), buffer,  # type: ignore[arg-type]
+                      dynamo=False, opset_version=17)  # fmt: skip
     return buffer.getvalue()
 
 
@@ -84,8 +86,10 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--crops", type=int, default=0, help="crops timed (0: the whole plan)")
     args = ap.parse_args()
+    header()
     torch.set_num_threads(args.threads)
     net = load()
+    assert isinstance(net, RandLANetPredictor), "the bundled network is RandLA-Net"
     model = net.model.eval()
     inputs = crop_inputs(net, args.points, args.crops)
     layers = (len(inputs[0]) - 1) // 4

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 from helpers.inputs import FRAGMENT, MODELS
+from helpers.report import header
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.io import read_scan
@@ -45,6 +46,7 @@ def main() -> None:
     parser.add_argument("--weights-dir", type=Path, default=WEIGHTS_DIR)
     parser.add_argument("--scan", type=Path, default=FRAGMENT)
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     scan = read_scan(args.scan)
     if scan.labels is None:
@@ -52,9 +54,9 @@ def main() -> None:
     present = [c for c in range(len(CLASS_NAMES)) if (scan.labels == c).any()]
     print(f"# DGCNN on {args.scan.name} ({len(scan):,} points), {time.strftime('%F')}")
     print(f"torch threads {torch.get_num_threads()}, cpu\n")
-    header = ["weights", "setting", "OA", "mIoU", *(CLASS_NAMES[c] for c in present), "s/100k"]
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
+    columns = ["weights", "setting", "OA", "mIoU", *(CLASS_NAMES[c] for c in present), "s/100k"]
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
     for model in args.models:
         weights = args.weights_dir / f"model_{model}.t7"
         for name, params in SETTINGS.items():

@@ -23,6 +23,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from helpers.report import header
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -62,6 +64,7 @@ def main() -> None:
         help="+y: the room turned y up first (a plain y-up export: the network judges)",
     )  # fmt: skip
     args = ap.parse_args()
+    header()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         old = work / "old"

@@ -1,12 +1,14 @@
-"""Fusion variants compared on held-out scans: which mode should be the default?
+"""Fusion variants (jointseg.fusion.variants.VARIANTS, the list every fusion benchmark shares)
+compared on held-out scans: which mode should be the default?
 
 For every held-out synthetic scan (rooms 5000.. box and L with random yaw, floors 6000..; the
 seeds bench/network_accuracy.py uses) and, when present, the real S3DIS fragment, the network
 and the geometry run once; then every fusion variant (the paper's rule at several ratio
-thresholds, soft votes, the guard) fuses their outputs. Prints per-scan mIoU of the network,
-each variant and the oracle (segment majority of the ground truth), then a summary per variant:
-mean mIoU, mean and worst gain over the network, scans where fusion lost. The winner is the
-variant with the best mean gain among those that lose on no scan.
+thresholds, soft votes, the guard, the evidence and learned votes) fuses their outputs. Prints
+per-scan mIoU of the network, each variant and the oracle (segment majority of the ground
+truth), then a summary per variant: mean mIoU, mean and worst gain over the network, scans where
+fusion lost. The winner is the variant with the best mean gain among those that lose on no
+scan.
 
     .venv/bin/python bench/fusion.py [--weights PATH] [--rooms 10] [--floors 2] [--points 300000]
     .venv/bin/python bench/fusion.py --stand-in    # no weights: ground truth with patchy noise
@@ -28,9 +30,11 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import FRAGMENT
+from helpers.report import header
 from helpers.scans import held_out
 
 from jointseg.fusion import DEFAULT_MODE, FusionParams, fuse
+from jointseg.fusion.variants import VARIANTS
 from jointseg.geometry import segment
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate, segment_majority
@@ -39,25 +43,6 @@ from jointseg.network.registry import BACKENDS
 from jointseg.pipeline.tables import format_score as fmt
 from jointseg.scan import Scan
 from jointseg.synth.label_noise import corrupt_labels
-
-VARIANTS: dict[str, FusionParams] = {
-    "paper r=0.1": FusionParams(mode="paper", ratio_threshold=0.1),
-    "paper r=0.3": FusionParams(mode="paper", ratio_threshold=0.3),
-    "paper r=0.5": FusionParams(mode="paper", ratio_threshold=0.5),
-    "paper r=1": FusionParams(mode="paper", ratio_threshold=1.0),
-    "guarded": FusionParams(mode="guarded"),
-    "guarded, keep": FusionParams(mode="guarded", guard_cell_size=0.0),
-    "soft r=0.3": FusionParams(mode="soft", ratio_threshold=0.3),
-    "soft, no support check": FusionParams(mode="soft", min_support=0.0),
-    "soft support 0.1": FusionParams(mode="soft", min_support=0.1),
-    "soft": FusionParams(mode="soft"),
-    "soft_guarded": FusionParams(mode="soft_guarded"),
-    "soft_guarded 1 m": FusionParams(mode="soft_guarded", guard_cell_size=1.0),
-    "soft_guarded m=0.1": FusionParams(mode="soft_guarded", guard_min_margin=0.1),
-    "soft_guarded mild": FusionParams(
-        mode="soft_guarded", guard_min_margin=0.05, guard_huge_min_share=0.6, guard_cell_size=1.0
-    ),
-}
 
 
 @dataclass
@@ -73,17 +58,19 @@ class ScanRow:
 def measure(name: str, scan: Scan, labels_probs, seed: int, synthetic: bool) -> ScanRow:
     """Geometry once, then every variant on the same network output."""
     labels, probs = labels_probs
+    truth = scan.labels
+    assert truth is not None, f"{name} has no labels to score against"
     segments = segment(scan, seed=seed).segments
     fused = {}
     for variant, params in VARIANTS.items():
         result = fuse(scan.xyz, segments, labels, probs, params)
-        fused[variant] = evaluate(scan.labels, result.labels).miou or 0.0
+        fused[variant] = evaluate(truth, result.labels).miou or 0.0
     return ScanRow(
         name,
         len(scan),
         synthetic,
-        evaluate(scan.labels, labels).miou or 0.0,
-        evaluate(scan.labels, segment_majority(scan.labels, segments)).miou or 0.0,
+        evaluate(truth, labels).miou or 0.0,
+        evaluate(truth, segment_majority(truth, segments)).miou or 0.0,
         fused,
     )
 
@@ -133,11 +120,13 @@ def main() -> None:
     parser.add_argument("--floors", type=int, default=2)
     parser.add_argument("--points", type=int, default=300_000, help="points per room")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     if args.stand_in:
         source = "stand-in network: ground truth with patchy label noise"
 
-        def noisy(scan: Scan, seed: int):
+        def noisy(scan: Scan, seed: int) -> tuple[np.ndarray, np.ndarray]:
+            assert scan.labels is not None, "the stand-in needs labelled scans"
             return corrupt_labels(scan.xyz, scan.labels, rng=np.random.default_rng(seed))
 
         labellers = {"": noisy}

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import AREA6, SCANNET
+from helpers.report import header
 from helpers.scans import (
     GEOMETRY,
     SCANNET_JUDGES,
@@ -78,7 +79,7 @@ class Row:
     net_miou: float
     oracle: float
     fused: dict[str, float] = field(default_factory=dict)
-    cm_net: np.ndarray | None = None
+    cm_net: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     cm_fused: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -172,8 +173,8 @@ def groups(rows: list[Row], variant: str) -> str:
 
 def table1(rows: list[Row], variant: str) -> str:
     """Per-class IoU over the pooled confusion of the rows: network, fused, gain."""
-    cm_n = sum(r.cm_net for r in rows)
-    cm_f = sum(r.cm_fused[variant] for r in rows)
+    cm_n = np.sum([r.cm_net for r in rows], axis=0)
+    cm_f = np.sum([r.cm_fused[variant] for r in rows], axis=0)
     iou_n, iou_f = per_class_iou(cm_n), per_class_iou(cm_f)
     lines = ["| | " + " | ".join(CLASS_NAMES) + " |", "|---" * (1 + len(CLASS_NAMES)) + "|"]
     lines.append("| network | " + " | ".join(fmt(x) for x in iou_n) + " |")
@@ -249,6 +250,7 @@ def main() -> None:
     parser.add_argument("--synth-points", type=int, default=300_000)
     parser.add_argument("--csv", type=Path)
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     items = load_items(
         args.scans, args.judge, (args.synth_rooms, args.synth_floors, args.synth_points)

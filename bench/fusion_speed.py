@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.measure import best_time
+from helpers.report import header
 
 from jointseg.fusion import FusionParams, fuse, learned
 from jointseg.fusion.variants import VARIANTS
@@ -42,9 +43,11 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--baseline-model", type=Path, help="another vote model JSON to time")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     scan = make_room(0, points=args.points)
     segments = segment(scan, seed=0).segments
+    assert scan.labels is not None  # synthetic rooms are labelled
     labels, probs = corrupt_labels(scan.xyz, scan.labels, rng=np.random.default_rng(0))
     print(f"# fusion speed, {len(scan):,} points, {segments.max() + 1} segments\n")
     print("| variant | seconds | s per 1 M points | x paper |")

@@ -31,6 +31,7 @@ from pathlib import Path
 import torch
 from helpers.gpu_usage import GpuUsage
 from helpers.inputs import AREA6, CACHE, MODELS, cached_floor
+from helpers.report import header
 from helpers.side_by_side import rooms_side_by_side
 
 from jointseg.network import load
@@ -196,6 +197,7 @@ def parse_args() -> argparse.Namespace:
 
 def main() -> None:
     args = parse_args()
+    header()
     args.backends = set(args.backends.split(","))
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(args.threads)  # the CPU rows use every thread; so does the GPU's prep

@@ -24,6 +24,7 @@ import logging
 
 import numpy as np
 from helpers.inputs import AREA6, M6, WEAK
+from helpers.report import header
 from helpers.scans import calibration_rooms, geometry_output, load_items, network_output
 from scipy import sparse
 from scipy.spatial import cKDTree
@@ -154,6 +155,7 @@ def main() -> None:
     parser.add_argument("--cell", type=float, nargs="+", default=[0.3])
     parser.add_argument("--split", default="tune", choices=["tune", "judge"])
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     real = [i for i in load_items([str(AREA6)], 10, (0, 0, 0)) if i.split == args.split]
     synth = calibration_rooms(10, 2, 100_000)
@@ -167,6 +169,7 @@ def main() -> None:
             labels, probs = network_output(spec, item, predictors)
             g = geometry_output("default", item)
             gt = item.scan.labels
+            assert gt is not None  # tuning scans are labelled
             net = evaluate(gt, labels).miou or 0.0
             learned = fuse(
                 item.scan.xyz,
@@ -196,7 +199,7 @@ def main() -> None:
     ):
         parts = []
         for gname, rows in data.items():
-            gains = []
+            held: list[float] = []
             for item, labels, probs, seg, gt, net, _ in rows:
                 fused, _, _ = graph_labels(
                     item.scan.xyz,
@@ -209,9 +212,9 @@ def main() -> None:
                     point_weight=w,
                     min_support=support,
                 )
-                gains.append((evaluate(gt, fused).miou or 0.0) - net)
-            g = np.array(gains) * 100
-            parts.append(f"{gname} {g.mean():+.2f} / {g.min():+.2f}")
+                held.append((evaluate(gt, fused).miou or 0.0) - net)
+            points = np.array(held) * 100
+            parts.append(f"{gname} {points.mean():+.2f} / {points.min():+.2f}")
         print(f"cell {cell} a {a} b {b} w {w}: " + " | ".join(parts), flush=True)
 
 

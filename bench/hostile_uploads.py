@@ -21,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import httpx
+from helpers.report import header
 from helpers.service import start_service
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "server"))
@@ -47,6 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--concurrent", type=int, default=3, help="uploads at once per kind")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)

@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from helpers.report import header
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -69,6 +70,7 @@ def render(path: Path, out: Path) -> dict[str, int]:
         while True:
             shape = iterator.get()
             product = model.by_id(shape.id)
+            assert product is not None  # the iterator's shapes are the model's own products
             kind = product.is_a()
             name = product.Name or ""
             if kind in COLOURS and not (kind == "IfcSlab" and "ceiling" in name):
@@ -99,6 +101,7 @@ def main() -> None:
     ap.add_argument("--ifc", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "ifc_floor.png")
     args = ap.parse_args()
+    header()
     path = args.ifc or make_model(Path(tempfile.mkdtemp(prefix="ifc_view_")))
     print(render(path, args.out), "->", args.out)
 

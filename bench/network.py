@@ -27,6 +27,7 @@ import time
 
 import numpy as np
 import torch
+from helpers.report import header
 
 from jointseg.metrics import evaluate
 from jointseg.network import DGCNNParams, load
@@ -132,9 +133,10 @@ def main() -> None:
     )
     parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)))
     args = parser.parse_args()
-    if args.child_big:
+    if args.child_big:  # a child run: its stdout is one JSON line the parent reads
         big_run(args.child_big, args.weights)
         return
+    header()
     if args.dgcnn is not None:
         logging.basicConfig(level=logging.WARNING)
         torch.set_num_threads(args.threads)
@@ -143,6 +145,7 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     scan = make_room(0, points=args.points)
+    assert scan.labels is not None and scan.rgb is not None  # synthetic rooms have both
     predictor = load("randlanet", args.weights, device="cpu")
     print(f"# network benchmark, {len(scan):,} points (make_room seed 0), weights {args.weights}")
     print(f"torch threads {torch.get_num_threads()}, device cpu, {time.strftime('%F')}")

@@ -16,6 +16,7 @@ import time
 import numpy as np
 import torch
 from helpers.inputs import FRAGMENT
+from helpers.report import header
 from helpers.scans import held_out
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
@@ -33,6 +34,7 @@ def main() -> None:
     parser.add_argument("--floors", type=int, default=2)
     parser.add_argument("--points", type=int, default=500_000, help="points per room")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     predictor = load("randlanet", args.weights)
     print(f"# network accuracy, weights {args.weights}")
@@ -49,6 +51,7 @@ def main() -> None:
         t = time.perf_counter()
         pred = predictor.predict(scan).labels
         seconds = time.perf_counter() - t
+        assert scan.labels is not None  # held-out synthetic scans are labelled
         m = evaluate(scan.labels, pred)
         total += confusion_matrix(scan.labels, pred)
         mious.append(m.miou or 0.0)
@@ -61,6 +64,7 @@ def main() -> None:
         scan = read_scan(FRAGMENT)
         t = time.perf_counter()
         pred = predictor.predict(scan).labels
+        assert scan.labels is not None, f"{FRAGMENT} has no labels"
         m = evaluate(scan.labels, pred)
         print(
             f"| S3DIS fragment (real) | {len(scan):,} | {fmt(m.miou)} | {fmt(m.macc)} | "

@@ -22,11 +22,14 @@ import argparse
 import logging
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
 from helpers.inputs import AREA6, FRAGMENT, SCANNET
+from helpers.report import header
 
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
@@ -47,6 +50,10 @@ def without_colour(scan: Scan) -> Scan:
     return Scan(xyz=scan.xyz, rgb=None, labels=scan.labels)
 
 
+def _colourless(load: Callable[[], Scan]) -> Scan:
+    return without_colour(load())
+
+
 def _files(folder: Path) -> list[Path]:
     return sorted(folder.glob("*.ply")) if folder.is_dir() else []
 
@@ -58,39 +65,31 @@ def datasets(args: argparse.Namespace) -> dict[str, list[tuple[str, Callable[[],
     judge6 = [p for p in area6 if p.stem in args.area6_judge]
     seen6 = [p for p in area6 if p.stem not in args.area6_judge]
     if judge6:
-        out["Area_6 judging rooms"] = [(p.stem, lambda p=p: read_scan(p)) for p in judge6]
+        out["Area_6 judging rooms"] = [(p.stem, partial(read_scan, p)) for p in judge6]
     if seen6 and args.area6_all:
         out["Area_6 other rooms (seen in training)"] = [
-            (p.stem, lambda p=p: read_scan(p)) for p in seen6
+            (p.stem, partial(read_scan, p)) for p in seen6
         ]
     scannet = _files(SCANNET)
     judge = [p for p in scannet if p.stem.split("_")[0] in args.scannet_judge]
     val = [p for p in scannet if p.stem.split("_")[0] in SCANNET_VAL]
     if judge:
-        out["ScanNet judging rooms"] = [(p.stem, lambda p=p: read_scan(p)) for p in judge]
+        out["ScanNet judging rooms"] = [(p.stem, partial(read_scan, p)) for p in judge]
     if val:
-        out["ScanNet validation room"] = [(p.stem, lambda p=p: read_scan(p)) for p in val]
+        out["ScanNet validation room"] = [(p.stem, partial(read_scan, p)) for p in val]
     if FRAGMENT.is_file():
-        out["S3DIS fragment"] = [(FRAGMENT.stem, lambda: read_scan(FRAGMENT))]
+        out["S3DIS fragment"] = [(FRAGMENT.stem, partial(read_scan, FRAGMENT))]
     if args.synth_rooms or args.synth_floors:
         from jointseg.synth import make_floor, make_room
 
         synth: list[tuple[str, Callable[[], Scan]]] = []
         for i in range(args.synth_rooms):
-            shape = "L" if i % 2 else "box"
-            synth.append(
-                (
-                    f"room {5000 + i} ({shape})",
-                    lambda i=i, s=shape: make_room(5000 + i, points=args.synth_points, shape=s),
-                )
-            )
+            shape: Literal["box", "L"] = "L" if i % 2 else "box"
+            room = partial(make_room, 5000 + i, points=args.synth_points, shape=shape)
+            synth.append((f"room {5000 + i} ({shape})", room))
         for i in range(args.synth_floors):
-            synth.append(
-                (
-                    f"floor {6000 + i}",
-                    lambda i=i: make_floor(6000 + i, points=3 * args.synth_points),
-                )
-            )
+            floor = partial(make_floor, 6000 + i, points=3 * args.synth_points)
+            synth.append((f"floor {6000 + i}", floor))
         out["synthetic (held out)"] = synth
     return out
 
@@ -119,6 +118,7 @@ def main() -> None:
         "--no-colour", action="store_true", help="score every scan without its colour"
     )
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     weights = args.weights or ["bundled"]
     backends = ["dgcnn" if w.startswith("dgcnn:") else "randlanet" for w in weights]
@@ -143,7 +143,7 @@ def main() -> None:
     summary: list[tuple[str, list[tuple[float, float]]]] = []
     for dataset, scans in datasets(args).items():
         if args.no_colour:
-            scans = [(n, lambda load=load: without_colour(load())) for n, load in scans]
+            scans = [(n, partial(_colourless, load)) for n, load in scans]
         print(f"\n## {dataset}\n")
         print("| scan | points | " + " | ".join(names) + " |")
         print("|---|---|" + "---|" * len(names))
@@ -152,6 +152,7 @@ def main() -> None:
             scan = loader()
             row = []
             for k, predictor in enumerate(predictors):
+                assert scan.labels is not None, f"{scan_name} has no labels"
                 miou = evaluate(scan.labels, predictor.predict(scan).labels).miou or 0.0
                 scores[k].append(miou)
                 row.append(f"{miou:.3f}")

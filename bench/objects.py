@@ -24,8 +24,10 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
+from helpers.report import header
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -83,6 +85,7 @@ def objects_part(points: int) -> None:
         truth = np.where(scan.fields["instance"] >= 0, scan.fields["instance"], -1)
         scans.append(("synthetic judging", f"synth{seed}", scan, truth))
     for split, name, scan, truth in scans:
+        assert scan.labels is not None, f"{name} has no labels"
         spacing = estimate_spacing(scan.xyz)
         from_truth = find_instances(scan.xyz, scan.labels, spacing)
         result = run(scan, config, predictor=predictor)
@@ -136,8 +139,9 @@ def rooms_part(points: int) -> None:
           " window widths true | found |")  # fmt: skip
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for seed in (11, 12, 13, 14):
-        shape = "L" if seed % 2 == 0 else "box"
+        shape: Literal["box", "L"] = "L" if seed % 2 == 0 else "box"
         scan, plan = make_room(seed, points=points, shape=shape), room_layout(seed, shape=shape)
+        assert scan.labels is not None  # synthetic rooms are labelled
         layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
         room = layout.rooms[0] if layout.rooms else None
         found = room.floor_area if room else float("nan")
@@ -156,11 +160,12 @@ def rooms_part(points: int) -> None:
               f"{doors_f} | {wins_t} | {wins_f} |")  # fmt: skip
     for seed in (21, 22):
         scan, plan = make_floor(seed, rooms=3, points=2 * points), floor_layout(seed, rooms=3)
+        assert scan.labels is not None  # synthetic floors are labelled
         layout = find_layout(scan.xyz, scan.labels, None, estimate_spacing(scan.xyz)).report
-        truth = sorted(round(s.area, 1) for s in plan.spaces)
-        found = sorted(round(r.floor_area, 1) for r in layout.rooms)
-        print(f"| floor{seed} (3 rooms + corridor) | {truth} | {found} | {len(found)} of "
-              f"{len(truth)} spaces | | | | | | | | | |")  # fmt: skip
+        spaces = sorted(round(s.area, 1) for s in plan.spaces)
+        rooms = sorted(round(r.floor_area, 1) for r in layout.rooms)
+        print(f"| floor{seed} (3 rooms + corridor) | {spaces} | {rooms} | {len(rooms)} of "
+              f"{len(spaces)} spaces | | | | | | | | | |")  # fmt: skip
 
 
 def cost_part() -> None:
@@ -191,6 +196,7 @@ def main() -> None:
     ap.add_argument("--part", choices=("objects", "rooms", "cost", "all"), default="all")
     ap.add_argument("--points", type=int, default=200_000)
     args = ap.parse_args()
+    header()
     if args.part in ("objects", "all"):
         objects_part(args.points)
     if args.part in ("rooms", "all"):

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from helpers.measure import peak_rss_mb
+from helpers.report import header
 
 STAGES = ("network", "geometry", "fusion", "metrics")
 
@@ -122,10 +123,10 @@ def main() -> None:
     parser.add_argument("--sequential", action="store_true", help="network, then geometry")
     parser.add_argument("--single", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
-
-    if args.single is not None:
+    if args.single is not None:  # a child run: one JSON line the parent reads
         print(json.dumps(measure_one(args.single, args.weights, args.sequential)))
         return
+    header()
 
     from jointseg.network.registry import REGISTRY
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from helpers.deliveries import VARIANTS, Delivery, deliver, file_xyz, write_delivery
 from helpers.inputs import AREA6, SCANNET
+from helpers.report import header
 
 from jointseg.io import read_scan
 from jointseg.metrics import evaluate
@@ -349,6 +350,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the random variants")
     parser.add_argument("--timeout", type=float, default=900.0, help="seconds per CLI run")
     args = parser.parse_args()
+    header()
     variants = parse_variants(args.variants)
     paths = resolve_scans(args.scans)
     env = child_env(args.jobs)

@@ -18,6 +18,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from helpers.report import header
+
 JOINTSEG = Path(sys.executable).with_name("jointseg")
 SCANS = {  # name: jointseg synth arguments
     "room": ["--seed", "3", "--points", "120000"],
@@ -63,7 +65,8 @@ def segment_runs(work: Path) -> dict[str, str]:
     found: dict[str, str] = {}
     for name, args in SCANS.items():
         _cli("synth", "-o", str(work / f"{name}.ply"), *args)
-    runs = {name: [] for name in SCANS} | {"floor_tiled": ["--tile-points", "100000"]}
+    runs: dict[str, list[str]] = {name: [] for name in SCANS}
+    runs["floor_tiled"] = ["--tile-points", "100000"]
     for name, extra in runs.items():
         source = work / f"{name.removesuffix('_tiled')}.ply"
         out, report = work / f"{name}_out.ply", work / f"{name}_report.json"
@@ -104,6 +107,7 @@ def main() -> int:
     parser.add_argument("--save", type=Path)
     parser.add_argument("--compare", type=Path)
     args = parser.parse_args()
+    header()
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         found = {**openapi_digest(work), **segment_runs(work), **variant_runs(work)}

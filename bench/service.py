@@ -24,8 +24,10 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TypedDict
 
 import httpx
+from helpers.report import header
 from helpers.service import start_service
 
 from jointseg.io import write_scan
@@ -110,7 +112,20 @@ def load_test(url: str, rooms: list[Path], jobs: int, pollers: int) -> dict[str,
     }
 
 
-def big_upload(url: str, api_pid: int, gib: float) -> dict[str, float]:
+class Upload(TypedDict):
+    """What a big upload met: the answer, its speed and the API's memory around it."""
+
+    status: int
+    detail: str
+    seconds: float
+    mib_per_s: float
+    rss_before: float
+    rss_max: float
+    rss_after: float
+    samples: int
+
+
+def big_upload(url: str, api_pid: int, gib: float) -> Upload:
     """Stream a ~``gib`` GiB multipart upload while sampling the API's resident memory."""
     boundary = "benchboundary"
     header = (
@@ -160,7 +175,7 @@ def big_upload(url: str, api_pid: int, gib: float) -> dict[str, float]:
     sampler.join()
     return {
         "status": response.status_code,
-        "detail": response.json().get("detail", ""),
+        "detail": str(response.json().get("detail", "")),
         "seconds": elapsed,
         "mib_per_s": body_bytes / (1 << 20) / elapsed,
         "rss_before": before,
@@ -178,6 +193,7 @@ def main() -> None:
     parser.add_argument("--pollers", type=int, default=4)
     parser.add_argument("--upload-gib", type=float, default=2.0)
     args = parser.parse_args()
+    header()
     with tempfile.TemporaryDirectory(prefix="jointseg-bench-") as tmp:
         data = Path(tmp)
         rooms = []

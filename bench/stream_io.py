@@ -19,6 +19,8 @@ import sys
 import time
 from pathlib import Path
 
+from helpers.report import header
+
 CACHE = Path(__file__).resolve().parent / "_cache"
 
 #: The child process: runs one mode and prints {"s": seconds, "rss_mb": peak RSS}.
@@ -84,6 +86,7 @@ def main() -> None:
     parser.add_argument("--points", type=int, default=5_000_000)
     parser.add_argument("--chunk", type=int, default=1_000_000)
     args = parser.parse_args()
+    header()
     paths = make_inputs(args.points)
     out_dir = CACHE / "stream_io_out"
     out_dir.mkdir(exist_ok=True)

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import AREA6, M6, MODELS, SCANNET
+from helpers.report import header
 from helpers.scans import (
     Item,
     colourless,
@@ -201,6 +202,7 @@ def main() -> None:
     parser.add_argument("--before-ref", default="4dc3e5d")
     parser.add_argument("--speed", action="store_true")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     print(f"`{Path(sys.argv[0]).name} {' '.join(sys.argv[1:])}`")
     before = before_model(args.before_ref)

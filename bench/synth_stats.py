@@ -6,9 +6,11 @@ Usage: ``python bench/synth_stats.py [--points N] [--seeds K]``
 from __future__ import annotations
 
 import argparse
+from typing import Literal
 
 import numpy as np
 from helpers.measure import best_time
+from helpers.report import header
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.synth import make_floor, make_room
@@ -23,11 +25,12 @@ S3DIS_COUNTS = np.array(
 )  # fmt: skip
 
 
-def shares(shape: str, seeds: range, points: int) -> np.ndarray:
+def shares(shape: Literal["box", "L"], seeds: range, points: int) -> np.ndarray:
     """Per-seed class shares, shape (len(seeds), 13)."""
     out = np.zeros((len(seeds), NUM_CLASSES))
     for i, seed in enumerate(seeds):
-        scan = make_room(seed, points=points, shape=shape)  # type: ignore[arg-type]
+        scan = make_room(seed, points=points, shape=shape)
+        assert scan.labels is not None  # synthetic rooms are labelled
         out[i] = np.bincount(scan.labels, minlength=NUM_CLASSES) / len(scan)
     return out
 
@@ -38,6 +41,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=200_000, help="points per room for the shares")
     ap.add_argument("--seeds", type=int, default=10, help="seeds 0..K-1")
     args = ap.parse_args()
+    header()
     seeds = range(args.seeds)
     box, ell = shares("box", seeds, args.points), shares("L", seeds, args.points)
     s3dis = S3DIS_COUNTS / S3DIS_COUNTS.sum()

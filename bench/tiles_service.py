@@ -35,6 +35,7 @@ from typing import Any
 import httpx
 import psutil
 from helpers.inputs import cached_floor  # the same cached floors as bench/big.py
+from helpers.report import header
 from helpers.service import start_service
 
 
@@ -115,6 +116,7 @@ def main() -> None:
     )
     parser.add_argument("--keep", type=Path, help="keep the generated floor in this folder")
     args = parser.parse_args()
+    header()
     counts = [int(w) for w in args.workers.split(",") if w]
     config = {"tiles": {"max_points": args.tile_points}}
     print(

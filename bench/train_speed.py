@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from helpers.inputs import AREA6, SCANNET
+from helpers.report import header
 
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.training.batches import BatchMaker, batch_stream
@@ -128,6 +129,7 @@ def main() -> None:
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--skip-steps", action="store_true", help="only the batch table")
     args = parser.parse_args()
+    header()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(args.threads)
     cfg = TrainConfig(

@@ -51,6 +51,8 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from helpers.report import header
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -561,10 +563,10 @@ def main() -> None:
     parser.add_argument("--serve-viewer", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--port", type=int, default=8191, help=argparse.SUPPRESS)
     args = parser.parse_args()
-
     if args.serve_viewer is not None:
         serve_viewer(args.serve_viewer, args.port)
         return
+    header()
     if args.part in ("pick", "both"):
         run_pick(args.points, args.repeats, args.cache)
     if args.part in ("big", "both"):

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from helpers.report import header
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -193,7 +194,8 @@ def tour(page: Any, viewer: Any, out: Path) -> list[str]:
 
 def frame_rate(browser: Any, budgets: list[int], seconds: float, cache: Path) -> list[tuple]:
     """Frames per second while orbiting a 300 k-point result with five panels, per budget."""
-    from bench.viewer import make_big_result  # type: ignore[import-not-found]
+    from viewer import make_big_result  # bench/viewer.py: this folder is on the path
+
     from web.sources import DirectorySource
     from web.viewer import Viewer
 
@@ -265,6 +267,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--skip-tour", action="store_true")
     args = ap.parse_args()
+    header()
     from playwright.sync_api import sync_playwright
 
     from web.sources import DirectorySource
