@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -215,3 +216,12 @@ def test_the_command_says_what_is_wrong_in_one_line(
     code, err = run_here(capsys, "fit", "vote", "--plan", str(plan), "--out", str(tmp_path / "m"))
     assert code == 2
     assert "error: labeller 'nope': unknown network 'nope'" in err and "Traceback" not in err
+
+
+def test_without_scikit_learn_the_fit_says_which_extra_to_install(
+    inputs: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "sklearn.ensemble", None)  # an import of it now fails
+    with pytest.raises(ConfigError, match=r"pip install 'jointseg\[fit\]'"):
+        fit_vote(read_plan(inputs / "plan.json"), inputs, tmp_path / "m.json", command="test")
+    assert not (tmp_path / "m.json").exists()
