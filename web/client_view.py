@@ -4,13 +4,17 @@ Each connected client has its own :class:`ClientView`, built from ``client.scene
 ``client.gui``, so several people inspect different jobs at once. The view wires together small
 parts that each own one concern, as viser's own handles do:
 
-- :class:`web.controls.Controls`: the control panel's folders and controls;
+- :class:`web.controls.Controls`: the control panel's folders and controls, among them
+  :class:`web.clipping.ClipControls` (the clip box and the slice);
 - :class:`web.job_list.JobList`: the job picker and the jobs it lists;
 - :class:`web.panels.PanelScene`: the shown job's nodes in the scene, and what a click hits;
-- :class:`web.camera.CameraFollow`: the camera, fitted until the user moves it;
+- :class:`web.camera.CameraFollow`: the camera: the overview fitted until the user moves it,
+  the plan and the elevations kept near orthographic;
 - :class:`web.address.AddressBar`: the browser's address following the view
   (:mod:`web.view_state`): a copied link opens the same job with the same camera, classes and
-  toggles, and carries no key (whoever opens it signs in).
+  toggles, and carries no key (whoever opens it signs in); a
+  :class:`web.address.PageElement` puts the legend and scale bar over the canvas
+  (:mod:`web.overlay`).
 
 Switching jobs removes the old nodes first, so neither the server nor the browser grows with the
 jobs viewed.
@@ -30,17 +34,18 @@ import viser
 
 from jointseg.exceptions import JointsegError
 from server.api.results import Download
-from web.address import AddressBar
-from web.camera import CameraFollow
-from web.controls import CLICK_HINTS, OPTIONAL, SINGLE, Controls
+from web.address import AddressBar, PageElement
+from web.camera import FIT_ALL, CameraFollow
+from web.controls import SINGLE, Controls
 from web.downloads import send_download
 from web.job_list import JobList
-from web.layout import overview_camera, panel_offsets, view_camera
+from web.layout import panel_offsets, row_axis
 from web.memory import release_soon
+from web.overlay import Overlay, overlay_html, overlay_of
 from web.panels import PanelScene
 from web.scene import Panel, SceneCache, SceneData
-from web.screenshot import BACKGROUND, send_screenshot
-from web.sources import JobEntry, JobSource
+from web.screenshot import BACKGROUND, SIZES, send_screenshot
+from web.sources import JobSource
 from web.tools import ClickTools, Picked
 from web.view_state import ViewState
 
@@ -86,13 +91,22 @@ class ClientView:
         client.scene.set_background_image(
             np.broadcast_to(np.array(BACKGROUND, np.uint8), (4, 4, 3)).copy(), format="png"
         )
-        self.ui = Controls(client.gui, self.asked, cache.max_points, sign_out)
-        self._wanted = {panel: self.ui.panel_boxes[panel].value for panel in OPTIONAL}
+        self.ui = Controls(
+            client.gui,
+            self.asked,
+            cache.max_points,
+            clip_changed=self._clip_changed,
+            sign_out=sign_out,
+        )
         self.jobs = JobList(self.ui.picker, source)
         self.panels = PanelScene(client.scene, self.hidden)
-        self._read_toggles()
+        self.panels.restyle(*self.ui.look())
         self.camera = CameraFollow(client.camera, self._lock, on_user_move=self._camera_moved)
+        self.camera.view = self.asked.view or FIT_ALL
         self.address = AddressBar(self.ui.address, self.view_state, self._lock)
+        self.overlay = PageElement(
+            self.ui.overlay, lambda serial: overlay_html(self.overlay_state(), serial), self._lock
+        )
         self.tools = ClickTools(client.scene, self.panels.root_path)
         for cls in self.ui.class_buttons:
             self.ui.paint_class(cls, cls in self.hidden)
@@ -117,16 +131,14 @@ class ClientView:
         ui.refresh.on_click(lambda _: self.refresh_jobs())
         ui.layout.on_update(lambda _: self._changed(self._layout_changed))
         ui.single.on_update(lambda _: self._changed(self.redraw))
-        for panel, box in ui.panel_boxes.items():
-            box.on_update(self._panel_toggle(panel))
-        ui.point_size.on_update(lambda _: self._changed(self._resize_points))
-        ui.only_changed.on_update(lambda _: self._changed(self._apply_visibility))
-        ui.boxes.on_update(lambda _: self._changed(self._apply_visibility))
-        ui.budget.on_update(lambda _: self._changed(self._rebudget))
+        ui.on_panels(lambda: self._changed(self.redraw))
+        for handle in (ui.point_size, ui.only_changed, ui.boxes):
+            handle.on_update(lambda _: self._changed(self._restyle))
+        ui.budget.on_update(lambda _: self._changed(self._resend))
         ui.views.on_click(lambda event: self.set_view(str(event.target.value)))
         ui.screenshot.on_click(lambda _: self.send_screenshot())
-        ui.mode.on_update(lambda _: self._mode_changed())
-        ui.clear_marks.on_click(lambda _: self._clear_marks())
+        ui.mode.on_update(lambda _: self.tools.set_mode(str(ui.mode.value), ui.answer))
+        ui.clear_marks.on_click(lambda _: self.tools.clear())
         for cls, button in ui.class_buttons.items():
             button.on_click(self._class_toggle(cls))
         ui.on_download(self.send_download)
@@ -138,40 +150,25 @@ class ClientView:
         action()
         self.address.sync()
 
-    def _read_toggles(self) -> None:
-        """The panels' drawing options from the controls."""
-        self.panels.only_changed = bool(self.ui.only_changed.value)
-        self.panels.boxes_on = bool(self.ui.boxes.value)
-        self.panels.size_factor = float(self.ui.point_size.value)
-
-    def _apply_visibility(self) -> None:
-        """Classes, *only changed* or *Object boxes* changed: properties, no new upload."""
+    def _restyle(self) -> None:
+        """Classes, *only changed*, *Object boxes* or the point size changed: node properties,
+        no new upload."""
         with self._lock, self.client.atomic():
-            self._read_toggles()
-            self.panels.apply_visibility()
+            self.panels.restyle(*self.ui.look())
             self._status_line()
-
-    def _resize_points(self) -> None:
-        with self._lock, self.client.atomic():
-            self._read_toggles()
-            self.panels.resize()
 
     def refresh_jobs(self) -> None:
         """Reload the job picker's list; then, if the shown job has gone (deleted, or no longer
         this key's), say so."""
         with self._lock:
             with self.ui.quietly():
-                known = self.jobs.refresh()
-            job_id = self.job_id
-            if known is not None and job_id is not None and job_id not in self.jobs.entries:
-                self._check_shown(job_id, known.get(job_id))
+                gone = self.jobs.refresh(self.job_id)
+            if gone is not None:
+                self._job_gone(gone)
 
-    def _check_shown(self, job_id: str, entry: JobEntry | None) -> None:
-        """The shown job is not in the list: beyond the list's length, or gone. When gone, its
-        panels are removed and the tab says so, rather than showing a job that is no more."""
-        if not self.jobs.gone(job_id):
-            return  # still there (the list holds the newest jobs only)
-        name = f"{entry.filename} [{job_id[:8]}]" if entry is not None else job_id
+    def _job_gone(self, name: str) -> None:
+        """The shown job was deleted: its panels go, and the tab says so rather than showing a
+        job that is no more."""
         self.clear()
         self.ui.status.content = (
             f"**{name} was deleted** (or this key may no longer see it): nothing of it is "
@@ -227,15 +224,18 @@ class ClientView:
             self.clear()
             self.job_id = job_id
             with self.client.atomic():
-                self.tools.root = self.panels.start(data, int(self.ui.budget.value))
                 report = self.source.report_path(job_id) is not None
-                self.ui.show_job(data, report=report, wanted=self._wanted, single=self.asked.single)
+                self.ui.show_job(data, report=report, single=self.asked.single)
+                kept = self.ui.clip.kept(data)
+                self.tools.root = self.panels.start(data, int(self.ui.budget.value), kept)
                 self.camera.active = True
                 self.redraw(camera=camera is None)
-                if camera is not None:
-                    self.camera.place(camera[:3], camera[3:])
+                if camera is not None:  # a link's: a plan's or elevation's has its narrow field
+                    fov = self.asked.fov
+                    self.camera.place(camera[:3], camera[3:], fov=fov, ortho=fov is not None)
             self.client.flush()
             self.address.sync()
+            self.overlay.sync()
             release_soon()  # the previous job's clouds and the reading's buffers are freed
             log.info(
                 "client %d shows %s: loaded in %.2f s, sent in %.2f s",
@@ -251,6 +251,7 @@ class ClientView:
             self.camera.active = False
             self.job_id = None
             self.ui.clear()
+            self.overlay.sync()
 
     def _status_line(self) -> None:
         """How many points the browser draws now, of how many the scan has."""
@@ -263,24 +264,15 @@ class ClientView:
             with self._lock:
                 self.hidden.symmetric_difference_update({cls})
                 self.ui.paint_class(cls, cls in self.hidden)
-                self._apply_visibility()
+                self._restyle()
             self.address.sync()
+            self.overlay.sync()
 
         return toggle
 
     def class_shown(self, cls: int) -> bool:
         """Whether class ``cls`` is drawn (its button shows an open eye)."""
         return cls not in self.hidden
-
-    def _panel_toggle(self, panel: Panel) -> Callable[[Any], None]:
-        def toggle(event: Any) -> None:
-            if self.ui.quiet:
-                return
-            self._wanted[panel] = bool(event.target.value)
-            self.redraw()
-            self.address.sync()
-
-        return toggle
 
     def _layout_changed(self) -> None:
         self.ui.single.visible = self.ui.layout.value == SINGLE
@@ -300,68 +292,64 @@ class ClientView:
             if data is None:
                 return
             panels = self.visible_panels()
+            axis = row_axis(self.camera.view)
             with self.client.atomic():
-                self.panels.lay_out(panels, panel_offsets(data.extent, len(panels)))
+                self.panels.lay_out(
+                    panels, panel_offsets(data.extent, len(panels), axis=axis), axis
+                )
                 self._status_line()
                 if camera or len(panels) != self._count:
                     self._count = len(panels)
-                    self._fit_all(data)
+                    self.camera.show(self.camera.view, data.extent, max(self._count, 1))
 
-    def _fit_all(self, data: SceneData) -> None:
-        count = max(self._count, 1)
-        self.camera.follow(lambda aspect: overview_camera(data.extent, count, aspect=aspect))
+    def _clip_changed(self) -> None:
+        """The clip box or the slice settled after a change (a timer's thread)."""
+        self._resend()
+        self.address.sync()
 
-    def _rebudget(self) -> None:
-        """Send the job again within the new point budget, keeping the camera."""
-        job_id = self.job_id
-        if job_id is not None:
-            self.show_job(job_id, camera=None if self.camera.auto else self.camera.pose())
-
-    def set_view(self, name: str) -> None:
-        """A preset view of the whole row: "Fit all" (the overview), "Top", "Front", "Side"."""
+    def _resend(self) -> None:
+        """Send the shown job's panels again (the point budget, the clip box or the slice
+        changed), keeping the camera and the controls; marks go with the old nodes."""
         with self._lock:
             data = self.data
             if data is None:
                 return
-            if name == "Fit all":
-                self._fit_all(data)
-            else:
-                count, aspect = len(self.visible_panels()), self.camera.aspect()
-                pose = view_camera(data.extent, count, name, aspect=aspect)
-                self.camera.place(pose.position, pose.look_at, fov=pose.fov)
+            with self.client.atomic():
+                self.tools.forget()
+                kept = self.ui.clip.kept(data)
+                self.tools.root = self.panels.start(data, int(self.ui.budget.value), kept)
+                self.redraw()
+            self.client.flush()
+
+    def set_view(self, name: str) -> None:
+        """A view of the whole row: "Fit all" (the overview), or the plan ("Top") or an
+        elevation ("Front", "Side"), near enough orthographic (:mod:`web.camera`)."""
+        with self._lock:
+            if self.data is None:
+                return
+            self.camera.view = name
+            self.redraw(camera=True)
         self.address.sync()
+        self.overlay.sync()
 
     def _camera_moved(self) -> None:
         self.address.soon()
+        self.overlay.soon()  # the scale bar follows a zoom
+
+    def overlay_state(self, factor: int = 1) -> Overlay:
+        """The legend and scale bar over the canvas (``factor``: of an image that many times
+        the canvas)."""
+        pixel = self.camera.pixel_size() / factor if self.camera.ortho else None
+        return overlay_of(self.data, self.hidden, pixel, factor)
 
     def view_state(self) -> ViewState:
         """The view as a link would restore it."""
-        data = self.data
-        camera = None if self.camera.auto or data is None else self.camera.pose()
-        ui = self.ui
-        return ViewState(
-            job_id=self.job_id,
-            camera=camera,
-            hidden=frozenset(self.hidden),
-            panels=frozenset(p.key for p, want in self._wanted.items() if want),
-            only_changed=bool(ui.only_changed.value),
-            boxes=bool(ui.boxes.value),
-            point_size=float(ui.point_size.value),
-            single=None if data is None else ui.panel_key(data),
-            budget=None if ui.budget.value >= self.cache.max_points else int(ui.budget.value),
+        camera = self.camera.link_state() if self.data is not None else ViewState()
+        return self.ui.view_state(
+            camera, self.job_id, self.data, self.hidden, self.cache.max_points
         )
 
     # ------------------------------------------------------------ click tools
-    def _mode_changed(self) -> None:
-        with self._lock:
-            self.tools.clear()
-            self.tools.mode = str(self.ui.mode.value)
-            self.ui.answer.content = CLICK_HINTS[self.tools.mode]
-
-    def _clear_marks(self) -> None:
-        with self._lock:
-            self.tools.clear()
-
     def _clicked(self, event: Any) -> None:
         """A click in the scene: find the point under it and hand it to the click tools."""
         with self._lock:
@@ -387,7 +375,10 @@ class ClientView:
         filename = self.jobs.filename(self.job_id)
         stem = Path(filename).stem if filename else (self.job_id or "view")
         width, height = self.camera.canvas()
-        send_screenshot(self.client, stem, width or 1600, height or 900)
+        factor = SIZES.get(str(self.ui.shot_size.value), 2)
+        send_screenshot(
+            self.client, stem, (width or 1600, height or 900), factor, self.overlay_state
+        )
 
     def send_download(self, kind: Download) -> None:
         """One of the shown job's downloads, sent over this tab's websocket (the tab holds no

@@ -8,19 +8,23 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from typing import Any
 
 import viser
 
 from jointseg.classes import NUM_CLASSES, PALETTE, UNLABELLED, UNLABELLED_COLOUR
 from server.api.results import Download
+from web.camera import FIT_ALL
+from web.clipping import ClipControls
 from web.downloads import LABELS, NEEDS_LAYOUT, has_layout
 from web.layout import VIEW_DIRECTIONS
 from web.legend import class_title, confusion_html, iou_html, legend_html, present_classes
 from web.objects_view import objects_html
 from web.panels import POINT_SIZE
 from web.scene import CONFIDENCE, ERRORS, FUSED, SEGMENTS, TRUTH, Panel, SceneData
-from web.tools import MODES
+from web.screenshot import SIZES
+from web.tools import HINTS, MODES, PICK
 from web.view_state import ViewState
 
 PLACEHOLDER: str = "(choose a finished job)"
@@ -43,12 +47,6 @@ DOWNLOAD_GROUPS: dict[str, tuple[Download, ...]] = {
     "Model": ("objects", "ifc"),
     "Report": ("report",),
 }
-#: What the click tools' answer says before the first click, by mode.
-CLICK_HINTS = {
-    MODES[0]: "Click a point in any panel.",
-    MODES[1]: "Click two points.",
-    MODES[2]: "Click the corners of a planar area, in order.",
-}
 
 
 class Controls:
@@ -62,6 +60,8 @@ class Controls:
         The view a link asked for (its toggles are the controls' first values).
     max_points : int
         The viewer's cap of points per panel (the point budget's maximum).
+    clip_changed : callable
+        Called once the clip box or the slice settled after a change.
     sign_out : callable, optional
         Ends the tab's sign-in session (a *Sign out* button only with one).
     """
@@ -71,11 +71,20 @@ class Controls:
         gui: viser.GuiApi,
         asked: ViewState,
         max_points: int,
+        *,
+        clip_changed: Callable[[], None],
         sign_out: Callable[[], None] | None = None,
     ) -> None:
         self.gui = gui
         self.quiet = False  # set while the view changes controls itself
         self._job_and_display(asked, max_points, sign_out)
+        with gui.add_folder("View"):
+            self.views = gui.add_button_group("Camera", (FIT_ALL, *VIEW_DIRECTIONS))
+            self.shot_size = gui.add_dropdown(
+                "Screenshot size", tuple(SIZES), initial_value="2x canvas"
+            )
+            self.screenshot = gui.add_button("Screenshot (PNG)", icon=viser.Icon.CAMERA)
+        self.clip = ClipControls(gui, clip_changed, box=asked.clip, heights=asked.slice_heights)
         self._tools_and_tables(asked)
 
     def _job_and_display(
@@ -86,7 +95,8 @@ class Controls:
             self.picker: viser.GuiDropdownHandle[str] = gui.add_dropdown("Job", (PLACEHOLDER,))
             self.refresh = gui.add_button("Refresh list", icon=viser.Icon.REFRESH)
             self.status = gui.add_markdown("No job shown.")
-            self.address = gui.add_html("")
+            self.address = gui.add_html("")  # keeps the browser's address following the view
+            self.overlay = gui.add_html("")  # puts the legend over the canvas
             if sign_out is not None:
                 out = gui.add_button("Sign out", icon=viser.Icon.LOGOUT, hint="end this sign-in")
                 out.on_click(lambda _: sign_out())
@@ -100,6 +110,8 @@ class Controls:
                 panel: gui.add_checkbox(label, panel.key in wanted)
                 for panel, label in OPTIONAL.items()
             }
+            # the optional panels asked for (a job without ground truth unticks that box)
+            self.wanted = {panel: panel.key in wanted for panel in OPTIONAL}
             size = asked.point_size or POINT_SIZE
             self.point_size = gui.add_slider(
                 "Point size", 0.25, 8.0, 0.25, size, hint="multiple of the point spacing"
@@ -120,12 +132,9 @@ class Controls:
 
     def _tools_and_tables(self, asked: ViewState) -> None:
         gui = self.gui
-        with gui.add_folder("View"):
-            self.views = gui.add_button_group("Camera", ("Fit all", *VIEW_DIRECTIONS))
-            self.screenshot = gui.add_button("Screenshot (PNG)", icon=viser.Icon.CAMERA)
         with gui.add_folder("Click tools"):
             self.mode = gui.add_dropdown("Click to", MODES)
-            self.answer = gui.add_markdown(CLICK_HINTS[MODES[0]])
+            self.answer = gui.add_markdown(HINTS[PICK])
             self.clear_marks = gui.add_button("Clear marks", icon=viser.Icon.ERASER)
         with gui.add_folder("Classes"):
             # one button per class in its palette colour: the toggle is the legend's swatch
@@ -165,6 +174,17 @@ class Controls:
         with self.quietly():
             handle.value = value
 
+    def on_panels(self, changed: Callable[[], None]) -> None:
+        """Have a panel's box, ticked or unticked by the user, call ``changed``."""
+        for panel, box in self.panel_boxes.items():
+
+            def toggle(event: Any, panel: Panel = panel) -> None:
+                if not self.quiet:
+                    self.wanted[panel] = bool(event.target.value)
+                    changed()
+
+            box.on_update(toggle)
+
     def on_download(self, send: Callable[[Download], None]) -> None:
         """Have the download buttons call ``send`` with the kind of file clicked."""
         for kinds, group in self.download_groups.items():
@@ -187,11 +207,9 @@ class Controls:
             button.color = (int(rgb[0]), int(rgb[1]), int(rgb[2]))
             button.icon = viser.Icon.EYE
 
-    def show_job(
-        self, data: SceneData, *, report: bool, wanted: dict[Panel, bool], single: str | None
-    ) -> None:
+    def show_job(self, data: SceneData, *, report: bool, single: str | None) -> None:
         """The tables, class buttons, panel choices and downloads of a job (``report``: it has
-        a report; ``wanted``: the optional panels asked for; ``single``: a link's one panel)."""
+        a report; ``single``: a link's one panel)."""
         self.legend.content = legend_html(data.counts)
         present = present_classes(data.counts)
         for cls, button in self.class_buttons.items():
@@ -206,11 +224,12 @@ class Controls:
         self.confusion.content = matrix or ""
         self.confusion_folder.visible = matrix is not None
         self.offer_downloads(data, report=report)
+        self.clip.show_job(data)
         self.single.options = tuple(p.title for p in data.panels)
         chosen = next((p.title for p in data.panels if p.key == single), None)
         for panel, box in self.panel_boxes.items():
             box.disabled = panel not in data.panels
-            self.set_quietly(box, panel in data.panels and wanted[panel])
+            self.set_quietly(box, panel in data.panels and self.wanted[panel])
         self.set_quietly(self.single, chosen or FUSED.title)
 
     def clear(self) -> None:
@@ -222,7 +241,7 @@ class Controls:
         for button in self.class_buttons.values():
             button.visible = False
         self.status.content = "No job shown."
-        self.answer.content = CLICK_HINTS[MODES[0]]
+        self.answer.content = HINTS[PICK]
 
     def offer_downloads(self, data: SceneData | None, *, report: bool) -> None:
         """Show the rows of downloads the shown job has (viser cannot disable a button group),
@@ -238,6 +257,36 @@ class Controls:
         reason = 0 if data is None else 1 if not report else 2 if not layout else None
         self.downloads_note.content = "" if reason is None else NO_DOWNLOADS[reason]
         self.downloads_note.visible = reason is not None
+
+    def look(self) -> tuple[bool, bool, float]:
+        """How points are drawn: *only changed*, *Object boxes*, the point size (a multiple)."""
+        return bool(self.only_changed.value), bool(self.boxes.value), float(self.point_size.value)
+
+    def view_state(
+        self,
+        camera: ViewState,
+        job_id: str | None,
+        data: SceneData | None,
+        hidden: set[int],
+        max_points: int,
+    ) -> ViewState:
+        """The view as a link restores it: ``camera``'s part (:meth:`CameraFollow.link_state`)
+        with the job, the classes hidden and every control's."""
+        box, heights = self.clip.ranges()
+        budget = int(self.budget.value)
+        return replace(
+            camera,
+            job_id=job_id,
+            hidden=frozenset(hidden),
+            panels=frozenset(p.key for p, want in self.wanted.items() if want),
+            only_changed=bool(self.only_changed.value),
+            boxes=bool(self.boxes.value),
+            point_size=float(self.point_size.value),
+            single=None if data is None else self.panel_key(data),
+            budget=None if budget >= max_points else budget,
+            clip=box,
+            slice_heights=heights,
+        )
 
     def panel_key(self, data: SceneData) -> str | None:
         """The key of the one large panel (None: the row is shown)."""

@@ -37,17 +37,17 @@ class JobList:
         self._listed = False  # the picker has been sent a list
         self._failed = False
 
-    def refresh(self) -> dict[str, JobEntry] | None:
+    def refresh(self, shown: str | None = None) -> str | None:
         """Read the list again and send it to the picker when it changed, keeping the current
-        choice (a choice that left the list falls back to the placeholder). Returns the entries
-        known before, or None when the listing failed (nothing changed)."""
+        choice (a choice that left the list falls back to the placeholder). Returns the name of
+        the ``shown`` job when it is gone (deleted, or no longer this key's), else None."""
         try:
             jobs = list(self.source.finished_jobs())
         except Exception:  # the list is best effort: a hiccup must not kill the tab
             if not self._failed:
                 log.exception("listing finished jobs failed")
             self._failed = True
-            return None
+            return None  # keep the last list: a hiccup is no reason to call every job gone
         self._failed = False
         known = dict(self.entries)
         labels = {job.label: job.id for job in jobs}
@@ -58,7 +58,10 @@ class JobList:
             self.picker.options = (PLACEHOLDER if jobs else NO_JOBS, *labels)
             if current in labels:
                 self.picker.value = current  # type: ignore[misc]  # viser types it read-only
-        return known
+        if shown is None or shown in self.entries or not self.gone(shown):
+            return None  # shown, or beyond the list's length (it holds the newest jobs only)
+        entry = known.get(shown)
+        return f"{entry.filename} [{shown[:8]}]" if entry is not None else shown
 
     def gone(self, job_id: str) -> bool:
         """Whether a job is no longer on the source (deleted, or no longer this key's)."""

@@ -7,6 +7,7 @@ room outlines are in the levelled work frame.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from html import escape
 from typing import Any
 
@@ -40,13 +41,18 @@ def rooms_of(data: SceneData) -> list[dict[str, Any]]:
     return rooms if isinstance(rooms, list) else []
 
 
-def box_segments(data: SceneData) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+def box_segments(
+    data: SceneData, keep: Callable[[np.ndarray], bool] | None = None
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Every object's 12 box edges in scene coordinates, (E, 2, 3) float32, and their class
     colour, (E, 2, 3) uint8, by class: one node per class, so that hiding a class hides its
-    boxes with its points. An object of a class jointseg does not know counts as clutter."""
+    boxes with its points. An object of a class jointseg does not know counts as clutter.
+    ``keep``: whether a box (its 8 corners, scene coordinates) is drawn (the clip box)."""
     boxes: dict[int, list[np.ndarray]] = {}
     for obj in objects_of(data):
         corners = data.shown_xyz(np.asarray(obj["box"], dtype=np.float64))
+        if keep is not None and not keep(corners):
+            continue
         cls = CLASS_NAMES.index(obj["cls"]) if obj["cls"] in CLASS_NAMES else CLUTTER
         boxes.setdefault(cls, []).append(corners[EDGES])
     return {

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import viser
 
+from web.clipping import Clip
 from web.layout import title_position
 from web.legend import class_title
 from web.objects_view import box_segments
@@ -45,9 +46,11 @@ class PanelScene:
         self.only_changed = False
         self.boxes_on = True
         self.size_factor = POINT_SIZE  # point size as a multiple of the spacing
+        self.clip: Clip | None = None  # what the clip box and the slice keep
         self.data: SceneData | None = None
         self.shown: np.ndarray | None = None  # rows of the scene data sent (point budget)
         self.frames: dict[str, viser.FrameHandle] = {}
+        self.titles: dict[str, viser.LabelHandle] = {}
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
         self.boxes: dict[int, viser.LineSegmentsHandle] | None = None  # by class; None: not sent
         self.groups: dict[str, Groups] = {}
@@ -55,12 +58,14 @@ class PanelScene:
         self._root: viser.FrameHandle | None = None
         self._generation = 0
 
-    def start(self, data: SceneData, budget: int) -> str:
-        """Make ``data`` the shown job, at most ``budget`` points per panel; the scene path of
-        its new root (nothing is drawn until :meth:`lay_out`)."""
+    def start(self, data: SceneData, budget: int, clip: Clip | None = None) -> str:
+        """Make ``data`` the shown job, at most ``budget`` points per panel, only the rows and
+        boxes the clip box and the slice keep (:mod:`web.clipping`); the scene path of its new
+        root (nothing is drawn until :meth:`lay_out`)."""
         self.clear()
         self.data = data
-        self._select(data, budget)
+        self.clip = clip
+        self._select(data, budget, None if clip is None else clip.rows)
         self._generation += 1
         self.root_path = f"{ROOT}/{self._generation}"
         self._root = self.scene.add_frame(self.root_path, show_axes=False)
@@ -71,15 +76,19 @@ class PanelScene:
         if self._root is not None:
             self._root.remove()
         self._root, self.data, self.shown, self.boxes = None, None, None, None
-        self.frames, self.nodes, self.groups = {}, {}, {}
+        self.frames, self.titles, self.nodes, self.groups = {}, {}, {}, {}
 
-    def _select(self, data: SceneData, budget: int) -> None:
-        """The rows sent to this browser (at most the point budget per panel) and their groups."""
+    def _select(self, data: SceneData, budget: int, kept: np.ndarray | None) -> None:
+        """The rows sent to this browser (at most the point budget per panel, those kept by the
+        clip box and the slice) and their groups."""
         n = data.xyz.shape[0]
         # an even random subset of what the viewer loaded (itself thinned evenly for big
         # files): exactly the budget, the same rows every time for one budget
         rng = np.random.default_rng(budget)
         self.shown = None if n <= budget else np.sort(rng.choice(n, budget, replace=False))
+        if kept is not None:
+            rows = np.arange(n) if self.shown is None else self.shown
+            self.shown = rows[kept[rows]]
 
         def sel(a: np.ndarray) -> np.ndarray:
             return a if self.shown is None else a[self.shown]
@@ -96,8 +105,9 @@ class PanelScene:
         """Rows of the scene data of positions among the points sent."""
         return positions if self.shown is None else self.shown[positions]
 
-    def lay_out(self, panels: tuple[Panel, ...], offsets: np.ndarray) -> None:
-        """Put ``panels`` at ``offsets`` (sending any not sent yet), hide the others."""
+    def lay_out(self, panels: tuple[Panel, ...], offsets: np.ndarray, axis: int = 0) -> None:
+        """Put ``panels`` at ``offsets`` of a row along ``axis`` (sending any not sent yet),
+        hide the others."""
         data = self.data
         if data is None:
             return
@@ -105,6 +115,7 @@ class PanelScene:
             if panel.key not in self.frames:
                 self._send_panel(panel, data)
             self.frames[panel.key].position = offset
+            self.titles[panel.key].position = title_position(data.extent, axis)
             if panel.key == "fused" and self.boxes is None:
                 self._send_boxes(data)
         keys = {p.key for p in panels}
@@ -115,7 +126,7 @@ class PanelScene:
     def _send_panel(self, panel: Panel, data: SceneData) -> None:
         path = f"{self.root_path}/{panel.key}"
         self.frames[panel.key] = self.scene.add_frame(path, show_axes=False)
-        self.scene.add_label(
+        self.titles[panel.key] = self.scene.add_label(
             f"{path}/title",
             panel.title,
             position=title_position(data.extent),
@@ -149,7 +160,9 @@ class PanelScene:
                 thickness_units="screen",
                 visible=self.box_visible(cls),
             )
-            for cls, (segments, colours) in box_segments(data).items()
+            for cls, (segments, colours) in box_segments(
+                data, None if self.clip is None else self.clip.box
+            ).items()
         }
 
     def node_visible(self, cls: int, changed: bool) -> bool:
@@ -166,6 +179,12 @@ class PanelScene:
             node.visible = self.node_visible(cls, changed)
         for cls, box in (self.boxes or {}).items():
             box.visible = self.box_visible(cls)
+
+    def restyle(self, only_changed: bool, boxes_on: bool, size_factor: float) -> None:
+        """Draw with these options (node properties: viser sends only those that changed)."""
+        self.only_changed, self.boxes_on, self.size_factor = only_changed, boxes_on, size_factor
+        self.apply_visibility()
+        self.resize()
 
     def point_size(self) -> float:
         """The drawn points' size in metres."""
@@ -206,8 +225,10 @@ class PanelScene:
         notes = []
         if data.voxel is not None:
             notes.append(f"voxel {data.voxel * 100:.1f} cm")
-        if sent < loaded:
+        if sent < loaded and self.clip is None:
             notes.append(f"budget {sent:,} of {loaded:,} loaded")
+        if self.clip is not None:
+            notes.append(f"clipped to {sent:,} of {loaded:,} loaded")
         note = f" ({', '.join(notes)})" if notes else ""
         where = "" if panel is None else f" in {panel.title}"
         return f"**{name}**: {drawn:,} of {data.total_points:,} points shown{where}{note}."

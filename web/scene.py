@@ -30,6 +30,13 @@ MAX_PANEL_POINTS = 2_000_000
 #: Rows sampled from a big file per point a panel may show, before the voxel thinning evens
 #: out their density.
 CANDIDATES_PER_POINT = 2
+#: The quantiles of each axis that bound the room the views frame, and the margin added on each
+#: side (a share of their span, never beyond the points): stray points (a reflection, a point
+#: seen through a window 100 m away) are left out of every fit, a room's own walls are not.
+ROBUST_QUANTILES = (0.01, 0.99)
+ROBUST_MARGIN = 0.1
+#: Points the quantiles are read from (an even sample of larger scans).
+ROBUST_SAMPLE = 200_000
 
 
 @dataclass(frozen=True)
@@ -67,9 +74,10 @@ class SceneData:
         Shown points, centred on the scan's bounding-box centre (float32 keeps millimetres
         within kilometres of the centre; viser's default float16 would not).
     centre : ndarray of shape (3,), float64
-        What was subtracted.
+        What was subtracted: the centre of the room's robust box (:func:`robust_box`).
     extent : ndarray of shape (3,), float64, metres
-        Size of the shown points' bounding box.
+        Size of the room's robust box (:func:`robust_box`: the bounding box of a scan without
+        stray points), so that the panels' layout and every camera fit leave stray points out.
     rgb : ndarray of shape (M, 3), uint8
         Scan colour (grey when the scan had none).
     network, fused : ndarray of shape (M,), int32
@@ -222,8 +230,9 @@ def voxel_downsample(xyz: np.ndarray, max_points: int) -> tuple[np.ndarray, floa
     n = xyz.shape[0]
     if n <= max_points:
         return np.arange(n, dtype=np.int64), None
-    lo, hi = axis_bounds(xyz)
-    span = np.maximum(hi - lo, 1e-6)
+    lo, _ = axis_bounds(xyz)
+    low, high = robust_box(xyz)  # a stray point far away would make the first guess coarse
+    span = np.maximum(high - low, 1e-6)
     # a scan is mostly surfaces: start from the bounding box's surface area per point
     area = 2.0 * (span[0] * span[1] + span[0] * span[2] + span[1] * span[2])
     voxel = math.sqrt(area / max_points)
@@ -332,7 +341,7 @@ def load_scene(
         return a if index is None else a[index]
 
     xyz = pick(levelled)
-    lo, hi = axis_bounds(xyz)
+    lo, hi = robust_box(xyz)
     centre = (lo + hi) / 2.0
     rgb = pick(sample.rgb) if sample.rgb is not None else np.full((xyz.shape[0], 3), 160, np.uint8)
     shown = (xyz - centre).astype(np.float32)
@@ -374,6 +383,21 @@ def axis_bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lo = np.array([xyz[:, a].min() for a in range(xyz.shape[1])], dtype=np.float64)
     hi = np.array([xyz[:, a].max() for a in range(xyz.shape[1])], dtype=np.float64)
     return lo, hi
+
+
+def robust_box(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The room's box, float64: per axis the :data:`ROBUST_QUANTILES` of (N, 3) points (of an
+    even sample of :data:`ROBUST_SAMPLE` of them) widened by :data:`ROBUST_MARGIN`, within the
+    points' bounding box. A scan without stray points gets its bounding box; a stray point
+    falls outside."""
+    if xyz.shape[0] == 0:
+        return np.zeros(3), np.zeros(3)
+    step = max(1, xyz.shape[0] // ROBUST_SAMPLE)
+    sample = np.asarray(xyz[::step], dtype=np.float64)
+    lo, hi = np.quantile(sample, ROBUST_QUANTILES, axis=0)
+    margin = ROBUST_MARGIN * (hi - lo)
+    low, high = axis_bounds(xyz)
+    return np.maximum(lo - margin, low), np.minimum(hi + margin, high)
 
 
 def levelled_xyz(xyz: np.ndarray, report: dict[str, Any] | None) -> np.ndarray:

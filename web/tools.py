@@ -21,6 +21,12 @@ from web.scene import SceneData
 
 PICK, DISTANCE, AREA = "Pick a point", "Measure distance", "Measure area"
 MODES = (PICK, DISTANCE, AREA)
+#: What the answer says before the first click, by mode.
+HINTS = {
+    PICK: "Click a point in any panel.",
+    DISTANCE: "Click two points.",
+    AREA: "Click the corners of a planar area, in order.",
+}
 MARK_COLOUR = (255, 0, 200)
 
 
@@ -84,6 +90,12 @@ class ClickTools:
         self._nodes: list[viser.SceneNodeHandle] = []
         self._lines: viser.SceneNodeHandle | None = None
         self._serial = 0
+
+    def set_mode(self, mode: str, answer: viser.GuiMarkdownHandle) -> None:
+        """Switch to ``mode`` (a measurement starts again) and say what to click."""
+        self.clear()
+        self.mode = mode
+        answer.content = HINTS[mode]
 
     def clear(self) -> None:
         """Forget the picked points and remove their markers."""

@@ -7,7 +7,7 @@ written into it as the path and one query parameter,
     ws://HOST:PORT/job/<id>?v=<token>~<token>~...
 
 each token a letter, a dot and a value (``c.`` camera, ``h.`` hidden classes, ``x.0`` object
-boxes off, ...). A single
+boxes off, ``m.t`` the plan, ``q.`` a clip box, ``s.`` a slice, ...). A single
 parameter with ``~`` between tokens survives viser's own rewriting of the address bar, which
 puts the websocket address back unescaped (an ``&`` inside it would split it).
 
@@ -25,6 +25,7 @@ handler ``URL`` is ``document.URL``, a string: the handler names ``window.URL``.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass, replace
 from urllib.parse import parse_qs, quote, unquote
@@ -34,6 +35,8 @@ from jointseg.classes import NUM_CLASSES
 _JOB_PATH = re.compile(r"^/job/([^/?#]+)/?$")
 #: Optional panels by their letter in the ``p.`` token.
 PANEL_LETTERS = {"t": "truth", "s": "segments", "c": "confidence", "e": "errors"}
+#: The plan and the elevations by their letter in the ``m.`` token.
+VIEW_LETTERS = {"t": "Top", "f": "Front", "s": "Side"}
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,10 @@ class ViewState:
     single: str | None = None  # one large panel (its key) instead of the row
     budget: int | None = None
     boxes: bool = True  # the objects' boxes drawn
+    view: str | None = None  # the plan or an elevation (a key of VIEW_LETTERS' values)
+    fov: float | None = None  # the camera's field of view, radians (a plan's or elevation's)
+    clip: tuple[float, ...] | None = None  # x0, x1, y0, y1, z0, z1 kept (web.clipping)
+    slice_heights: tuple[float, ...] | None = None  # low, high heights above the floor kept
 
 
 def _floats(text: str, count: int) -> tuple[float, ...] | None:
@@ -108,7 +115,25 @@ def _apply(state: ViewState, letter: str, value: str) -> ViewState:
         return replace(state, budget=int(value))
     if letter == "x":
         return replace(state, boxes=value != "0")
+    if letter == "m":
+        return replace(state, view=VIEW_LETTERS.get(value))
+    if letter == "f":
+        fov = _floats(value, 1)
+        ok = fov is not None and 0.0 < fov[0] < 179.0
+        return replace(state, fov=math.radians(fov[0]) if fov is not None and ok else None)
+    if letter == "q":
+        return replace(state, clip=_ranges(value, 3))
+    if letter == "s":
+        return replace(state, slice_heights=_ranges(value, 1))
     return state
+
+
+def _ranges(text: str, count: int) -> tuple[float, ...] | None:
+    """``count`` (low, high) pairs, each low below its high; None when malformed."""
+    values = _floats(text, 2 * count)
+    if values is None or any(values[i] >= values[i + 1] for i in range(0, len(values), 2)):
+        return None
+    return values
 
 
 def state_path(state: ViewState) -> str:
@@ -133,6 +158,15 @@ def state_path(state: ViewState) -> str:
         tokens.append(f"b.{state.budget}")
     if not state.boxes:
         tokens.append("x.0")
+    letters = {name: letter for letter, name in VIEW_LETTERS.items()}
+    if state.view in letters:
+        tokens.append("m." + letters[state.view])
+    if state.fov is not None:
+        tokens.append(f"f.{math.degrees(state.fov):.5f}")
+    if state.clip is not None:
+        tokens.append("q." + ",".join(f"{v:.3f}" for v in state.clip))
+    if state.slice_heights is not None:
+        tokens.append("s." + ",".join(f"{v:.3f}" for v in state.slice_heights))
     path = "/job/" + quote(state.job_id, safe="")
     return path + ("?v=" + "~".join(tokens) if tokens else "")
 
@@ -153,11 +187,18 @@ def address_html(path: str, serial: int) -> str:
         "u.searchParams.set('websocket',(location.protocol==='https:'?'wss://':'ws://')"
         f"+location.host+{json.dumps(path)});"
         "history.replaceState(history.state,'',u.toString());"
-        "this.remove();"
     )
+    return script_html(script, serial, "view")
+
+
+def script_html(script: str, serial: int, kind: str) -> str:
+    """An invisible element of the control panel that runs ``script`` in the page once, then
+    removes itself (viser sets an HTML element's markup with ``innerHTML``, where an image's
+    error handler runs and a script element would not); ``serial`` makes each one new markup,
+    ``kind`` names it (``data-<kind>``)."""
     return (
-        f'<img alt="" data-view="{serial}" src="data:,{serial}" style="display:none" '
-        f'onerror="{_attr(script)}">'
+        f'<img alt="" data-{kind}="{serial}" src="data:,{serial}" style="display:none" '
+        f'onerror="{_attr(script + "this.remove();")}">'
     )
 
 

@@ -50,3 +50,16 @@ def synthetic_result(scan: Scan, *, seed: int = 0) -> Scan:
         fused_label=truth,
         fused_confidence=rng.uniform(0.5, 1.0, len(scan)).astype(np.float32),
     )
+
+
+def with_stray_point(scan: Scan, offset: tuple[float, float, float]) -> Scan:
+    """``scan`` with one more point, a copy of its first (fields and labels too) moved
+    ``offset`` metres from the scan's mean: a phone scan's stray point (a reflection, a point
+    seen through a window)."""
+    stray = np.asarray(scan.xyz.mean(axis=0) + np.asarray(offset))[None, :]
+    return Scan(
+        np.concatenate([scan.xyz, stray]),
+        None if scan.rgb is None else np.concatenate([scan.rgb, scan.rgb[:1]]),
+        None if scan.labels is None else np.concatenate([scan.labels, scan.labels[:1]]),
+        {k: np.concatenate([v, v[:1]]) for k, v in scan.fields.items()},
+    )

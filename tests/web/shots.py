@@ -17,8 +17,9 @@ from PIL import Image
 
 from jointseg.classes import NUM_CLASSES, PALETTE
 
-#: Hides viser's toasts ("software WebGL rendering detected") from the screenshots.
-HIDE_TOASTS = '[class*="mantine-Notifications"] { display: none !important; }'
+#: Hides viser's toasts ("software WebGL rendering detected") and the viewer's legend over the
+#: canvas from the screenshots (their panels' columns are read; the legend's tests show it).
+HIDE_OVERLAYS = '[class*="mantine-Notifications"], #jointseg-overlay { display: none !important; }'
 
 
 def canvas_box(page: Any) -> dict[str, float]:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from result_files import synthetic_result
 from scipy.spatial import cKDTree
-from shots import HIDE_TOASTS, panel_spans, settled
+from shots import HIDE_OVERLAYS, panel_spans, settled
 from viewer_pages import free_port, view_of
 
 from jointseg.io import read_scan, write_scan
@@ -71,7 +71,7 @@ def test_a_result_over_the_cap_shows_at_most_the_cap_spread_over_the_whole_scan(
     page = browser.new_page(viewport=VIEWPORT)
     try:
         page.goto(capped.link("big"))
-        page.add_style_tag(content=HIDE_TOASTS)
+        page.add_style_tag(content=HIDE_OVERLAYS)
         status = page.get_by_text("points shown")
         status.wait_for(timeout=60_000)
         image = settled(page)

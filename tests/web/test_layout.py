@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from camera_math import project
 
 from web.layout import GAP_RATIO, overview_camera, panel_offsets, title_position
 
@@ -27,21 +28,6 @@ def test_title_sits_above_the_panel() -> None:
     assert x == 0 and y == 2.0 and z > 1.5
 
 
-def _project(
-    point: np.ndarray, position: np.ndarray, look_at: np.ndarray, fov: float, aspect: float
-) -> tuple[float, float]:
-    """Normalised image coordinates (-1..1 inside the view) of a pinhole camera, z up."""
-    forward = (look_at - position) / np.linalg.norm(look_at - position)
-    right = np.cross(forward, [0, 0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    rel = point - position
-    depth = rel @ forward
-    assert depth > 0, "point behind the camera"
-    t = math.tan(fov / 2)
-    return (rel @ right) / depth / (t * aspect), (rel @ up) / depth / t
-
-
 @pytest.mark.parametrize("count", [1, 3, 5])
 @pytest.mark.parametrize("aspect", [0.8, 1.35, 2.2])
 def test_overview_camera_sees_every_corner_of_every_panel(count: int, aspect: float) -> None:
@@ -56,7 +42,7 @@ def test_overview_camera_sees_every_corner_of_every_panel(count: int, aspect: fl
             for sy in (-1, 1):
                 for sz in (-1, 1):
                     corner = offset + half * [sx, sy, sz]
-                    u, v = _project(corner, position, look_at, pose.fov, aspect)
+                    u, v = project(corner, position, look_at, pose.fov, aspect)
                     assert abs(u) < 1 and abs(v) < 1, (corner, u, v)
                     reach = max(reach, abs(u), abs(v))
     assert reach > 0.6  # and the rooms fill the view rather than sit small in its middle
@@ -64,17 +50,45 @@ def test_overview_camera_sees_every_corner_of_every_panel(count: int, aspect: fl
 
 @pytest.mark.parametrize("view", ["Top", "Front", "Side"])
 @pytest.mark.parametrize("count", [1, 5])
-def test_preset_views_look_from_their_side_and_see_every_corner(view: str, count: int) -> None:
-    from web.layout import VIEW_DIRECTIONS, view_camera
+def test_plan_and_elevations_look_from_their_side_nearly_orthographic_and_see_the_row(
+    view: str, count: int
+) -> None:
+    from web.layout import (
+        ORTHO_SCALE_ERROR,
+        VIEW_DIRECTIONS,
+        ortho_camera,
+        row_axis,
+    )
 
     extent, aspect = np.array([7.0, 5.0, 2.8]), 1.6
-    pose = view_camera(extent, count, view, aspect=aspect)
+    pose = ortho_camera(extent, count, view, aspect=aspect)
     position = np.array(pose.position)
     direction = np.asarray(VIEW_DIRECTIONS[view]) / np.linalg.norm(VIEW_DIRECTIONS[view])
     assert np.allclose(position / np.linalg.norm(position), direction)
-    for offset in panel_offsets(extent, count):
-        for corner in np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]):
-            if view == "Side" and count > 1:
-                break  # seen from the side the row hides behind its first panel
-            u, v = _project(offset + extent / 2 * corner, position, np.zeros(3), pose.fov, aspect)
-            assert abs(u) < 1 and abs(v) < 1
+    if view == "Top":  # a plan looks straight down
+        down = -position / np.linalg.norm(position)
+        assert math.degrees(math.acos(float(down @ [0.0, 0.0, -1.0]))) < 1.0
+    # far enough that the row's depth changes the scale by at most ORTHO_SCALE_ERROR
+    offsets = panel_offsets(extent, count, axis=row_axis(view))
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    points = np.concatenate([offset + extent / 2 * corners for offset in offsets])
+    depths = (position - points) @ direction
+    assert depths.max() / depths.min() - 1.0 <= ORTHO_SCALE_ERROR + 1e-9
+    assert pose.near < depths.min() and pose.far > depths.max()
+    # every corner of every panel (side by side, none hidden behind another) in the view, and
+    # the row fills it
+    reach = 0.0
+    for point in points:
+        u, v = project(point, position, np.zeros(3), pose.fov, aspect)
+        assert abs(u) < 1 and abs(v) < 1, (point, u, v)
+        reach = max(reach, abs(u), abs(v))
+    assert reach > 0.85
+
+
+def test_the_side_elevation_lays_the_row_out_along_y_with_titles_on_the_far_edge() -> None:
+    extent = np.array([6.0, 4.0, 3.0])
+    offsets = panel_offsets(extent, 3, axis=1)
+    assert np.allclose(offsets[:, [0, 2]], 0)
+    assert np.allclose(np.diff(offsets[:, 1]), 4.0 * (1 + GAP_RATIO))
+    x, y, z = title_position(extent, axis=1)
+    assert x == -3.0 and y == 0 and z > 1.5  # seen from +x, the far edge is at -x

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from result_files import with_stray_point
 
 from jointseg.classes import PALETTE
 from jointseg.exceptions import ScanFormatError
@@ -20,6 +21,7 @@ from web.scene import (
     SceneCache,
     group_points,
     load_scene,
+    robust_box,
     segment_colours,
     voxel_downsample,
 )
@@ -62,7 +64,8 @@ def test_load_scene_reads_every_label_set_centred_as_float32(results: Path) -> N
     assert data.xyz.dtype == np.float32
     assert data.total_points == len(scan) == data.xyz.shape[0]
     assert data.voxel is None
-    # centred on the bounding box: the shown points plus the centre give the scan back
+    # centred on the room's box, its bounding box without stray points: the shown points plus
+    # the centre give the scan back
     assert np.allclose(data.xyz + data.centre, scan.xyz, atol=1e-5)
     assert np.allclose(data.xyz.min(axis=0), -data.xyz.max(axis=0), atol=1e-5)
     assert np.array_equal(data.network, scan.fields["network_label"])
@@ -114,6 +117,27 @@ def test_large_result_is_downsampled_and_still_far_from_the_origin_exact(
     assert np.array_equal(data.fused, far.fields["fused_label"][rows])
     # the counts stay those of the full scan
     assert data.counts["network"].sum() == len(scan)
+
+
+def test_a_stray_point_100_m_away_moves_neither_the_centre_nor_the_extent(
+    results: Path, tmp_path: Path
+) -> None:
+    # a phone scan's stray point (a reflection, something seen through a window): the room's
+    # box, its centre and the voxel size of a thinned scan stay those of the room
+    with_stray = with_stray_point(read_scan(results / "labelled.ply"), (100.0, 0.0, 0.0))
+    clean = load_scene(results / "labelled.ply")
+    data = load_scene(write_scan(with_stray, tmp_path / "stray.ply"))
+    # the box is the percentiles and a margin (at most a tenth of the room), never the 100 m
+    assert np.all(np.abs(data.extent - clean.extent) <= 0.1 * clean.extent)
+    assert np.all(np.abs(data.centre - clean.centre) <= 0.1 * clean.extent)
+    assert np.abs(data.xyz).max() > 95  # the stray point is still shown, out of the fit
+    lo, hi = robust_box(np.asarray(with_stray.xyz))
+    assert np.all(hi - lo < 15)
+    thinned = load_scene(tmp_path / "stray.ply", max_points=1000)
+    reference = load_scene(results / "labelled.ply", max_points=1000)
+    assert thinned.voxel is not None and reference.voxel is not None
+    assert thinned.voxel < 1.5 * reference.voxel
+    assert thinned.xyz.shape[0] > 0.6 * reference.xyz.shape[0]
 
 
 def test_a_scan_that_is_not_a_result_is_refused(results: Path, tmp_path: Path) -> None:

@@ -26,7 +26,7 @@ import httpx
 import numpy as np
 import pytest
 from download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
-from shots import HIDE_TOASTS, palette_pixels, panel_spans, settled
+from shots import HIDE_OVERLAYS, palette_pixels, panel_spans, settled
 from viewer_pages import free_port, key_in, sign_in
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
@@ -159,7 +159,7 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
             row.locator("a.view-link").click()
         viewer = popup.value
         viewer.set_viewport_size({"width": 1600, "height": 900})
-        viewer.add_style_tag(content=HIDE_TOASTS)
+        viewer.add_style_tag(content=HIDE_OVERLAYS)
         sign_in(viewer, API_KEY)
         viewer.get_by_text("points shown").wait_for(timeout=60_000)
         image = settled(viewer)

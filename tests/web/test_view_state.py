@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import base64
+import math
 from urllib.parse import parse_qs, urlsplit
 
 from web.view_state import (
@@ -25,6 +26,10 @@ FULL = ViewState(
     single="fused",
     budget=50_000,
     boxes=False,
+    view="Side",
+    fov=math.radians(0.5),
+    clip=(-1.5, 2.25, 0.0, 3.5, 0.125, 2.0),
+    slice_heights=(1.0, 1.25),
 )
 
 
@@ -37,6 +42,15 @@ def test_object_boxes_are_on_unless_a_link_says_off() -> None:
     assert "x.0" in state_path(FULL).split("~")
     assert not parse_path("/job/j?v=x.0").boxes
     assert parse_path("/job/j?v=x.1").boxes and parse_path("/job/j?v=o.1").boxes
+
+
+def test_views_clips_and_slices_come_back_and_malformed_ones_fall_back() -> None:
+    state = parse_path("/job/j?v=m.t~f.1.5~q.0,1,0,2,0,3~s.1,1.2")
+    assert state.view == "Top" and abs(state.fov - 0.0261799) < 1e-6  # type: ignore[operator]
+    assert state.clip == (0, 1, 0, 2, 0, 3) and state.slice_heights == (1, 1.2)
+    bad = parse_path("/job/j?v=m.x~f.0~q.0,1,2~s.2,1")
+    assert bad.view is None and bad.fov is None and bad.clip is None
+    assert bad.slice_heights is None  # a slice whose low end is above its high end
 
 
 def test_the_path_has_no_character_viser_would_split_the_address_on() -> None:

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 from download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
-from shots import HIDE_TOASTS, ink, palette_pixels, panel_spans, settled
+from shots import HIDE_OVERLAYS, ink, palette_pixels, panel_spans, settled
 from viewer_pages import view_of
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
@@ -34,7 +34,7 @@ def open_viewer(browser: Any, viewer: Viewer, job_id: str, *, toasts: bool = Fal
     page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
     page.goto(viewer.link(job_id))
     if not toasts:
-        page.add_style_tag(content=HIDE_TOASTS)
+        page.add_style_tag(content=HIDE_OVERLAYS)
     page.get_by_text("points shown").wait_for(timeout=30_000)
     return page
 

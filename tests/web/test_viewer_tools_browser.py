@@ -14,17 +14,18 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
-from urllib.parse import quote
+from urllib.parse import quote, unquote
 
 import numpy as np
 import pytest
 from PIL import Image
-from shots import HIDE_TOASTS, canvas_box, panel_spans, settled
-from viewer_pages import free_port, key_in, view_of
+from shots import HIDE_OVERLAYS, canvas_box, panel_spans, settled
+from viewer_pages import free_port, key_in, view_of, wait_for
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
 from web.layout import panel_offsets
+from web.overlay import layout
 from web.scene import SEGMENTS
 from web.sources import DirectorySource
 from web.viewer import Viewer
@@ -46,7 +47,7 @@ def locked(jobs: Path) -> Iterator[Viewer]:
 def open_page(browser: Any, url: str) -> Any:
     page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
     page.goto(url)
-    page.add_style_tag(content=HIDE_TOASTS)
+    page.add_style_tag(content=HIDE_OVERLAYS)
     return page
 
 
@@ -84,15 +85,6 @@ def address(page: Any) -> str:
     return str(page.evaluate("location.href"))
 
 
-def wait_for(condition: Any, timeout: float = 15.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
-
-
 # ------------------------------------------------------------------------------------- keys
 def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
     browser: Any, locked: Viewer, artifacts: Path
@@ -102,7 +94,7 @@ def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
     page = context.new_page()
     try:
         page.goto(locked.link("room"))
-        page.add_style_tag(content=HIDE_TOASTS)
+        page.add_style_tag(content=HIDE_OVERLAYS)
         page.get_by_text("This viewer needs a key").wait_for(timeout=30_000)
         # the key is typed into a password field: never shown as typed (issue 44)
         box = field(page, "API key")
@@ -199,7 +191,7 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
         # the address names the job now: a reload shows it again
         wait_for(lambda: "job%2Fbare" in address(page), what="the address to follow the job")
         page.reload()
-        page.add_style_tag(content=HIDE_TOASTS)
+        page.add_style_tag(content=HIDE_OVERLAYS)
         page.locator("strong", has_text="bare.ply [bare]").wait_for(timeout=30_000)
         # and back to the job with ground truth: four panels again
         choose_job(page, "room")
@@ -384,10 +376,12 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
         page.get_by_role("button", name="wall", exact=True).click()
         page.get_by_label("Segments panel", exact=True).check()
         page.get_by_role("button", name="Top").click()
-        wait_for(lambda: not view.camera.auto, what="the preset view")
-        wait_for(lambda: "c." in address(page) and "p." in address(page), what="the address")
-        link = address(page)
+        # the plan, once the browser draws it (a report sent before it still holds the overview)
+        wait_for(lambda: view.camera.ortho and view.camera.applied(), what="the preset view")
         before = np.asarray(view.client.camera.position)
+        pose = ",".join(f"{v:.4f}" for v in before)
+        wait_for(lambda: pose in unquote(address(page)) and "p." in address(page), what="address")
+        link = address(page)
         other = open_page(browser, link)
         shown(other)
         copy = view_of(viewer, "room", exclude=(view,))
@@ -410,14 +404,18 @@ def test_the_screenshot_button_downloads_a_png_and_the_point_budget_caps_the_poi
 ) -> None:
     page, view = settled_view(browser, viewer, "room")
     try:
+        page.get_by_label("Screenshot size", exact=True).click()
+        page.get_by_role("option", name="1x canvas").click()
         with page.expect_download(timeout=60_000) as info:
             page.get_by_role("button", name="Screenshot (PNG)").click()
         assert info.value.suggested_filename == "room_view.png"
         blob = Path(info.value.path()).read_bytes()
         assert blob[:8] == b"\x89PNG\r\n\x1a\n"
-        image = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+        image = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB")).copy()
         box = canvas_box(page)
         assert abs(image.shape[1] - box["width"]) <= 2 and abs(image.shape[0] - box["height"]) <= 2
+        legend = layout(view.overlay_state(1), image.shape[0])["box"]
+        image[legend[1] :, : legend[2] + 2] = image[2, 2]  # the legend's corner, blanked
         assert len(panel_spans(image, 4)) == 4  # the panels, as on the screen
 
         data = view.data

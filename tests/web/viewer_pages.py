@@ -15,6 +15,16 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def wait_for(condition: Any, what: str = "condition", timeout: float = 15.0) -> None:
+    """Poll ``condition`` every 0.1 s until it holds; fail naming ``what`` after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
 def view_of(viewer: Any, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
     """The server-side view of a tab showing ``job_id`` (other than those in ``exclude``),
     waiting up to 15 s for it."""
