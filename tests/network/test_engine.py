@@ -70,6 +70,17 @@ print(json.dumps({"same": same, "exports": len(list(folder.glob("*.onnx")))}))
 """
 
 
+NO_OPENVINO = """
+import json, sys
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+net = load("randlanet")
+net.predict(make_room(23, points=20_000), seed=0)
+print(json.dumps({"engine": net.engine, "openvino_loaded": "openvino" in sys.modules}))
+"""
+
+
 def in_child(code: str, cache: Path, *args: str) -> dict:
     """Run ``code`` in a fresh interpreter with ``JOINTSEG_CACHE=cache``; its last JSON line."""
     env = {**os.environ, "JOINTSEG_CACHE": str(cache)}
@@ -106,7 +117,14 @@ def test_the_engine_is_torch_on_a_gpu_and_refused_when_missing(monkeypatch) -> N
         _ = net.engine
     monkeypatch.setattr(net, "device", torch.device("meta"))
     assert net.engine == "torch"
-    assert "openvino" not in sys.modules  # nothing here loaded it
+
+
+def test_the_torch_engine_never_loads_openvino(tmp_path: Path) -> None:
+    """A default run must not load OpenVINO: its thread pools do not survive a fork (another
+    test in this process may have loaded it through torch's compiler backends, so this is
+    checked in a child interpreter)."""
+    out = in_child(NO_OPENVINO, tmp_path)
+    assert out == {"engine": "torch", "openvino_loaded": False}
 
 
 def test_training_batches_stay_in_process_once_openvino_is_loaded(monkeypatch) -> None:

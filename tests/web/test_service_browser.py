@@ -498,7 +498,9 @@ def _picker_options(viewer: Any) -> list[str]:
     viewer.get_by_label("Job", exact=True).click()
     options = viewer.get_by_role("option")
     options.first.wait_for(timeout=10_000)
-    names = [options.nth(i).inner_text() for i in range(options.count())]
+    # read in one go: the list is redrawn when it changes, and an option counted a moment ago
+    # may be gone when its text is asked for
+    names = [str(n) for n in options.all_inner_texts()]
     viewer.keyboard.press("Escape")
     return names
 
