@@ -31,19 +31,31 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import viser
 
-from web.layout import FOV_DEG, ORTHO_NEAR, CameraPose, ortho_camera, ortho_far, overview_camera
+from web.layout import (
+    FAR,
+    FOV_DEG,
+    NEAR,
+    ORTHO_NEAR,
+    CameraPose,
+    ortho_camera,
+    ortho_far,
+    overview_camera,
+)
 from web.view_state import ViewState
 
 #: Canvas width / height assumed while the canvas has no size (a hidden tab).
 DEFAULT_ASPECT = 16 / 9
-#: Seconds the browser has to report back a pose the viewer set.
-ECHO_WAIT_S = 3.0
+#: Seconds the browser has to report back a pose the viewer set (a tab opening a big job under
+#: load can take seconds; a report older than the pose would undo it).
+ECHO_WAIT_S = 10.0
 #: Relative change of the canvas's aspect that re-fits a following camera.
 REFIT_ASPECT = 0.01
 #: Degrees the user may turn a plan or an elevation before it becomes a perspective view.
 ORBIT_DEG = 1.0
 #: Relative change of the camera's distance in a plan or elevation that is taken as a zoom.
 ZOOM_SHARE = 0.02
+#: Seconds a flight to an object takes, and the poses it is sent in.
+FLIGHT_S, FLIGHT_STEPS = 0.5, 10
 #: The overview; the other views (keys of :data:`web.layout.VIEW_DIRECTIONS`) are presets.
 FIT_ALL = "Fit all"
 
@@ -126,6 +138,11 @@ class CameraFollow:
                 self._fit = None
                 self._send(ortho_camera(extent, count, view, aspect=self.aspect()), ortho=True)
 
+    def restore(self, pose: Sequence[float], fov: float | None) -> None:
+        """A link's camera: position and look-at (six floats) and, for a plan or an elevation,
+        its narrow field of view."""
+        self.place(pose[:3], pose[3:6], fov=fov, ortho=fov is not None)
+
     def place(
         self, position: Vector, look_at: Vector, *, fov: float | None = None, ortho: bool = False
     ) -> None:
@@ -148,6 +165,37 @@ class CameraFollow:
                     far=ortho_far(distance),
                 )
             self._send(pose, ortho=ortho)
+
+    def fly_to(self, target: np.ndarray, radius: float) -> None:
+        """Move the camera over :data:`FLIGHT_S` to look at ``target`` from where it looks now,
+        near enough that a ball of ``radius`` fills about a third of the view; a plan stays a
+        plan (its field narrows instead)."""
+        with self._lock:
+            position = np.asarray(self.camera.position, dtype=np.float64)
+            look_at = np.asarray(self.camera.look_at, dtype=np.float64)
+            fov, ortho = float(self.camera.fov), self.ortho
+            offset = position - look_at
+            back = offset / max(float(np.linalg.norm(offset)), 1e-9)
+            if ortho and self._axis is not None:
+                back, distance = self._axis
+                end_fov = 2.0 * math.atan(3.0 * radius / distance)
+            else:
+                distance, end_fov = 3.0 * radius / math.tan(fov / 2.0), fov
+            end = target + back * distance
+            self._fit = None
+        for step in range(1, FLIGHT_STEPS + 1):
+            t = 0.5 - 0.5 * math.cos(math.pi * step / FLIGHT_STEPS)  # eased
+            at = look_at + (target - look_at) * t
+            pose = CameraPose(
+                _vector(position + (end - position) * t),
+                _vector(at),
+                fov=fov + (end_fov - fov) * t,
+                near=ORTHO_NEAR if ortho else NEAR,
+                far=ortho_far(distance) if ortho else FAR,
+            )
+            with self._lock:
+                self._send(pose, ortho=ortho)
+            time.sleep(FLIGHT_S / FLIGHT_STEPS)
 
     def reported(self, position: Vector, look_at: Vector, *, atol: float = 1e-3) -> bool:
         """Whether the browser last reported the camera at this pose (it applied it)."""
@@ -185,7 +233,8 @@ class CameraFollow:
             offset = np.subtract(pose.position, pose.look_at)
             distance = float(np.linalg.norm(offset))
             self._axis = (offset / distance, distance)
-        self._echoed, self._sent = False, time.monotonic()
+        # a pose the browser already shows is not reported again: it is back at once
+        self._echoed, self._sent = self.reported(pose.position, pose.look_at), time.monotonic()
 
     def _moved(self, camera: viser.CameraHandle) -> None:
         """A camera report from the browser (viser runs this in its thread pool)."""

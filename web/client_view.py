@@ -26,7 +26,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -36,11 +35,12 @@ from jointseg.exceptions import JointsegError
 from server.api.results import Download
 from web.address import AddressBar, PageElement
 from web.camera import FIT_ALL, CameraFollow
-from web.controls import SINGLE, Controls
+from web.controls import GONE, Controls
 from web.downloads import send_download
 from web.job_list import JobList
 from web.layout import panel_offsets, row_axis
 from web.memory import release_soon
+from web.object_list import ListedObject, ObjectList
 from web.overlay import Overlay, overlay_html, overlay_of
 from web.panels import PanelScene
 from web.scene import Panel, SceneCache, SceneData
@@ -95,6 +95,7 @@ class ClientView:
             client.gui,
             self.asked,
             cache.max_points,
+            hidden=self.hidden,
             clip_changed=self._clip_changed,
             sign_out=sign_out,
         )
@@ -108,8 +109,7 @@ class ClientView:
             self.ui.overlay, lambda serial: overlay_html(self.overlay_state(), serial), self._lock
         )
         self.tools = ClickTools(client.scene, self.panels.root_path)
-        for cls in self.ui.class_buttons:
-            self.ui.paint_class(cls, cls in self.hidden)
+        self.objects = ObjectList(client.gui, self.ui.object_list, self.select_object)
         self._wire()
         self.refresh_jobs()
         client.scene.on_click()(self._clicked)
@@ -129,7 +129,7 @@ class ClientView:
         ui = self.ui
         ui.picker.on_update(lambda _: self._picked())
         ui.refresh.on_click(lambda _: self.refresh_jobs())
-        ui.layout.on_update(lambda _: self._changed(self._layout_changed))
+        ui.layout.on_update(lambda _: self._changed(self.redraw))
         ui.single.on_update(lambda _: self._changed(self.redraw))
         ui.on_panels(lambda: self._changed(self.redraw))
         for handle in (ui.point_size, ui.only_changed, ui.boxes):
@@ -138,9 +138,8 @@ class ClientView:
         ui.views.on_click(lambda event: self.set_view(str(event.target.value)))
         ui.screenshot.on_click(lambda _: self.send_screenshot())
         ui.mode.on_update(lambda _: self.tools.set_mode(str(ui.mode.value), ui.answer))
-        ui.clear_marks.on_click(lambda _: self.tools.clear())
-        for cls, button in ui.class_buttons.items():
-            button.on_click(self._class_toggle(cls))
+        ui.clear_marks.on_click(lambda _: self._clear_marks())
+        ui.on_class(self._toggle_class)
         ui.on_download(self.send_download)
 
     def _changed(self, action: Callable[[], None]) -> None:
@@ -170,13 +169,8 @@ class ClientView:
         """The shown job was deleted: its panels go, and the tab says so rather than showing a
         job that is no more."""
         self.clear()
-        self.ui.status.content = (
-            f"**{name} was deleted** (or this key may no longer see it): nothing of it is "
-            "shown. Choose another job."
-        )
-        self.client.add_notification(
-            "Job deleted", f"{name} is no longer on the service.", color="red"
-        )
+        self.ui.status.content = GONE.format(name=name)
+        self.client.add_notification("Job deleted", f"{name} is gone.", color="red")
         self.address.sync()
 
     def _picked(self) -> None:
@@ -212,8 +206,7 @@ class ClientView:
         with self._lock:
             started = time.perf_counter()
             try:
-                result = self.source.result_path(job_id)
-                data = self.cache.load(result, self.source.report_path(job_id))
+                data = self.jobs.load(job_id, self.cache)
             except (JointsegError, OSError) as exc:
                 log.warning("cannot show job %s: %s", job_id, exc)
                 self.client.add_notification(
@@ -226,13 +219,13 @@ class ClientView:
             with self.client.atomic():
                 report = self.source.report_path(job_id) is not None
                 self.ui.show_job(data, report=report, single=self.asked.single)
+                self.objects.show_job(data)
                 kept = self.ui.clip.kept(data)
                 self.tools.root = self.panels.start(data, int(self.ui.budget.value), kept)
                 self.camera.active = True
                 self.redraw(camera=camera is None)
                 if camera is not None:  # a link's: a plan's or elevation's has its narrow field
-                    fov = self.asked.fov
-                    self.camera.place(camera[:3], camera[3:], fov=fov, ortho=fov is not None)
+                    self.camera.restore(camera, self.asked.fov)
             self.client.flush()
             self.address.sync()
             self.overlay.sync()
@@ -251,6 +244,7 @@ class ClientView:
             self.camera.active = False
             self.job_id = None
             self.ui.clear()
+            self.objects.clear()
             self.overlay.sync()
 
     def _status_line(self) -> None:
@@ -259,24 +253,17 @@ class ClientView:
             name = self.jobs.name(self.job_id or "")
             self.ui.status.content = self.panels.status(name, self.visible_panels())
 
-    def _class_toggle(self, cls: int) -> Callable[[Any], None]:
-        def toggle(_: Any) -> None:
-            with self._lock:
-                self.hidden.symmetric_difference_update({cls})
-                self.ui.paint_class(cls, cls in self.hidden)
-                self._restyle()
-            self.address.sync()
-            self.overlay.sync()
-
-        return toggle
+    def _toggle_class(self, cls: int) -> None:
+        with self._lock:
+            self.hidden.symmetric_difference_update({cls})
+            self.ui.paint_class(cls, cls in self.hidden)
+            self._restyle()
+        self.address.sync()
+        self.overlay.sync()
 
     def class_shown(self, cls: int) -> bool:
         """Whether class ``cls`` is drawn (its button shows an open eye)."""
         return cls not in self.hidden
-
-    def _layout_changed(self) -> None:
-        self.ui.single.visible = self.ui.layout.value == SINGLE
-        self.redraw()
 
     # ------------------------------------------------------------------ scene
     def visible_panels(self) -> tuple[Panel, ...]:
@@ -350,6 +337,25 @@ class ClientView:
         )
 
     # ------------------------------------------------------------ click tools
+    def select_object(self, obj: ListedObject) -> None:
+        """An object of the list: select it in every panel and fly to its copy in the fused
+        panel (or the one large panel)."""
+        with self._lock:
+            panels = self.visible_panels()
+            focus = next((p for p in panels if p.key == "fused"), panels[0] if panels else None)
+            if focus is None:
+                return
+            self.panels.select(obj.edges(), panels)
+            self.ui.answer.content = obj.description
+            target = obj.centre + np.asarray(self.panels.frames[focus.key].position)
+        self.camera.fly_to(target, obj.radius)
+        self.address.sync()
+
+    def _clear_marks(self) -> None:
+        with self._lock:
+            self.tools.clear()
+            self.panels.select(None, ())
+
     def _clicked(self, event: Any) -> None:
         """A click in the scene: find the point under it and hand it to the click tools."""
         with self._lock:
@@ -372,12 +378,11 @@ class ClientView:
     # -------------------------------------------------------------- downloads
     def send_screenshot(self) -> None:
         """The canvas as the browser renders it now, as a PNG download."""
-        filename = self.jobs.filename(self.job_id)
-        stem = Path(filename).stem if filename else (self.job_id or "view")
         width, height = self.camera.canvas()
         factor = SIZES.get(str(self.ui.shot_size.value), 2)
+        canvas = (width or 1600, height or 900)
         send_screenshot(
-            self.client, stem, (width or 1600, height or 900), factor, self.overlay_state
+            self.client, self.jobs.stem(self.job_id), canvas, factor, self.overlay_state
         )
 
     def send_download(self, kind: Download) -> None:

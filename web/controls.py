@@ -35,6 +35,11 @@ HIDDEN_CLASS = (222, 226, 230)
 OPTIONAL = {TRUTH: "Ground truth panel", SEGMENTS: "Segments panel",
             CONFIDENCE: "Confidence panel", ERRORS: "Error map panel"}  # fmt: skip
 ROW, SINGLE = "Row of panels", "One large panel"
+#: The status line of a tab whose job was deleted.
+GONE = (
+    "**{name} was deleted** (or this key may no longer see it): nothing of it is shown. "
+    "Choose another job."
+)
 #: Why the Downloads folder offers less than six files: no job shown, no report, no layout.
 NO_DOWNLOADS = (
     "Show a job to download its files.",
@@ -60,6 +65,8 @@ class Controls:
         The view a link asked for (its toggles are the controls' first values).
     max_points : int
         The viewer's cap of points per panel (the point budget's maximum).
+    hidden : set of int
+        The classes hidden (their buttons grey).
     clip_changed : callable
         Called once the clip box or the slice settled after a change.
     sign_out : callable, optional
@@ -72,6 +79,7 @@ class Controls:
         asked: ViewState,
         max_points: int,
         *,
+        hidden: set[int],
         clip_changed: Callable[[], None],
         sign_out: Callable[[], None] | None = None,
     ) -> None:
@@ -86,6 +94,8 @@ class Controls:
             self.screenshot = gui.add_button("Screenshot (PNG)", icon=viser.Icon.CAMERA)
         self.clip = ClipControls(gui, clip_changed, box=asked.clip, heights=asked.slice_heights)
         self._tools_and_tables(asked)
+        for cls in self.class_buttons:
+            self.paint_class(cls, cls in hidden)
 
     def _job_and_display(
         self, asked: ViewState, max_points: int, sign_out: Callable[[], None] | None
@@ -105,6 +115,7 @@ class Controls:
                 "Layout", (ROW, SINGLE), initial_value=SINGLE if asked.single else ROW
             )
             self.single = gui.add_dropdown("Panel", ("Fused labels",), visible=bool(asked.single))
+            self.layout.on_update(lambda _: setattr(self.single, "visible", self.is_single))
             wanted = asked.panels if asked.panels is not None else frozenset({"truth"})
             self.panel_boxes = {
                 panel: gui.add_checkbox(label, panel.key in wanted)
@@ -152,6 +163,8 @@ class Controls:
                 "Object boxes", asked.boxes, hint="in the fused panel, with their class"
             )
             self.objects_table = gui.add_html("")
+            # one button per object (web.object_list): a click flies to it and selects it
+            self.object_list = gui.add_folder("Object list", visible=False)
         with gui.add_folder("Downloads"):
             # the job page's six downloads, under the API's names (web.downloads)
             self.downloads_note = gui.add_markdown(NO_DOWNLOADS[0])
@@ -184,6 +197,11 @@ class Controls:
                     changed()
 
             box.on_update(toggle)
+
+    def on_class(self, toggled: Callable[[int], None]) -> None:
+        """Have a class's button call ``toggled`` with its class."""
+        for cls, button in self.class_buttons.items():
+            button.on_click(_calling(toggled, cls))
 
     def on_download(self, send: Callable[[Download], None]) -> None:
         """Have the download buttons call ``send`` with the kind of file clicked."""
@@ -288,6 +306,11 @@ class Controls:
             slice_heights=heights,
         )
 
+    @property
+    def is_single(self) -> bool:
+        """Whether one large panel is shown (not the row)."""
+        return self.layout.value == SINGLE
+
     def panel_key(self, data: SceneData) -> str | None:
         """The key of the one large panel (None: the row is shown)."""
         if self.layout.value != SINGLE:
@@ -300,3 +323,8 @@ class Controls:
             chosen = [p for p in data.panels if p.title == self.single.value]
             return tuple(chosen[:1] or data.panels[2:3])
         return tuple(p for p in data.panels if p not in OPTIONAL or self.panel_boxes[p].value)
+
+
+def _calling(action: Callable[[int], None], value: int) -> Callable[[Any], None]:
+    """A click callback that calls ``action(value)``."""
+    return lambda _: action(value)

@@ -9,11 +9,13 @@ list: a database hiccup is no reason to call every job gone.
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import viser
 
 from jointseg.exceptions import JointsegError
 from web.controls import NO_JOBS, PLACEHOLDER
+from web.scene import SceneCache, SceneData
 from web.sources import JobEntry, JobSource
 
 log = logging.getLogger(__name__)
@@ -63,6 +65,16 @@ class JobList:
         entry = known.get(shown)
         return f"{entry.filename} [{shown[:8]}]" if entry is not None else shown
 
+    def load(self, job_id: str, cache: SceneCache) -> SceneData:
+        """A job's result (and report) through the viewer's cache.
+
+        Raises
+        ------
+        JointsegError, OSError
+            The job is not this source's, or its files cannot be read.
+        """
+        return cache.load(self.source.result_path(job_id), self.source.report_path(job_id))
+
     def gone(self, job_id: str) -> bool:
         """Whether a job is no longer on the source (deleted, or no longer this key's)."""
         try:
@@ -84,6 +96,11 @@ class JobList:
         """``file.ply [abcd1234]`` for a listed job, else its id."""
         entry = self.entries.get(job_id)
         return f"{entry.filename} [{job_id[:8]}]" if entry is not None else job_id
+
+    def stem(self, job_id: str | None) -> str:
+        """The uploaded file's name without its suffix, to name a screenshot after."""
+        filename = self.filename(job_id)
+        return Path(filename).stem if filename else (job_id or "view")
 
     def filename(self, job_id: str | None) -> str | None:
         """The uploaded file's name of a listed job."""

@@ -15,6 +15,7 @@ import viser
 from web.clipping import Clip
 from web.layout import title_position
 from web.legend import class_title
+from web.object_list import SELECTED_COLOUR
 from web.objects_view import box_segments
 from web.picking import pick
 from web.scene import CONFIDENCE, NETWORK, TRUTH, Panel, SceneData, group_points
@@ -53,6 +54,8 @@ class PanelScene:
         self.titles: dict[str, viser.LabelHandle] = {}
         self.nodes: dict[tuple[str, int, bool], viser.PointCloudHandle] = {}
         self.boxes: dict[int, viser.LineSegmentsHandle] | None = None  # by class; None: not sent
+        self.selected: np.ndarray | None = None  # the selected object's box edges, (12, 2, 3)
+        self.highlights: dict[str, viser.LineSegmentsHandle] = {}  # its box, by panel key
         self.groups: dict[str, Groups] = {}
         self.root_path = ROOT
         self._root: viser.FrameHandle | None = None
@@ -61,8 +64,11 @@ class PanelScene:
     def start(self, data: SceneData, budget: int, clip: Clip | None = None) -> str:
         """Make ``data`` the shown job, at most ``budget`` points per panel, only the rows and
         boxes the clip box and the slice keep (:mod:`web.clipping`); the scene path of its new
-        root (nothing is drawn until :meth:`lay_out`)."""
+        root (nothing is drawn until :meth:`lay_out`). A selected object stays selected when
+        the same job is sent again."""
+        selected = self.selected if data is self.data else None
         self.clear()
+        self.selected = selected
         self.data = data
         self.clip = clip
         self._select(data, budget, None if clip is None else clip.rows)
@@ -77,6 +83,7 @@ class PanelScene:
             self._root.remove()
         self._root, self.data, self.shown, self.boxes = None, None, None, None
         self.frames, self.titles, self.nodes, self.groups = {}, {}, {}, {}
+        self.selected, self.highlights = None, {}
 
     def _select(self, data: SceneData, budget: int, kept: np.ndarray | None) -> None:
         """The rows sent to this browser (at most the point budget per panel, those kept by the
@@ -122,6 +129,29 @@ class PanelScene:
         for key, frame in self.frames.items():
             frame.visible = key in keys
         self.apply_visibility()
+        self._highlight(panels)
+
+    def select(self, edges: np.ndarray | None, panels: tuple[Panel, ...]) -> None:
+        """Draw a selected object's box (its ``edges``, scene coordinates) around its copy in
+        every panel, or none (None)."""
+        for node in self.highlights.values():
+            node.remove()
+        self.selected, self.highlights = edges, {}
+        self._highlight(panels)
+
+    def _highlight(self, panels: tuple[Panel, ...]) -> None:
+        """The selected box in every panel shown that lacks it (one shown later gets it too)."""
+        if self.selected is None:
+            return
+        for panel in panels:
+            if panel.key in self.frames and panel.key not in self.highlights:
+                self.highlights[panel.key] = self.scene.add_line_segments(
+                    f"{self.root_path}/{panel.key}/selected",
+                    self.selected,
+                    SELECTED_COLOUR,
+                    thickness=4.0,
+                    thickness_units="screen",
+                )
 
     def _send_panel(self, panel: Panel, data: SceneData) -> None:
         path = f"{self.root_path}/{panel.key}"

@@ -385,10 +385,14 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
         other = open_page(browser, link)
         shown(other)
         copy = view_of(viewer, "room", exclude=(view,))
-        wait_for(
-            lambda: np.allclose(copy.client.camera.position, before, atol=2e-3),
-            what="the linked camera",
-        )
+        try:
+            wait_for(lambda: np.allclose(copy.client.camera.position, before, atol=2e-3))
+        except AssertionError:  # say where it went instead
+            camera = copy.client.camera
+            raise AssertionError(
+                f"the linked camera is at {camera.position}, looks at {camera.look_at} "
+                f"(field {camera.fov:.4f} rad), not at {before}; link {link}"
+            ) from None
         assert np.allclose(copy.client.camera.look_at, view.client.camera.look_at, atol=2e-3)
         assert copy.hidden == view.hidden and 2 in copy.hidden
         assert copy.ui.panel_boxes[SEGMENTS].value and not copy.class_shown(2)

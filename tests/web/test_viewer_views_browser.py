@@ -31,6 +31,7 @@ from viewer_pages import free_port, view_of, wait_for
 
 from jointseg.io import read_scan, write_scan
 from web.layout import ORTHO_SCALE_ERROR, title_position
+from web.object_list import SELECTED_COLOUR
 from web.overlay import layout
 from web.sources import DirectorySource
 from web.viewer import Viewer
@@ -296,3 +297,53 @@ def test_a_screenshot_at_twice_the_canvas_holds_the_legend_and_the_scale_bar(
         image = image.copy()
         image[box[1] :, : box[2] + 2] = image[2, 2]
         assert len(panel_spans(image, 4)) == 4
+
+
+def selected_pixels(image: np.ndarray, span: tuple[int, int]) -> int:
+    """Pixels of a panel in (nearly) the selected object's orange (lines are drawn through a
+    colour transform points are not: (255, 120, 0) shows as (241, 143, 31))."""
+    part = image[:, span[0] : span[1]].astype(np.int16)
+    return int((np.abs(part - np.array(SELECTED_COLOUR)).max(axis=2) <= 45).sum())
+
+
+def test_a_click_in_the_object_list_flies_to_the_object_and_selects_it_in_every_panel(
+    browser: Any, views: Viewer, artifacts: Path
+) -> None:
+    with opened(browser, views, "room") as (page, view):
+        listed = view.objects.objects
+        report = view.data.report["objects"]
+        assert len(listed) == sum(o.get("plausible", True) for o in report) > 3
+        # the list: every object with its class, size and height above the floor
+        for obj in listed:
+            record = next(o for o in report if o["id"] == obj.id)
+            w, d, h = record["size"]
+            text = f"{record['cls']} {obj.id} · {w:.2f} × {d:.2f} × {h:.2f} m"
+            assert page.get_by_role("button", name=re.compile("^" + re.escape(text))).count() == 1
+        before = settled(page)
+        assert all(selected_pixels(before, s) == 0 for s in panel_spans(before, 4))
+        target = max(listed, key=lambda o: o.radius)  # the biggest: seen in every panel
+        page.get_by_role("button", name=target.label, exact=True).click()
+        # the camera flies to the fused panel's copy, near enough to fill a good part of it
+        fused = np.asarray(view.panels.frames["fused"].position)
+        wait_for(
+            lambda: np.allclose(view.client.camera.look_at, target.centre + fused, atol=1e-3),
+            what="the flight to the object",
+        )
+        half = (target.corners.max(axis=0) - target.corners.min(axis=0)) / 2
+        position, look_at, fov, aspect = browser_camera(view)
+        reach = max(
+            max(abs(u), abs(v))
+            for u, v in (project(c, position, look_at, fov, aspect) for c in corners(
+                target.centre + fused - half, target.centre + fused + half
+            ))
+        )  # fmt: skip
+        assert 0.15 < reach < 1.0
+        page.get_by_text(f"Selected: {target.name}").wait_for(timeout=10_000)
+        # selected in every panel: its box around each copy, and on the screen
+        for panel in view.visible_panels():
+            assert np.allclose(view.panels.highlights[panel.key].points, target.edges())
+        page.get_by_role("button", name="Fit all").click()
+        wait_for(view.camera.applied, what="the overview")
+        image = settled(page)
+        (artifacts / "viewer_object_selected.png").write_bytes(page.screenshot())
+        assert all(selected_pixels(image, s) > 10 for s in panel_spans(image, 4))
