@@ -41,6 +41,7 @@ from web.layout import (
     ortho_far,
     overview_camera,
 )
+from web.render import Eye
 from web.view_state import ViewState
 
 #: Canvas width / height assumed while the canvas has no size (a hidden tab).
@@ -211,15 +212,27 @@ class CameraFollow:
         pose = self._pose
         return pose is not None and self.reported(pose.position, pose.look_at)
 
-    def pixel_size(self, at: np.ndarray | None = None) -> float:
-        """Metres one pixel spans at the look-at point's distance from ``at`` (default: the
-        camera): the same everywhere in a plan or an elevation."""
-        _, height = self.canvas()
-        if height <= 0:
-            return 0.0
+    def eye(self) -> Eye:
+        """The camera to draw a screenshot from: a plan's or elevation's truly orthographic."""
+        camera = self.camera
+        return Eye(
+            position=np.array(camera.position),
+            look_at=np.array(camera.look_at),
+            fov=float(camera.fov),
+            ortho=self.ortho,
+        )
+
+    def span(self, at: np.ndarray | None = None) -> float:
+        """Metres the canvas's height spans at the look-at point's distance from ``at``
+        (default: the camera): the same everywhere in a plan or an elevation."""
         origin = self.camera.position if at is None else at
         focus = float(np.linalg.norm(np.asarray(self.camera.look_at) - origin))
-        return 2.0 * focus * math.tan(float(self.camera.fov) / 2.0) / height
+        return 2.0 * focus * math.tan(float(self.camera.fov) / 2.0)
+
+    def pixel_size(self, at: np.ndarray | None = None) -> float:
+        """Metres one of the canvas's pixels spans at the look-at point's distance from ``at``."""
+        _, height = self.canvas()
+        return self.span(at) / height if height > 0 else 0.0
 
     def _send(self, pose: CameraPose, *, ortho: bool = False) -> None:
         camera = self.camera

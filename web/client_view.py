@@ -44,7 +44,7 @@ from web.object_list import ListedObject, ObjectList
 from web.overlay import Overlay, overlay_html, overlay_of
 from web.panels import PanelScene
 from web.scene import Panel, SceneCache, SceneData
-from web.screenshot import BACKGROUND, SIZES, send_screenshot
+from web.screenshot import BACKGROUND, SIZES, picture, send_screenshot
 from web.sources import JobSource
 from web.tools import ClickTools, Picked
 from web.view_state import ViewState
@@ -324,10 +324,9 @@ class ClientView:
         self.overlay.soon()  # the scale bar follows a zoom
 
     def overlay_state(self, factor: int = 1) -> Overlay:
-        """The legend and scale bar over the canvas (``factor``: of an image that many times
-        the canvas)."""
-        pixel = self.camera.pixel_size() / factor if self.camera.ortho else None
-        return overlay_of(self.data, self.hidden, pixel, factor)
+        """The legend and scale bar over the canvas (and in a screenshot ``factor`` times it)."""
+        span = self.camera.span() if self.camera.ortho else None
+        return overlay_of(self.data, self.hidden, span, self.camera.canvas()[1])
 
     def view_state(self) -> ViewState:
         """The view as a link would restore it."""
@@ -377,13 +376,17 @@ class ClientView:
 
     # -------------------------------------------------------------- downloads
     def send_screenshot(self) -> None:
-        """The canvas as the browser renders it now, as a PNG download."""
+        """The scene as the tab shows it, at the chosen size with the legend, as a PNG."""
         width, height = self.camera.canvas()
-        factor = SIZES.get(str(self.ui.shot_size.value), 2)
-        canvas = (width or 1600, height or 900)
+        factor, stem = SIZES.get(str(self.ui.shot_size.value), 2), self.jobs.stem(self.job_id)
         send_screenshot(
-            self.client, self.jobs.stem(self.job_id), canvas, factor, self.overlay_state
-        )
+            self.client, stem, self._picture, (width or 1600, height or 900), factor,
+            self.overlay_state,
+        )  # fmt: skip
+
+    def _picture(self, size: tuple[int, int], factor: int) -> np.ndarray:
+        with self._lock:
+            return picture(self.panels, self.tools, self.camera, size, factor)
 
     def send_download(self, kind: Download) -> None:
         """One of the shown job's downloads, sent over this tab's websocket (the tab holds no

@@ -3,7 +3,7 @@
 viser has no overlay on its canvas (its GUI lives in panels beside it), so the viewer places one
 itself: a hidden element of the control panel (:func:`web.view_state.script_html`) puts a
 ``<div>`` over the canvas's corner, which the page draws above the scene; it takes no clicks.
-A screenshot is rendered by the browser's WebGL alone (``get_render``), without the page around
+A screenshot is drawn by the viewer (:mod:`web.render`), without the page around
 the canvas, so :func:`draw_overlay` draws the same legend and bar into the image.
 
 The **scale bar** is shown in the plan and the elevations only: there the camera stands in for
@@ -36,10 +36,11 @@ Colour = tuple[int, int, int]
 
 @dataclass(frozen=True)
 class ScaleBar:
-    """A round length (1, 2 or 5 times a power of ten metres) and its length on the screen."""
+    """A round length (1, 2 or 5 times a power of ten metres) and its length as a share of the
+    picture's height (the same on the page, whatever its pixels, and in a screenshot)."""
 
     metres: float
-    pixels: float
+    share: float
 
     @property
     def label(self) -> str:
@@ -76,30 +77,26 @@ def legend_entries(present: list[int], hidden: set[int]) -> tuple[tuple[str, Col
 
 
 def overlay_of(
-    data: SceneData | None, hidden: set[int], metres_per_pixel: float | None, factor: int = 1
+    data: SceneData | None, hidden: set[int], span: float | None, height: int
 ) -> Overlay:
-    """What the overlay shows for a job: the classes drawn and, given the metres a pixel spans
-    (a plan's or an elevation's: None in a perspective view), a scale bar; ``factor``: for an
-    image that many times the canvas (a screenshot)."""
+    """What the overlay shows for a job: the classes drawn and, given the metres the canvas's
+    height spans (a plan's or an elevation's: None in a perspective view) and its pixels, a
+    scale bar (the same share of the height in a screenshot of any size)."""
     if data is None:
         return Overlay()
     entries = legend_entries(present_classes(data.counts), hidden)
-    bar = (
-        None
-        if metres_per_pixel is None
-        else scale_bar(metres_per_pixel, target=BAR_TARGET * factor)
-    )
-    return Overlay(entries, bar)
+    return Overlay(entries, None if span is None else scale_bar(span, height))
 
 
-def scale_bar(metres_per_pixel: float, *, target: float = BAR_TARGET) -> ScaleBar | None:
-    """The round length nearest below ``target`` pixels (None without a scale)."""
-    if not metres_per_pixel > 0 or not math.isfinite(metres_per_pixel):
+def scale_bar(span: float, height: int) -> ScaleBar | None:
+    """The round length nearest below :data:`BAR_TARGET` CSS pixels of a picture ``height``
+    pixels high whose height spans ``span`` metres (None without a scale)."""
+    if not span > 0 or not math.isfinite(span) or height <= 0:
         return None
-    raw = target * metres_per_pixel
+    raw = BAR_TARGET * span / height
     power = 10.0 ** math.floor(math.log10(raw))
     metres = max(m * power for m in (1, 2, 5) if m * power <= raw)
-    return ScaleBar(metres, metres / metres_per_pixel)
+    return ScaleBar(metres, metres / span)
 
 
 def layout(overlay: Overlay, height: int, scale: float = 1.0) -> dict[str, tuple[int, ...]]:
@@ -116,7 +113,8 @@ def layout(overlay: Overlay, height: int, scale: float = 1.0) -> dict[str, tuple
     bottom = height - px(MARGIN)
     top = bottom - px(inner + 2 * PADDING)
     left = px(MARGIN)
-    width = max(BOX_WIDTH, (overlay.bar.pixels / scale + 2 * PADDING) if overlay.bar else 0)
+    length = 0 if overlay.bar is None else int(round(overlay.bar.share * height))
+    width = max(BOX_WIDTH, length / scale + 2 * PADDING)
     parts: dict[str, tuple[int, ...]] = {"box": (left, top, left + px(width), bottom)}
     for i in range(rows):
         y = top + px(PADDING + i * ROW + (ROW - SWATCH) / 2)
@@ -126,7 +124,6 @@ def layout(overlay: Overlay, height: int, scale: float = 1.0) -> dict[str, tuple
         y = top + px(PADDING + rows * ROW)
         parts["bar_text"] = (left + px(PADDING), y)
         bar_top = y + px(ROW + (ROW - BAR_HEIGHT) / 2)
-        length = int(round(overlay.bar.pixels * 1.0))
         parts["bar"] = (
             left + px(PADDING),
             bar_top,
@@ -150,7 +147,10 @@ def overlay_html(overlay: Overlay, serial: int) -> str:
         "if(o.parentElement!==p)p.appendChild(o);"
         "if(getComputedStyle(p).position==='static')p.style.position='relative';"
         f"o.style.cssText={json.dumps(_box_css())};"
-        f"o.innerHTML={json.dumps(body)};}}"
+        f"o.innerHTML={json.dumps(body)};"
+        # the bar's length: its share of the canvas's height, in the page's own pixels
+        "var b=o.querySelector('.jointseg-bar');"
+        "if(b)b.style.width=(b.dataset.share*c.clientHeight).toFixed(1)+'px';}"
     )
     return script_html(script, serial, "overlay")
 
@@ -173,17 +173,16 @@ def _markup(overlay: Overlay) -> str:
     if overlay.bar is not None:
         rows.append(f'<div class="jointseg-scale">{overlay.bar.label}</div>')
         rows.append(
-            f'<div style="height:{ROW}px"><div style="display:inline-block;'
-            f"width:{overlay.bar.pixels:.1f}px;height:{BAR_HEIGHT}px;background:#222;"
-            f'vertical-align:middle"></div></div>'
+            f'<div style="height:{ROW}px"><div class="jointseg-bar" '
+            f'data-share="{overlay.bar.share:.6f}" style="display:inline-block;'
+            f'height:{BAR_HEIGHT}px;background:#222;vertical-align:middle"></div></div>'
         )
     return "".join(rows)
 
 
 def draw_overlay(image: np.ndarray, overlay: Overlay, scale: float) -> np.ndarray:
     """``image`` (H, W, 3) uint8 with the legend and the scale bar drawn in its bottom left
-    corner as the page shows them, ``scale`` image pixels per CSS pixel (the bar's length is
-    given in image pixels already)."""
+    corner as the page shows them, ``scale`` image pixels per CSS pixel."""
     if overlay.empty:
         return image
     from PIL import Image, ImageDraw, ImageFont

@@ -18,6 +18,7 @@ from web.legend import class_title
 from web.object_list import SELECTED_COLOUR
 from web.objects_view import box_segments
 from web.picking import pick
+from web.render import Cloud, Label, Lines
 from web.scene import CONFIDENCE, NETWORK, TRUTH, Panel, SceneData, group_points
 from web.tools import Picked
 
@@ -194,6 +195,29 @@ class PanelScene:
                 data, None if self.clip is None else self.clip.box
             ).items()
         }
+
+    def offsets(self) -> dict[str, np.ndarray]:
+        """Where each panel shown sits, by key."""
+        return {k: np.asarray(f.position, np.float64) for k, f in self.frames.items() if f.visible}
+
+    def drawing(self) -> tuple[list[Cloud], list[Lines], list[Label]]:
+        """What the tab draws now, in world coordinates: the points of every node shown, the
+        objects' and the selection's boxes, the panels' titles (a screenshot draws them)."""
+        clouds, lines, labels = [], [], []
+        for key, offset in self.offsets().items():
+            for (panel, _, _), node in self.nodes.items():
+                if panel == key and node.visible:
+                    clouds.append(Cloud(node.points + offset, node.colors, node.point_size))
+            boxes = [b for b in (self.boxes or {}).values() if b.visible] if key == "fused" else []
+            for box in boxes:
+                lines.append(Lines(box.points + offset, box.colors, 2.0))
+            if key in self.highlights:
+                selected = self.highlights[key]
+                lines.append(Lines(selected.points + offset, selected.colors, 4.0))
+            if key in self.titles:
+                title = self.titles[key]
+                labels.append(Label(title.text, np.asarray(title.position) + offset))
+        return clouds, lines, labels
 
     def node_visible(self, cls: int, changed: bool) -> bool:
         """A group is drawn when its class is shown, and it changed or all points are shown."""

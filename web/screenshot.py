@@ -1,13 +1,12 @@
-"""The *Screenshot* button: the canvas as the browser renders it, at a chosen size, with the
+"""The *Screenshot* button: the tab's scene at a chosen size (1x to 3x the canvas), with the
 legend and the scale bar, as a PNG download.
 
-viser's ``get_render`` has the browser render the scene again at the size asked (any size its
-WebGL allows, so 2x the canvas for print), from the camera's pose, onto a transparent
-background; it renders the scene only, so the viewer lays it on its own background colour,
-draws the overlay the page shows over the canvas into it (:func:`web.overlay.draw_overlay`),
-and sends the PNG over the tab's websocket. ``get_render`` draws with a near plane of 1 cm and a
-far one of 1000 m whatever the camera's, which is why the plan's camera stands at most 600 m
-away (:data:`web.layout.ORTHO_DISTANCES`).
+The viewer draws the picture itself (:mod:`web.render`) from the nodes it sent to the tab and
+the tab's camera, rather than have the browser render it again (viser's ``get_render``): on a
+software-rendered browser, reading a 2x canvas back and encoding it alone took longer than the
+whole picture takes here, and the plan and the elevations come out truly orthographic. The
+legend and the scale bar the page shows over the canvas are drawn in
+(:func:`web.overlay.draw_overlay`), and the PNG goes over the tab's websocket.
 """
 
 from __future__ import annotations
@@ -20,7 +19,11 @@ from collections.abc import Callable
 import numpy as np
 import viser
 
+from web.camera import CameraFollow
 from web.overlay import Overlay, draw_overlay
+from web.panels import PanelScene
+from web.render import draw_scene
+from web.tools import ClickTools
 
 log = logging.getLogger(__name__)
 
@@ -30,26 +33,18 @@ BACKGROUND = (205, 212, 220)
 MAX_SIZE = (7680, 4320)
 #: The sizes offered, as multiples of the canvas.
 SIZES = {"1x canvas": 1, "2x canvas": 2, "3x canvas": 3}
-#: Seconds the browser has to render one.
-RENDER_TIMEOUT_S = 30.0
 
 
-def render(client: viser.ClientHandle, width: int, height: int) -> np.ndarray | None:
-    """The canvas rendered by the browser at ``width`` x ``height``, on :data:`BACKGROUND`,
-    (H, W, 3) uint8; None (and a notification) when the browser did not answer."""
-    width, height = max(min(width, MAX_SIZE[0]), 16), max(min(height, MAX_SIZE[1]), 16)
-    try:
-        rgba = client.get_render(height, width, transport_format="png", timeout=RENDER_TIMEOUT_S)
-    except (TimeoutError, RuntimeError) as exc:
-        client.add_notification("Screenshot failed", str(exc), color="red")
-        return None
-    if rgba.shape[-1] != 4:
-        return np.ascontiguousarray(rgba[..., :3])
-    # the background renders transparent: lay it on ours, in integers (a float blend of a 2x
-    # canvas took 1.7 s of a 3 s screenshot on a loaded machine; this one 0.2 s)
-    alpha = rgba[..., 3:4].astype(np.uint16)
-    ours = np.array(BACKGROUND, np.uint16) * (255 - alpha)
-    return ((rgba[..., :3] * alpha + ours + 127) // 255).astype(np.uint8)
+def picture(
+    panels: PanelScene, tools: ClickTools, camera: CameraFollow, size: tuple[int, int], factor: int
+) -> np.ndarray:
+    """What the tab shows, drawn at ``size`` (width, height), ``factor`` times the canvas."""
+    clouds, lines, labels = panels.drawing()
+    marks, measured = tools.drawing(panels.offsets())
+    width, height = size
+    return draw_scene(
+        camera.eye(), width, height, BACKGROUND, clouds, [*lines, *measured], labels, marks, factor
+    )
 
 
 def png_bytes(image: np.ndarray) -> bytes:
@@ -64,26 +59,26 @@ def png_bytes(image: np.ndarray) -> bytes:
 def send_screenshot(
     client: viser.ClientHandle,
     stem: str,
+    draw: Callable[[tuple[int, int], int], np.ndarray],
     canvas: tuple[int, int],
     factor: int,
     overlay: Callable[[int], Overlay],
 ) -> float:
-    """Render ``factor`` times the ``canvas`` (width, height), draw the overlay (made for the
-    image's metres per pixel factor: ``overlay(factor)``), encode and send
-    ``<stem>_view.png``; the seconds it took (0 when it failed)."""
+    """Draw ``factor`` times the ``canvas`` (width, height) with ``draw(size, factor)``, draw
+    the overlay in (made for that factor: ``overlay(factor)``), encode and send
+    ``<stem>_view.png``; the seconds it took."""
     started = time.perf_counter()
-    width, height = canvas[0] * factor, canvas[1] * factor
-    image = render(client, width, height)
-    if image is None:
-        return 0.0
-    rendered = time.perf_counter()
+    width = max(min(canvas[0] * factor, MAX_SIZE[0]), 16)
+    height = max(min(canvas[1] * factor, MAX_SIZE[1]), 16)
+    image = draw((width, height), factor)
+    drawn = time.perf_counter()
     image = draw_overlay(image, overlay(factor), float(factor))
     body = png_bytes(image)
     client.send_file_download(f"{stem}_view.png", body, save_immediately=True)
     took = time.perf_counter() - started
     log.info(
-        "client %d: screenshot %dx%d in %.2f s (render %.2f s, legend and PNG %.2f s, %d kB)",
-        client.client_id, image.shape[1], image.shape[0], took, rendered - started,
-        took - (rendered - started), len(body) // 1024,
+        "client %d: screenshot %dx%d in %.2f s (scene %.2f s, legend and PNG %.2f s, %d kB)",
+        client.client_id, width, height, took, drawn - started, took - (drawn - started),
+        len(body) // 1024,
     )  # fmt: skip
     return took

@@ -17,6 +17,7 @@ import viser
 from jointseg.classes import NUM_CLASSES
 from web.legend import class_title
 from web.picking import floor_height, polygon_area
+from web.render import Lines, Mark
 from web.scene import SceneData
 
 PICK, DISTANCE, AREA = "Pick a point", "Measure distance", "Measure area"
@@ -90,6 +91,7 @@ class ClickTools:
         self._nodes: list[viser.SceneNodeHandle] = []
         self._lines: viser.SceneNodeHandle | None = None
         self._serial = 0
+        self._radius = 0.0  # the marks' radius, metres
 
     def set_mode(self, mode: str, answer: viser.GuiMarkdownHandle) -> None:
         """Switch to ``mode`` (a measurement starts again) and say what to click."""
@@ -144,7 +146,24 @@ class ClickTools:
         perimeter = float(np.linalg.norm(corners - np.roll(corners, -1, axis=0), axis=1).sum())
         return f"**Area** {polygon_area(corners):.3f} m² ({n} corners, perimeter {perimeter:.3f} m)"
 
+    def drawing(self, offsets: dict[str, np.ndarray]) -> tuple[list[Mark], list[Lines]]:
+        """The marks (world position, radius, colour) and the measurement's lines as the tab
+        draws them, in world coordinates (``offsets``: where each panel sits)."""
+        if not self.points or self.points[0].panel not in offsets:
+            return [], []
+        offset = offsets[self.points[0].panel]
+        corners = [np.asarray(p.local, np.float64) + offset for p in self.points]
+        marks: list[Mark] = [(c, self._radius, MARK_COLOUR) for c in corners]
+        if self.mode == PICK or len(corners) < 2:
+            return marks, []
+        pairs = [(corners[i], corners[i + 1]) for i in range(len(corners) - 1)]
+        if self.mode == AREA and len(corners) >= 3:
+            pairs.append((corners[-1], corners[0]))
+        ends = np.asarray(pairs, np.float64)
+        return marks, [Lines(ends, np.broadcast_to(MARK_COLOUR, ends.shape).copy(), 3.0)]
+
     def _mark(self, picked: Picked, size: float) -> None:
+        self._radius = size
         self._serial += 1
         base = f"{self.root}/{picked.panel}/mark{self._serial}"
         self._nodes.append(
