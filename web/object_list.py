@@ -44,7 +44,7 @@ class ListedObject:
     def label(self) -> str:
         """The button's text: class and id, size, height above the floor."""
         w, d, h = self.size
-        return f"{self.name} · {w:.2f} × {d:.2f} × {h:.2f} m · {self.above_floor:.2f} m up"
+        return f"{self.name} · {w:.2f}×{d:.2f}×{h:.2f} m · {_metres(self.above_floor)} m up"
 
     @property
     def description(self) -> str:
@@ -53,7 +53,7 @@ class ListedObject:
         return (
             f"**Selected: {self.name}**\n"
             f"- size {w:.2f} × {d:.2f} m, {h:.2f} m high\n"
-            f"- bottom {self.above_floor:.2f} m above the floor"
+            f"- bottom {_metres(self.above_floor)} m above the floor"
         )
 
     @property
@@ -144,3 +144,8 @@ class ObjectList:
             button.remove()
         self._buttons, self.objects = [], []
         self.folder.visible = False
+
+
+def _metres(value: float) -> str:
+    """Two decimals, never ``-0.00`` (a bottom a millimetre below the floor is on it)."""
+    return f"{round(value, 2) + 0.0:.2f}"

@@ -21,18 +21,26 @@ def free_port() -> int:
 
 
 def start_service(
-    data: Path, workers: int, *, wait_s: float, key: str | None = None, **env: str
+    data: Path,
+    workers: int,
+    *,
+    wait_s: float,
+    key: str | None = None,
+    viewer_port: int | None = None,
+    **env: str,
 ) -> tuple[subprocess.Popen[bytes], str]:
     """`jointseg serve --workers W --no-viewer` on a free loopback port with data directory
     ``data``; no JOINTSEG_ variable of this process reaches it, only those in ``env``. Returns
     the process and its URL once ``workers`` workers report healthy (SystemExit after
     ``wait_s`` seconds). ``key``: an API key of the service (``JOINTSEG_API_KEYS``), sent to
-    ``/healthz``, which tells only whether it is up without one."""
+    ``/healthz``, which tells only whether it is up without one. ``viewer_port``: run the
+    viewer too, on that port."""
     headers = {"Authorization": f"Bearer {key}"} if key else None
     port = free_port()
     child_env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
     child_env.update(JOINTSEG_DATA_DIR=str(data), **env)
-    args = [JOINTSEG, "serve", "--port", str(port), "--workers", str(workers), "--no-viewer"]
+    viewer = ["--no-viewer"] if viewer_port is None else ["--viewer-port", str(viewer_port)]
+    args = [JOINTSEG, "serve", "--port", str(port), "--workers", str(workers), *viewer]
     log = open(data / "serve.log", "wb")  # noqa: SIM115 - the child's
     proc = subprocess.Popen(args, env=child_env, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"

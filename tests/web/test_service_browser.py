@@ -4,8 +4,8 @@ and the job page's own behaviour on a real service: only networks with weights o
 service's weights cache is empty, so DGCNN has none), a failed job's long error, the empty list,
 no key in any link; a view link opened with another tenant's key does not show the job.
 
-The screenshots land in the test artefacts (tests/artifacts or $PYTEST_ARTIFACTS); the viewer
-guide's screenshot (docs/viewer.png) is ``service_viewer.png`` from this test.
+The screenshots land in the test artefacts (tests/artifacts or $PYTEST_ARTIFACTS); the
+documentation's pictures of the same pages are made by bench/viewer_tour.py.
 """
 
 from __future__ import annotations

@@ -321,7 +321,7 @@ def test_a_click_in_the_object_list_flies_to_the_object_and_selects_it_in_every_
         for obj in listed:
             record = next(o for o in report if o["id"] == obj.id)
             w, d, h = record["size"]
-            text = f"{record['cls']} {obj.id} · {w:.2f} × {d:.2f} × {h:.2f} m"
+            text = f"{record['cls']} {obj.id} · {w:.2f}×{d:.2f}×{h:.2f} m"
             assert page.get_by_role("button", name=re.compile("^" + re.escape(text))).count() == 1
         before = settled(page)
         assert all(selected_pixels(before, s) == 0 for s in panel_spans(before, 4))
