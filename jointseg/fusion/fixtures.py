@@ -3,8 +3,10 @@
 The vote keeps a window, door or board that lies in a wall's plane where the network sees it:
 the structure reading cannot tell them from the wall. On scans from other sensors, though, the
 network calls whole stretches of wall "door". A door has a size: at most a double door with
-its frame wide, and a door leaf is tall. A "door" of the network's that is much wider, or wide
-and low, is a wall it mistook, and the vote need not protect it.
+its frame wide, and a door leaf is tall. A door stands on the floor, too. A "door" of the
+network's that is much wider, wide and low, lower than any door seen even in part, or that
+floats above the floor (where the geometry found one), is a wall it mistook, and the vote need
+not protect it.
 """
 
 from __future__ import annotations
@@ -24,14 +26,22 @@ CELL = 0.1
 MAX_WIDTH = 2.4
 #: A door wider than LOW_WIDTH (m) is at least LOW_HEIGHT (m) high.
 LOW_WIDTH, LOW_HEIGHT = 1.4, 1.5
+#: Any door is at least this high (m), even seen in part (an RGB-D sweep may miss its top).
+MIN_HEIGHT = 1.0
+#: A door's bottom lies at most this far (m) above the floor level: a door leaf stands on the
+#: floor (S3DIS's doors start within 0.1 m of it, ScanNet's within 0.35 m).
+MAX_FOOT = 0.4
 #: Fewer door points than this are left alone (too few to measure).
 MIN_POINTS = 100
 
 
-def implausible_doors(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Points the network labelled door in doors of no believable size (bool, N); the scan is
-    levelled (z up, metres). Doors are the door points' connected CELL cells; a door's width is
-    its extent along its main horizontal direction."""
+def implausible_doors(
+    xyz: np.ndarray, labels: np.ndarray, floor_z: float | None = None
+) -> np.ndarray:
+    """Points the network labelled door in doors of no believable size or place (bool, N); the
+    scan is levelled (z up, metres). Doors are the door points' connected CELL cells; a door's
+    width is its extent along its main horizontal direction. ``floor_z``: the floor level, where
+    known (the structure reading's); a door whose bottom is over MAX_FOOT above it floats."""
     out = np.zeros(len(labels), dtype=bool)
     idx = np.flatnonzero(np.asarray(labels) == DOOR)
     if len(idx) < MIN_POINTS:
@@ -43,16 +53,19 @@ def implausible_doors(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(keys),) * 2)
     n_doors, door_of_cell = connected_components(graph, directed=False)
     door = door_of_cell[cell_of]
-    width, height, count = _extents(xyz[idx], door, n_doors)
+    width, height, bottom, count = _extents(xyz[idx], door, n_doors)
     bad = (count >= MIN_POINTS) & (
-        (width > MAX_WIDTH) | ((width > LOW_WIDTH) & (height < LOW_HEIGHT))
+        (width > MAX_WIDTH) | ((width > LOW_WIDTH) & (height < LOW_HEIGHT)) | (height < MIN_HEIGHT)
     )
+    if floor_z is not None:
+        bad |= (count >= MIN_POINTS) & (bottom > floor_z + MAX_FOOT)
     out[idx[bad[door]]] = True
     return out
 
 
 def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
-    """Per group: extent along its main horizontal direction, height, point count."""
+    """Per group: extent along its main horizontal direction, height (2nd to 98th percentile
+    of z), bottom (2nd percentile), point count."""
     count = np.bincount(group, minlength=n).astype(np.float64)
     safe = np.maximum(count, 1)
     mean = np.column_stack([np.bincount(group, xyz[:, i], n) / safe for i in range(2)])
@@ -66,7 +79,15 @@ def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ..
     lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
     np.minimum.at(lo, group, along)
     np.maximum.at(hi, group, along)
-    zlo, zhi = np.full(n, np.inf), np.full(n, -np.inf)
-    np.minimum.at(zlo, group, xyz[:, 2])
-    np.maximum.at(zhi, group, xyz[:, 2])
-    return hi - lo, zhi - zlo, count
+    zlo, zhi = _quantiles(xyz[:, 2], group, n, 0.02), _quantiles(xyz[:, 2], group, n, 0.98)
+    return hi - lo, zhi - zlo, zlo, count
+
+
+def _quantiles(values: np.ndarray, group: np.ndarray, n: int, q: float) -> np.ndarray:
+    """Per group, the ``q`` quantile of ``values`` (lower element; inf for an empty group)."""
+    order = np.lexsort((values, group))
+    counts = np.bincount(group, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
+    picked = values[order][np.minimum(pos, max(len(values) - 1, 0))]
+    return np.where(counts > 0, picked, np.inf)

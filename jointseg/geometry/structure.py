@@ -56,8 +56,9 @@ LOW_WALL = 0.5
 FLOOR_REACH = 0.5
 #: The least length (m) of a wall segment along the floor.
 MIN_WALL_LENGTH = 0.4
-#: A door leaf: at most this long (m) and this high above the floor (m).
-DOOR_LENGTH, DOOR_TOP = 1.3, 2.3
+#: A door leaf: at most this long (m) and this high above the floor (m), standing on the floor
+#: (its bottom at most DOOR_FOOT above it: a wall seen only above the furniture is no door).
+DOOR_LENGTH, DOOR_TOP, DOOR_FOOT = 1.3, 2.3, 0.15
 #: The least footprint (m²) of a piece of a ceiling.
 MIN_PIECE_AREA = 0.05
 #: A piece of a wall lies this close (m) to a read wall's plane, at most PIECE_REACH (m) beyond
@@ -334,6 +335,7 @@ def _read_walls(
     # ceiling a wall captured only up to door height looks the same, and is far more common
     door = (
         (s.length <= DOOR_LENGTH)
+        & (s.z_low <= floor_z + DOOR_FOOT)
         & (s.z_high <= floor_z + DOOR_TOP)
         & (s.z_high <= top - 0.5 * WALL_TOP)
         & (ceiling_z is not None)

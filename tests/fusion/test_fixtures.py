@@ -11,11 +11,14 @@ from jointseg.fusion.fixtures import implausible_doors
 DOOR, WALL = CLASS_INDEX["door"], CLASS_INDEX["wall"]
 
 
-def panel(rng: np.random.Generator, x0: float, width: float, height: float) -> np.ndarray:
-    """A vertical panel in the plane y = 0 from x0, 2 cm spacing, a little noise."""
+def panel(
+    rng: np.random.Generator, x0: float, width: float, height: float, bottom: float = 0.0
+) -> np.ndarray:
+    """A vertical panel in the plane y = 0 from x0 and ``bottom`` up, 2 cm spacing, a little
+    noise."""
     n = int(width * height / 0.02**2)
     pts = np.column_stack(
-        [rng.uniform(x0, x0 + width, n), np.zeros(n), rng.uniform(0.0, height, n)]
+        [rng.uniform(x0, x0 + width, n), np.zeros(n), rng.uniform(bottom, bottom + height, n)]
     )
     return pts + rng.normal(0, 0.004, pts.shape)
 
@@ -25,7 +28,8 @@ def panel(rng: np.random.Generator, x0: float, width: float, height: float) -> n
     [
         (0.9, 2.05, True),  # a door leaf
         (2.1, 2.2, True),  # a double door with its frame
-        (0.8, 0.9, True),  # the lower half of a leaf, as a sweep sees it
+        (0.8, 1.2, True),  # the lower part of a leaf, as a sweep sees it
+        (0.6, 0.7, False),  # lower than any door seen even in part: a cabinet, a wall
         (3.0, 2.1, False),  # a stretch of wall the network called door
         (1.9, 0.9, False),  # wide and low: a wall below a window, not a door
     ],
@@ -54,3 +58,17 @@ def test_few_or_no_door_points_flag_nothing() -> None:
     xyz = np.random.default_rng(2).uniform(0, 3, (50, 3))
     assert not implausible_doors(xyz, np.full(50, DOOR)).any()
     assert not implausible_doors(xyz, np.full(50, WALL)).any()
+
+
+def test_a_door_floating_above_the_floor_is_a_wall_the_network_mistook() -> None:
+    rng = np.random.default_rng(3)
+    standing = panel(rng, 0.0, 0.9, 2.0, bottom=0.05)
+    floating = panel(rng, 3.0, 0.9, 1.3, bottom=0.9)  # a wall seen above a desk
+    xyz = np.vstack([standing, floating])
+    labels = np.full(len(xyz), DOOR)
+    # without a floor level, only the size counts: both are door-sized
+    assert not implausible_doors(xyz, labels).any()
+    flagged = implausible_doors(xyz, labels, floor_z=0.0)
+    assert not flagged[: len(standing)].any() and flagged[len(standing) :].all()
+    # a floor 1 m lower than the scan's bottom leaves no door standing on it
+    assert implausible_doors(xyz, labels, floor_z=-1.0).all()

@@ -136,3 +136,14 @@ def test_a_door_leaf_under_a_seen_ceiling_is_not_wall() -> None:
     kind = {name: int(reading.kind[i]) for name, i in names.items()}
     assert kind["short piece"] == -1 and kind["cabinet front"] == -1
     assert kind["wall x5"] == WALL and kind["ceiling"] == CEILING
+
+
+def test_a_wall_seen_only_above_the_furniture_is_wall_not_a_door_leaf() -> None:
+    # under a seen ceiling, a door-sized piece that does not stand on the floor (a wall seen
+    # between a desk and the camera's reach, 0.8 to 2.1 m) is no door leaf: it bounds the scan
+    xyz, seg, names = _sweep(ceiling=True)
+    piece = seg == names["short piece"]
+    xyz[piece, 2] = 0.8 + xyz[piece, 2] * (1.3 / 2.0)
+    reading = read_structure(xyz, seg, 0.03)
+    assert reading.kind[names["short piece"]] == WALL
+    assert reading.kind[names["cabinet front"]] == -1
