@@ -2,7 +2,7 @@
 
 Starts `jointseg serve` (no workers: nothing is run) on a free loopback port, then for each
 hostile kind (a LAZ whose header claims 40 M points, a 0.5 MB NPZ inflating to 480 MB, PLY and
-PCD headers claiming 40 M points; made by tests/server/hostile_files.py) resets the API
+PCD headers claiming 40 M points; made by tests/support/hostile_files.py) resets the API
 process's peak resident memory (``/proc/<pid>/clear_refs``), posts the file three times at once
 and prints the answers, the time and how far the peak (VmHWM) rose above the resident memory
 before. The service's checks keep that within 300 MB.
@@ -24,8 +24,8 @@ import httpx
 from helpers.report import header
 from helpers.service import start_service
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "server"))
-from hostile_files import CLAIMED, HOSTILE  # noqa: E402 - the tests' own hostile files
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.support.hostile_files import CLAIMED, HOSTILE  # noqa: E402 - the tests' own files
 
 log = logging.getLogger("bench.hostile_uploads")
 

@@ -113,7 +113,7 @@ def tiny_training(tmp_path: Path) -> Callable[..., TrainConfig]:
 def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
     """The job service's embedded default (`jointseg serve`: SQLite table and queue, two
     workers, API key ``key-one``) in subprocesses, shared by the server and CLI tests."""
-    from tests.server.service_process import running
+    from tests.support.service_process import running
 
     with running(tmp_path_factory.mktemp("service"), workers=2, api_keys="key-one") as svc:
         yield svc

@@ -14,7 +14,7 @@ import pytest
 from jointseg.cli import main
 from jointseg.io import read_scan
 from jointseg.pipeline import OUTPUT_FIELDS
-from tests.server.service_process import free_port, scan_file
+from tests.support.service_process import free_port, scan_file
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:

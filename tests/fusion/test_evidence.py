@@ -10,19 +10,9 @@ import pytest
 from jointseg.classes import NUM_CLASSES
 from jointseg.fusion import FusionParams, fuse
 from jointseg.fusion.evidence import evidence_labels, point_probs
+from tests.support.probs import probs_for
 
 EVIDENCE = FusionParams(mode="evidence", vote_cell_size=0.0)
-
-
-def probs_for(rows: list[dict[int, float]]) -> np.ndarray:
-    """Probability rows from {class: p}; the rest of the mass spread evenly."""
-    out = np.zeros((len(rows), NUM_CLASSES), dtype=np.float32)
-    for i, row in enumerate(rows):
-        rest = (1.0 - sum(row.values())) / (NUM_CLASSES - len(row))
-        out[i] = rest
-        for c, p in row.items():
-            out[i, c] = p
-    return out
 
 
 def segment_of_walls(extra: dict[int, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

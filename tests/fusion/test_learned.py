@@ -21,7 +21,7 @@ from jointseg.fusion.learned import (
     vote_offers,
 )
 from jointseg.network.training.data import stable_order
-from tests.fusion.test_evidence import probs_for
+from tests.support.probs import probs_for
 
 LEARNED = FusionParams(mode="learned")
 

@@ -18,7 +18,7 @@ from jointseg.io import ScanFormatError, probe_scan, read_scan, write_scan
 from jointseg.io.las_result import check_full_byte, result_classification
 from jointseg.io.stream import open_chunks
 from jointseg.scan import Scan
-from tests.io.conftest import random_scan
+from tests.support.scans import random_scan
 
 RESULT_FIELDS = ("network_label", "segment", "fused_label", "fused_confidence", "stray", "instance")
 NAMES = {1: "unclassified", **{64 + i: name for i, name in enumerate(CLASS_NAMES)}}

@@ -20,7 +20,7 @@ from jointseg.io.formats import FORMATS
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
 from jointseg.scan import Scan
 from jointseg.synth import make_room
-from tests.io.conftest import random_scan
+from tests.support.scans import random_scan
 
 SIZES = [7, 1000, 10**6]
 

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from service_process import REDIS, Service, fresh_database, running
+
+from tests.support.service_process import REDIS, Service, fresh_database, running
 
 
 @pytest.fixture(scope="session")

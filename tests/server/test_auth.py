@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import httpx
 import pytest
-from service_process import post_scan, scan_file
+
+from tests.support.service_process import post_scan, scan_file
 
 ROUTES = [
     ("GET", "/v1/jobs"),

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 
-from service_process import REDIS, post_scan, running, scan_file, wait_for
+from tests.support.service_process import REDIS, post_scan, running, scan_file, wait_for
 
 
 def _run_jobs(service, scans, job_config, n: int = 4) -> list[dict]:

@@ -11,9 +11,9 @@ import httpx
 import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
-from service_process import left_in_incoming, post_scan, scan_file
 
 from jointseg.io import READ_EXTENSIONS
+from tests.support.service_process import left_in_incoming, post_scan, scan_file
 
 #: Extensions whose files are tried with plain text in them (text formats would parse it).
 WRONG_CONTENT = (".ply", ".las", ".laz", ".e57", ".pcd", ".npy", ".npz", ".glb", ".gltf", ".obj")

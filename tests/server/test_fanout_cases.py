@@ -15,7 +15,10 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from service_process import (
+
+from jointseg.io import read_scan
+from jointseg.pipeline import PipelineConfig, load_predictor, segment_file
+from tests.support.service_process import (
     REDIS,
     floor_file,
     fresh_database,
@@ -24,9 +27,6 @@ from service_process import (
     spawn,
     wait_for,
 )
-
-from jointseg.io import read_scan
-from jointseg.pipeline import PipelineConfig, load_predictor, segment_file
 
 #: Half test_tiled_jobs.py's floor: 60 k points in three tiles of at most 20 k core points, a
 #: few seconds each (the random network on one torch thread).

@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hostile_files import CLAIMED, HOSTILE, bomb_npz, liar_laz
-from service_process import left_in_incoming, post_scan
 
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import probe_scan, read_scan
 from jointseg.io.stream import open_chunks
+from tests.support.hostile_files import CLAIMED, HOSTILE, bomb_npz, liar_laz
+from tests.support.service_process import left_in_incoming, post_scan
 
 #: Largest growth of the API's peak resident memory under three hostile uploads at once.
 MAX_GROWTH_MB = 300

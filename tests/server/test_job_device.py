@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-from service_process import scan_file
 
 from jointseg.client import JobClient
 from jointseg.exceptions import JobFailed, ServiceError
+from tests.support.service_process import scan_file
 
 
 def test_unknown_device_is_refused_at_submission(locked, scans, random_weights) -> None:

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from service_process import post_scan, scan_file, wait_for
 
 from jointseg.client import JobClient
 from jointseg.io import WRITE_EXTENSIONS, read_scan
 from jointseg.pipeline import OUTPUT_FIELDS
+from tests.support.service_process import post_scan, scan_file, wait_for
 
 pye57 = pytest.importorskip("pye57")
 

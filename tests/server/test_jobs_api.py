@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from service_process import post_scan, scan_file, wait_for
+from tests.support.service_process import post_scan, scan_file, wait_for
 
 
 def test_cancel_a_running_job_stops_it_within_seconds(service, scans, job_config) -> None:

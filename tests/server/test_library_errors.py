@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from service_process import left_in_incoming, post_scan, scan_file, wait_for
+
+from tests.support.service_process import left_in_incoming, post_scan, scan_file, wait_for
 
 #: What a library's dump carries and a user's message must not.
 DEBUG_TEXT = (

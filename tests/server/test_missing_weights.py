@@ -9,9 +9,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from service_process import Service, left_in_incoming, post_scan, running, scan_file
 
 from jointseg.network import published
+from tests.support.service_process import Service, left_in_incoming, post_scan, running, scan_file
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from service_process import post_scan, scan_file, wait_for
+from tests.support.service_process import post_scan, scan_file, wait_for
 
 
 def test_a_job_serves_its_objects_rooms_and_ifc_model(service, scans, tmp_path: Path) -> None:

@@ -13,9 +13,9 @@ import time
 from pathlib import Path
 
 import httpx
-from service_process import Service, left_in_incoming, running, start_service
 
 from server.storage import Storage
+from tests.support.service_process import Service, left_in_incoming, running, start_service
 
 
 def _stat(pid: int) -> tuple[int, str, str] | None:

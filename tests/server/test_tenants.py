@@ -11,7 +11,6 @@ from typing import Any
 
 import httpx
 import pytest
-from service_process import post_scan, scan_file
 from sqlalchemy import Column, MetaData, Table, inspect, text
 
 from jointseg.exceptions import JobNotFound
@@ -20,6 +19,7 @@ from server.settings import Settings
 from server.state import jobs
 from server.state.db import add_missing_columns, init_db, make_engine, make_sessions
 from server.state.models import Job
+from tests.support.service_process import post_scan, scan_file
 
 JOB_ROUTES = ("", "/result", "/result?format=ifc", "/objects", "/report")
 

@@ -17,10 +17,17 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
-from service_process import floor_file, fresh_database, post_scan, running, scan_file, wait_for
 
 from jointseg.io import read_scan
 from jointseg.pipeline import PipelineConfig, load_predictor, segment_file
+from tests.support.service_process import (
+    floor_file,
+    fresh_database,
+    post_scan,
+    running,
+    scan_file,
+    wait_for,
+)
 
 #: A 120 k-point floor with cores of at most 40 k points: four tiles of about 2 s each (the
 #: random network on one torch thread).

@@ -8,11 +8,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from result_files import write_result
 
 from jointseg.pipeline import PipelineConfig
 from jointseg.scan import Scan
 from jointseg.synth import make_room
+from tests.support.result_files import write_result
 
 CHROMIUM = Path("/usr/bin/chromium")
 #: Flags for headless chromium in a container: no sandbox, no GPU (SwiftShader renders WebGL),
@@ -61,8 +61,7 @@ def jobs(tmp_path_factory: pytest.TempPathFactory, random_config: PipelineConfig
 @pytest.fixture(scope="session")
 def viewer(jobs: Path) -> Iterator[Any]:
     """A viewer (no keys) on ``jobs``, shared by the viewer's browser tests."""
-    from viewer_pages import free_port
-
+    from tests.support.viewer_pages import free_port
     from web.sources import DirectorySource
     from web.viewer import Viewer
 

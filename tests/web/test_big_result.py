@@ -14,14 +14,14 @@ from typing import Any
 
 import numpy as np
 import pytest
-from result_files import synthetic_result
 from scipy.spatial import cKDTree
-from shots import HIDE_OVERLAYS, panel_spans, settled
-from viewer_pages import free_port, view_of
 
 from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
+from tests.support.result_files import synthetic_result
+from tests.support.shots import HIDE_OVERLAYS, panel_spans, settled
+from tests.support.viewer_pages import free_port, view_of
 from web.sources import DirectorySource
 from web.viewer import Viewer
 

@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from camera_math import project
 
+from tests.support.camera_math import project
 from web.layout import GAP_RATIO, overview_camera, panel_offsets, title_position
 
 

@@ -6,12 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from result_files import with_stray_point
 
 from jointseg.classes import PALETTE
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
+from tests.support.result_files import with_stray_point
 from web.scene import (
     FUSED,
     NETWORK,

@@ -25,14 +25,14 @@ from urllib.parse import parse_qs, quote, urlsplit
 import httpx
 import numpy as np
 import pytest
-from download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
-from shots import HIDE_OVERLAYS, palette_pixels, panel_spans, settled
-from viewer_pages import free_port, key_in, sign_in
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan, write_scan
 from jointseg.network import published
 from jointseg.synth import make_room
+from tests.support.download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
+from tests.support.shots import HIDE_OVERLAYS, palette_pixels, panel_spans, settled
+from tests.support.viewer_pages import free_port, key_in, sign_in
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 API_KEY = "viewer-test-key"

@@ -15,12 +15,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
-from shots import HIDE_OVERLAYS, ink, palette_pixels, panel_spans, settled
-from viewer_pages import view_of
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from server.messages import public_report
+from tests.support.download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
+from tests.support.shots import HIDE_OVERLAYS, ink, palette_pixels, panel_spans, settled
+from tests.support.viewer_pages import view_of
 from web.scene import load_scene
 from web.viewer import Viewer
 

@@ -19,11 +19,11 @@ from urllib.parse import quote, unquote
 import numpy as np
 import pytest
 from PIL import Image
-from shots import HIDE_OVERLAYS, canvas_box, panel_spans, settled
-from viewer_pages import free_port, key_in, view_of, wait_for
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
+from tests.support.shots import HIDE_OVERLAYS, canvas_box, panel_spans, settled
+from tests.support.viewer_pages import free_port, key_in, view_of, wait_for
 from web.layout import panel_offsets
 from web.overlay import layout
 from web.scene import SEGMENTS

@@ -23,13 +23,13 @@ from urllib.parse import unquote
 
 import numpy as np
 import pytest
-from camera_math import corners, project
 from PIL import Image
-from result_files import with_stray_point
-from shots import HIDE_OVERLAYS, canvas_box, ink, palette_pixels, panel_spans, settled
-from viewer_pages import free_port, view_of, wait_for
 
 from jointseg.io import read_scan, write_scan
+from tests.support.camera_math import corners, project
+from tests.support.result_files import with_stray_point
+from tests.support.shots import HIDE_OVERLAYS, canvas_box, ink, palette_pixels, panel_spans, settled
+from tests.support.viewer_pages import free_port, view_of, wait_for
 from web.layout import ORTHO_SCALE_ERROR, title_position
 from web.object_list import SELECTED_COLOUR
 from web.overlay import layout
