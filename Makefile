@@ -6,7 +6,8 @@ TORCH  ?= torch==2.13.0
 DEMO   ?= demo
 PORT   ?= 8000
 
-.PHONY: setup system run serve test lint typecheck pytest docs docs-build clean gpu-pack gpu-train
+.PHONY: setup system run serve test test-fast lint typecheck pytest docs docs-build clean gpu-pack \
+	gpu-train
 
 setup: system $(VENV)/.installed
 
@@ -32,12 +33,17 @@ serve: setup
 	$(BIN)/jointseg serve --port $(PORT) --data-dir $(DEMO)/data
 
 lint: setup
-	$(BIN)/ruff check jointseg server web tests bench docs/hooks
-	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks
+	$(BIN)/ruff check jointseg server web tests bench docs/hooks scripts
+	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks scripts
 	$(BIN)/mypy
 
 pytest: setup
 	$(BIN)/python -m pytest -q
+
+# the unit tests only, under 3 minutes on 2 cores: no chromium, no service processes or
+# databases, nothing marked slow (pyproject.toml's markers; docs/contributing.md)
+test-fast: setup
+	$(BIN)/python -m pytest -q -m "not slow and not service and not browser"
 
 # the documentation site (docs/, mkdocs.yml): --strict fails on a broken link, a page missing
 # from the nav or a docstring that does not render

@@ -19,6 +19,25 @@ SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 #: Environment variable naming the folder of the tests' weights files (not a service setting).
 TEST_WEIGHTS_ENV = "JOINTSEG_TEST_WEIGHTS_DIR"
 
+#: Fixtures that drive Debian's chromium: a test using one is marked ``browser``.
+BROWSER_FIXTURES = frozenset({"browser"})
+#: Fixtures that start processes (``jointseg serve``, a viewer's server) or talk to PostgreSQL
+#: or Redis: a test using one is marked ``service``. Tests that start a service in their own
+#: body carry ``@pytest.mark.service`` themselves.
+SERVICE_FIXTURES = frozenset(
+    {
+        "service",  # tests/conftest.py, and test_service_browser's own
+        "locked",  # tests/server/conftest.py, and test_viewer_tools_browser's own
+        "postgres_url",
+        "redis_queue",
+        "bare",  # test_missing_weights: a service without weights
+        "killed_run",  # test_tiled_jobs: a service whose worker is killed mid-run
+        "viewer",  # tests/web/conftest.py
+        "capped",  # test_big_result: a viewer with a small point cap
+        "views",  # test_viewer_views_browser: a viewer with a pictures folder
+    }
+)
+
 
 def pytest_configure(config: pytest.Config) -> None:
     """Pulled weights go to a throw-away cache: no test reads or fills the user's own."""
@@ -28,6 +47,19 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ["JOINTSEG_CACHE"] = tempfile.mkdtemp(prefix="jointseg-cache-")
     # the one folder of test weights: the services the tests start allow it (weights_dirs)
     os.environ[TEST_WEIGHTS_ENV] = tempfile.mkdtemp(prefix="jointseg-weights-")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Marks ``browser`` and ``service`` tests by the fixtures they use, so that a new test is
+    sorted without anyone remembering to mark it (``make test-fast`` leaves both out)."""
+    for item in items:
+        names = set(getattr(item, "fixturenames", ()))
+        if names & BROWSER_FIXTURES or item.path.name.endswith("_browser.py"):
+            item.add_marker(pytest.mark.browser)
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        on_postgres = any(isinstance(v, str) and v == "postgres" for v in params.values())
+        if names & SERVICE_FIXTURES or on_postgres:
+            item.add_marker(pytest.mark.service)
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:

@@ -24,6 +24,9 @@ import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
 
+#: a wheel built and installed into a fresh environment: minutes, not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("jointseg", "server", "web")
 #: The synthetic room the installed package segments: small, fixed seed and yaw.

@@ -18,6 +18,9 @@ from pathlib import Path
 
 import pytest
 
+#: the whole site built by mkdocs: not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[2]
 PAGES = (
     "index.html",

@@ -10,10 +10,15 @@ import os
 import signal
 import time
 
+import pytest
+
 from server.settings import Settings
 from server.state import jobs, lifecycle
 from server.state.db import make_engine, make_sessions
 from tests.support.service_process import post_scan, running, scan_file, start_service, wait_for
+
+#: every test here starts `jointseg serve` itself
+pytestmark = pytest.mark.service
 
 log = logging.getLogger(__name__)
 LONG = 30_000  # points: a job of several seconds with the random network on one thread

@@ -28,6 +28,9 @@ from tests.support.service_process import (
     wait_for,
 )
 
+#: every test here starts `jointseg serve` itself
+pytestmark = pytest.mark.service
+
 #: Half test_tiled_jobs.py's floor: 60 k points in three tiles of at most 20 k core points, a
 #: few seconds each (the random network on one torch thread).
 POINTS = 60_000

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 from server.storage import Storage
 from tests.support.service_process import Service, left_in_incoming, running, start_service
@@ -98,6 +99,7 @@ def _stalled_upload(service: Service, stop: threading.Event) -> threading.Thread
     return thread
 
 
+@pytest.mark.service  # starts `jointseg serve` itself
 def test_sigkill_of_serve_leaves_no_child_and_a_restart_removes_the_partial_upload(
     tmp_path,
 ) -> None:
