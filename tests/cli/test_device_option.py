@@ -38,6 +38,7 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_segment_device_cpu_overrides_the_config(room: Path, random_weights, tmp_path) -> None:
     config = tmp_path / "cfg.json"
     config.write_text(json.dumps({"network": {"device": "cuda"}}))  # the option wins
@@ -50,6 +51,7 @@ def test_segment_device_cpu_overrides_the_config(room: Path, random_weights, tmp
     assert json.loads(report.read_text())["params"]["network"]["device"] == "cpu"
 
 
+@pytest.mark.slow
 @no_cuda
 @pytest.mark.parametrize("command", ["segment", "eval"])
 def test_device_cuda_without_cuda_fails_at_once(room: Path, tmp_path, command) -> None:
@@ -63,6 +65,7 @@ def test_device_cuda_without_cuda_fails_at_once(room: Path, tmp_path, command) -
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 @no_cuda
 def test_config_file_asking_for_cuda_fails_at_once(room: Path, tmp_path) -> None:
     (tmp_path / "cfg.json").write_text(json.dumps({"network": {"device": "cuda"}}))
@@ -74,6 +77,7 @@ def test_config_file_asking_for_cuda_fails_at_once(room: Path, tmp_path) -> None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cfg.json"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("device", ["tpu", "gpu", "cuda:x", "CPU"])
 def test_unknown_device_is_refused(room: Path, tmp_path, device) -> None:
     result = run_cli("segment", str(room), "-o", "out.ply", "--device", device, cwd=tmp_path)

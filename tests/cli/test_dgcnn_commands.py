@@ -16,6 +16,9 @@ from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
+#: each test runs the CLI with DGCNN in a subprocess: not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 ENV = "JOINTSEG_DGCNN_WEIGHTS"
 
 

@@ -28,6 +28,7 @@ def room_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_geometry_writes_segments_and_report(room_file: Path, tmp_path: Path) -> None:
     out, report = tmp_path / "seg.las", tmp_path / "report.json"
     result = run_cli("geometry", str(room_file), "-o", str(out), "--report", str(report))
@@ -47,6 +48,7 @@ def test_geometry_writes_segments_and_report(room_file: Path, tmp_path: Path) ->
     assert body["params"]["cluster_distance"] > 0 and body["params"]["spacing"] > 0
 
 
+@pytest.mark.slow
 def test_params_file_is_applied(room_file: Path, tmp_path: Path) -> None:
     params, report = tmp_path / "p.json", tmp_path / "r.json"
     params.write_text(json.dumps({"cluster_distance": 0.04, "ransac_iterations": 200}))
@@ -87,6 +89,7 @@ def test_bad_params_file_exits_2_and_writes_nothing(
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_geometry_levels_a_y_up_millimetre_scan_first(tmp_path: Path) -> None:
     from jointseg.scan import Scan
 

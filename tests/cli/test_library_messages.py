@@ -101,6 +101,7 @@ def test_weights_that_do_not_load_are_a_one_line_config_error(
         assert "the file is empty" in str(refused.value)
 
 
+@pytest.mark.slow
 def test_segment_with_garbage_weights_prints_one_line(tmp_path: Path) -> None:
     np.savetxt(tmp_path / "room.xyz", np.random.default_rng(4).random((2000, 3)) * 3)
     _write_bad_weights(tmp_path / "mine.pt", "noise")

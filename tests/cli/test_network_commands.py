@@ -33,6 +33,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return scan, weights
 
 
+@pytest.mark.slow
 def test_predict_writes_network_fields(files: tuple[Path, Path], tmp_path: Path) -> None:
     scan, weights = files
     out = tmp_path / "pred.laz"
@@ -56,6 +57,7 @@ def test_predict_without_weights_says_where_to_get_them(files, tmp_path: Path) -
     assert not (tmp_path / "x.ply").exists()
 
 
+@pytest.mark.slow
 def test_models_list_shows_randlanet() -> None:
     result = run_cli("models", "list")
     assert result.returncode == 0, result.stderr
@@ -63,6 +65,7 @@ def test_models_list_shows_randlanet() -> None:
     assert "randlanet card: " in result.stdout and " epochs" in result.stdout
 
 
+@pytest.mark.slow
 def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:
     from jointseg.network.checkpoint import load_checkpoint
     from jointseg.network.training.loop import train
@@ -81,6 +84,7 @@ def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_t
             assert torch.allclose(a, b, rtol=2e-3, atol=1e-4), name
 
 
+@pytest.mark.slow
 def test_models_pack_refuses_a_foreign_file(tmp_path: Path) -> None:
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
@@ -89,6 +93,7 @@ def test_models_pack_refuses_a_foreign_file(tmp_path: Path) -> None:
     assert not (tmp_path / "out.pt").exists()
 
 
+@pytest.mark.slow
 def test_train_with_bad_sources_is_a_one_line_error(tmp_path: Path) -> None:
     result = run_cli(
         "train", "--data", f"{tmp_path}:0.7", "--data", "synth:0.7", "--out", str(tmp_path / "m.pt")
@@ -98,6 +103,7 @@ def test_train_with_bad_sources_is_a_one_line_error(tmp_path: Path) -> None:
     assert not (tmp_path / "m.pt").exists()
 
 
+@pytest.mark.slow
 def test_predict_levels_a_y_up_millimetre_scan_like_segment(tmp_path: Path) -> None:
     from jointseg.scan import Scan
 

@@ -19,6 +19,9 @@ from jointseg.pipeline import OUTPUT_FIELDS
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
+#: each test runs the CLI with the network in a subprocess: not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 FIELDS = set(OUTPUT_FIELDS)
 
 

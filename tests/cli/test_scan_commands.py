@@ -32,6 +32,7 @@ def room_ply(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_synth_writes_the_requested_room(room_ply: Path) -> None:
     scan = read_scan(room_ply)
     assert len(scan) == 60_000
@@ -40,6 +41,7 @@ def test_synth_writes_the_requested_room(room_ply: Path) -> None:
     assert "instance" in scan.fields
 
 
+@pytest.mark.slow
 def test_synth_is_deterministic(tmp_path: Path, room_ply: Path) -> None:
     again = tmp_path / "again.ply"
     args = ("synth", "--seed", "3", "--points", "60000", "--yaw", "0", "-o", str(again))
@@ -49,6 +51,7 @@ def test_synth_is_deterministic(tmp_path: Path, room_ply: Path) -> None:
     np.testing.assert_array_equal(a.labels, b.labels)
 
 
+@pytest.mark.slow
 def test_info_json_describes_the_scan(room_ply: Path) -> None:
     result = run_cli("info", "--json", str(room_ply))
     assert result.returncode == 0, result.stderr
@@ -62,6 +65,7 @@ def test_info_json_describes_the_scan(room_ply: Path) -> None:
     assert {"instance"} <= {f["name"] for f in summary["fields"]}
 
 
+@pytest.mark.slow
 def test_info_text_lists_classes_and_spacing(room_ply: Path) -> None:
     result = run_cli("info", str(room_ply))
     assert result.returncode == 0, result.stderr
@@ -82,6 +86,7 @@ def test_convert_keeps_points_colour_and_labels(room_ply: Path, tmp_path: Path, 
     np.testing.assert_array_equal(b.labels, a.labels)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -107,6 +112,7 @@ def test_bad_input_exits_2_with_one_clear_line(
     assert not (tmp_path / "x.ply").exists()
 
 
+@pytest.mark.slow
 def test_info_tells_the_up_axis_and_units_it_finds(tmp_path: Path) -> None:
     from jointseg.scan import Scan
 

@@ -49,6 +49,7 @@ def test_readme_is_short_and_marks_its_examples() -> None:
     assert text.index("make run") < text.index("<!-- runnable -->")
 
 
+@pytest.mark.service  # the blocks start `jointseg serve`
 @pytest.mark.timeout(600)
 def test_readme_runnable_blocks_run_as_written(tmp_path: Path) -> None:
     script = as_script(runnable_blocks(README.read_text()))

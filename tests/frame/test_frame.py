@@ -60,6 +60,7 @@ def moved(room: Scan, r: np.ndarray, scale: float = 1.0) -> Scan:
     return Scan(room.xyz @ r.T * scale, room.rgb, room.labels)
 
 
+@pytest.mark.slow
 def test_the_up_direction_of_synthetic_rooms_is_found_from_any_axis_and_tilt() -> None:
     """Without the network: the five ways a room arrives other than upside down are found;
     an upside-down file (rare, and worse to read wrongly) is turned only on strong evidence, and
@@ -85,6 +86,7 @@ def test_the_up_direction_of_synthetic_rooms_is_found_from_any_axis_and_tilt() -
     assert sum(upside) >= 3, upside
 
 
+@pytest.mark.slow
 @needs_weights
 @pytest.mark.parametrize("up", ["+y", "-y", "+x", "-z"])
 def test_another_up_axis_gives_the_level_labels(room, predictor, level, up) -> None:
@@ -99,6 +101,7 @@ def test_another_up_axis_gives_the_level_labels(room, predictor, level, up) -> N
     assert agree >= 0.9, (up, agree)
 
 
+@pytest.mark.slow
 @needs_weights
 def test_a_15_degree_tilt_is_levelled_and_gives_the_level_labels(room, predictor, level) -> None:
     r = rotation_about(np.array([1.0, 0.4, 0.0]), 15.0)
@@ -133,6 +136,7 @@ def test_units_from_scale_prefer_metres_for_a_tall_storey() -> None:
     assert units_from_scale(110.0).unit == "in"
 
 
+@pytest.mark.slow
 @needs_weights
 def test_a_scan_in_millimetres_keeps_its_coordinates_and_the_metre_labels(
     room, predictor, level, tmp_path: Path
@@ -220,6 +224,7 @@ def test_stray_points_are_found_and_only_they(room) -> None:
     assert stray[~added].mean() <= 0.005
 
 
+@pytest.mark.slow
 @needs_weights
 def test_stray_points_do_not_change_the_rooms_labels(room, predictor, level) -> None:
     scan, added = with_strays(room, 0.003)
@@ -231,6 +236,7 @@ def test_stray_points_do_not_change_the_rooms_labels(room, predictor, level) -> 
     assert body["stray_points"] == int(result.stray.sum())
 
 
+@pytest.mark.slow
 @needs_weights
 @pytest.mark.parametrize("colour", ["none", "constant"])
 def test_a_scan_without_colour_takes_the_colour_free_network(room, predictor, colour) -> None:
@@ -286,6 +292,7 @@ def test_degenerate_scans_give_a_clear_error_or_labels(xyz, predictor) -> None:
         assert len(result.fused_labels) == len(xyz)
 
 
+@pytest.mark.slow
 @needs_weights
 def test_a_tiled_run_takes_the_same_frame(room, predictor, tmp_path: Path) -> None:
     metric, added = with_strays(room, 0.003)
@@ -321,6 +328,7 @@ def test_a_slice_of_a_room_keeps_the_files_up(room) -> None:
     assert not frame.report()["up"]["evidence"]["room_like"]
 
 
+@pytest.mark.slow
 def test_millimetres_forced_as_metres_give_labels_and_a_warning(room, predictor) -> None:
     scan = moved(room, np.eye(3), 1000.0)
     config = PipelineConfig.model_validate({"frame": {"units": "m"}})

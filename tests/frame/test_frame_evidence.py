@@ -126,6 +126,7 @@ def test_a_clean_z_up_room_is_kept_as_it_is(room, judge) -> None:
     assert "network not asked" in frame.up_how
 
 
+@pytest.mark.slow
 @needs_weights
 def test_the_network_is_asked_when_the_file_and_the_geometry_disagree(room, judge) -> None:
     frame = decide_frame(turned(room, "+y"), judge=judge)  # a plain file, z up by default
@@ -135,6 +136,7 @@ def test_the_network_is_asked_when_the_file_and_the_geometry_disagree(room, judg
     assert frame.up.axis == "+y"
 
 
+@pytest.mark.slow
 @needs_weights
 @pytest.mark.parametrize("up", ["+y", "-y", "+x"])
 def test_the_network_judges_a_room_delivered_another_way(room, judge, up) -> None:
@@ -164,6 +166,7 @@ def test_a_y_up_export_is_read_y_up(room, judge, source_format, meta) -> None:
     assert frame.up.confidence >= UP_UNSURE
 
 
+@pytest.mark.slow
 @needs_weights
 def test_camera_views_cut_from_a_room_get_their_true_up(judge) -> None:
     rng = np.random.default_rng(5)

@@ -51,11 +51,13 @@ def fitted(plan: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, 
     return outs[0], outs[1], cache
 
 
+@pytest.mark.slow
 def test_the_same_plan_gives_the_same_file(fitted: tuple[Path, Path, Path]) -> None:
     assert fitted[0].read_bytes() == fitted[1].read_bytes()
     assert len(list((fitted[2] / "up").glob("*.json"))) == len(DELIVERIES)
 
 
+@pytest.mark.slow
 def test_the_model_is_read_by_the_frame_stage_and_keeps_the_geometry_steps(
     fitted: tuple[Path, Path, Path],
 ) -> None:

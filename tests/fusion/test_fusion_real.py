@@ -13,6 +13,9 @@ from jointseg.io import read_scan
 from jointseg.metrics import evaluate
 from jointseg.network import load
 
+#: real scans through the network: not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def model_6(shared_file):

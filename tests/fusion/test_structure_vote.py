@@ -42,6 +42,7 @@ def iou(truth: np.ndarray, pred: np.ndarray, cls: int) -> float:
     return float(np.sum((truth == cls) & (pred == cls)) / np.sum((truth == cls) | (pred == cls)))
 
 
+@pytest.mark.slow
 def test_walls_called_clutter_and_a_floor_called_chair_come_back() -> None:
     truth = room()[0].labels
     assert truth is not None

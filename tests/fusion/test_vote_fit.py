@@ -83,6 +83,7 @@ def fitted(inputs: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path
     return outs[0], outs[1]
 
 
+@pytest.mark.slow
 def test_the_same_plan_gives_the_same_file(fitted: tuple[Path, Path]) -> None:
     first, second = fitted
     assert first.read_bytes() == second.read_bytes()
@@ -179,6 +180,7 @@ def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_command_fits_with_a_network_and_records_how_to_run_it_again(
     tmp_path: Path, random_weights: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -39,6 +39,7 @@ def structural_coverage(scan: Scan, result: GeometryResult) -> float:
     return float(result.main_plane[structural].mean())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("seed", "shape"), ROOMS)
 def test_room_purity_and_segment_count(seed: int, shape: str) -> None:
     scan, result = room(seed, shape)
@@ -48,6 +49,7 @@ def test_room_purity_and_segment_count(seed: int, shape: str) -> None:
     assert len(result.planes) < result.n_segments <= 1000
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", FLOORS)
 def test_floor_purity_and_segment_count(seed: int) -> None:
     scan, result = floor(seed)
@@ -66,6 +68,7 @@ def test_walls_floors_and_ceilings_are_main_planes_in_rooms(seed: int, shape: st
     assert structural_coverage(scan, result) >= 0.9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", FLOORS)
 def test_walls_floors_and_ceilings_are_main_planes_on_whole_floors(seed: int) -> None:
     scan, result = floor(seed)
@@ -83,6 +86,7 @@ def test_l_room_gets_walls_beyond_the_box_faces() -> None:
     assert (walls & further).sum() > 0.05 * walls.sum()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaw", [17.0, 45.0, 73.0])
 def test_any_yaw_gives_the_same_segmentation(yaw: float) -> None:
     base = make_room(0, points=150_000, yaw=0.0)
@@ -94,6 +98,7 @@ def test_any_yaw_gives_the_same_segmentation(yaw: float) -> None:
     assert r1.n_segments == pytest.approx(r0.n_segments, rel=0.25)
 
 
+@pytest.mark.slow
 def test_yaw_estimate_follows_the_room() -> None:
     for yaw in (0.0, 12.0, -30.0):
         result = segment(make_room(2, points=100_000, yaw=yaw))
@@ -101,6 +106,7 @@ def test_yaw_estimate_follows_the_room() -> None:
         assert abs(delta) < 1.0
 
 
+@pytest.mark.slow
 def test_adaptive_thresholds_follow_density() -> None:
     sparse = make_room(4, points=80_000, yaw=0.0)
     dense = make_room(4, points=400_000, yaw=0.0)

@@ -46,11 +46,13 @@ def test_plane_equations_are_in_the_scan_frame(scan) -> None:
         assert np.median(dist) < result.params.plane_distance
 
 
+@pytest.mark.slow
 def test_deterministic_for_a_seed(scan) -> None:
     a, b = segment(scan, seed=3), segment(scan, seed=3)
     np.testing.assert_array_equal(a.segments, b.segments)
 
 
+@pytest.mark.slow
 def test_hand_set_parameters_are_used(scan) -> None:
     params = GeometryParams(cluster_distance=0.05, point_colour_threshold=12.0, voxel_factor=0)
     result = segment(scan, params)

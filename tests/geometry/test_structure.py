@@ -25,6 +25,7 @@ def room(seed: int, yaw: float | None = None) -> tuple[Scan, GeometryResult]:
     return scan, segment(scan, seed=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_floor_ceiling_and_walls_are_read_where_they_are(seed: int) -> None:
     scan, geo = room(seed)
@@ -44,6 +45,7 @@ def test_floor_ceiling_and_walls_are_read_where_they_are(seed: int) -> None:
     assert geo.floor_z == pytest.approx(np.percentile(scan.xyz[truth == FLOOR, 2], 50), abs=0.05)
 
 
+@pytest.mark.slow
 def test_the_reading_does_not_depend_on_the_rooms_yaw() -> None:
     # the segments themselves differ a little with the yaw; the reading follows them
     straight, turned = room(2, 0.0)[1], room(2, 33.0)[1]

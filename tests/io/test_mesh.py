@@ -515,6 +515,7 @@ def test_the_mesh_extensions_are_read_everywhere() -> None:
     assert f'accept="{",".join(READ_EXTENSIONS)}"' in static  # the file itself kept current
 
 
+@pytest.mark.slow
 def test_cli_info_on_a_glb_and_a_bad_glb(
     tmp_path: Path, bad_meshes: dict[str, tuple[Path, str]]
 ) -> None:

@@ -462,6 +462,7 @@ def _peak_bytes(work) -> int:
         tracemalloc.stop()
 
 
+@pytest.mark.slow
 def test_chunked_reading_and_writing_memory_follows_the_chunk(tmp_path, monkeypatch):
     """numpy reports its buffers to tracemalloc, so peaks are deterministic (no timing)."""
     monkeypatch.setattr(chunks, "PASS_POINTS", 10_000)  # the first pass: 250 k per step

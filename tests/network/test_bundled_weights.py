@@ -34,6 +34,7 @@ def test_bundled_weights_are_small_and_say_what_they_were_trained_on() -> None:
     assert card["input_conventions"]
 
 
+@pytest.mark.slow
 def test_bundled_weights_beat_chance_on_a_held_out_room() -> None:
     scan = make_room(4321, points=40_000, shape="L")  # a seed no training run uses
     labels = load("randlanet", device="cpu").predict(scan).labels

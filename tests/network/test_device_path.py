@@ -55,6 +55,7 @@ def _squared(query: np.ndarray, centroids: np.ndarray, idx: np.ndarray) -> np.nd
     return (diff**2).sum(axis=1)
 
 
+@pytest.mark.slow
 def test_device_nearest_is_the_kd_trees() -> None:
     xyz, rgb = _cloud_points(1, 10_000, 100.0)
     # leave holes: every point of some cells removed, so neighbours are cells away
@@ -118,6 +119,7 @@ def room() -> Scan:
     return make_room(4, points=15_000)
 
 
+@pytest.mark.slow
 def test_device_path_predicts_as_the_cpu_path(predictors, room) -> None:
     cpu, dev = predictors
     want = cpu.predict(room, seed=1)
@@ -131,6 +133,7 @@ def test_device_path_predicts_as_the_cpu_path(predictors, room) -> None:
     np.testing.assert_allclose(got.probs, want.probs, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_device_path_cells_are_the_cpu_paths(predictors, room) -> None:
     cpu, dev = predictors
     lower = room.xyz.min(axis=0)

@@ -29,6 +29,7 @@ def test_published_layout_loads_with_and_without_prefix(dgcnn_random_weights) ->
     assert card["data"] == "S3DIS, Area 9 held out"
 
 
+@pytest.mark.slow
 def test_fast_inference_equals_the_plain_formulation(dgcnn_random_weights) -> None:
     model, _ = load_dgcnn_state(dgcnn_random_weights)
     model = model.double()

@@ -154,6 +154,7 @@ def predictors(weights, params: DGCNNParams) -> tuple[DGCNNPredictor, DGCNNPredi
     return cpu, dev
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "params",
     [
@@ -187,6 +188,7 @@ def test_device_path_is_automatic_on_cuda_only(dgcnn_random_weights) -> None:
     assert not predictor.on_device
 
 
+@pytest.mark.slow
 def test_device_path_progress_and_cancel(dgcnn_random_weights, stop_after) -> None:
     _, dev = predictors(dgcnn_random_weights, DGCNNParams(num_points=64, stride=1.0))
     scan: Scan = make_room(1, points=3_000)

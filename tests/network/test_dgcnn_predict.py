@@ -30,6 +30,7 @@ def fast_predictor(weights, **kwargs):
     return predictor
 
 
+@pytest.mark.slow
 def test_predict_labels_every_point(dgcnn_random_weights, room) -> None:
     predictor = fast_predictor(dgcnn_random_weights, batch_size=3)
     result = predictor.predict(room, seed=0)
@@ -41,6 +42,7 @@ def test_predict_labels_every_point(dgcnn_random_weights, room) -> None:
     assert result.crops >= 1 and set(result.timings) == {"blocks", "blocks_forward", "project"}
 
 
+@pytest.mark.slow
 def test_predict_is_deterministic_and_handles_tiny_and_colourless_scans(
     dgcnn_random_weights, room
 ) -> None:
@@ -61,6 +63,7 @@ def test_sparse_coverage_projects_to_unseen_points(dgcnn_random_weights, room) -
     assert result.crops * 128 < len(room) / 2  # most points were never in a sample
 
 
+@pytest.mark.slow
 def test_progress_and_cancel_inside_the_forward_pass(
     dgcnn_random_weights, room, stop_after
 ) -> None:
@@ -130,6 +133,7 @@ def test_foreign_files_are_refused(random_weights, tmp_path) -> None:
         load("dgcnn", bad)
 
 
+@pytest.mark.slow
 def test_published_weights_on_the_real_fragment(dgcnn_model_1, s3dis_fragment) -> None:
     """Issue 6's check of the input conventions: with the reference's reading (the scan's
     bounding box as the room, 1 m blocks without overlap), model_1 gets the floor right; the

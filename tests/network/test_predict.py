@@ -31,6 +31,7 @@ def test_model_shapes_and_repr() -> None:
     assert sum(p.numel() for p in model.parameters()) == 4_995_093
 
 
+@pytest.mark.slow
 def test_predict_labels_every_point(random_weights, small_room) -> None:
     predictor = load("randlanet", random_weights, device="cpu", batch_size=2)
     result = predictor.predict(small_room, seed=0)
@@ -44,6 +45,7 @@ def test_predict_labels_every_point(random_weights, small_room) -> None:
     assert result.crops >= 1
 
 
+@pytest.mark.slow
 def test_crops_cover_every_subsampled_point_of_a_large_scene(random_weights) -> None:
     from jointseg.synth import make_floor
 
@@ -56,6 +58,7 @@ def test_crops_cover_every_subsampled_point_of_a_large_scene(random_weights) -> 
     np.testing.assert_allclose(result.probs.sum(axis=1), 1.0, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_predict_is_deterministic_for_a_seed(random_weights, small_room) -> None:
     predictor = load("randlanet", random_weights, device="cpu")
     a = predictor.predict(small_room, seed=3)
@@ -64,6 +67,7 @@ def test_predict_is_deterministic_for_a_seed(random_weights, small_room) -> None
     np.testing.assert_allclose(a.probs, b.probs, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_progress_and_cancel(random_weights, small_room) -> None:
     predictor = load("randlanet", random_weights, device="cpu")
     calls: list[float] = []

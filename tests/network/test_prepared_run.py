@@ -43,6 +43,7 @@ def carried(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return data
 
 
+@pytest.mark.slow
 def test_the_one_minute_run_leaves_eight_files_and_three_networks(carried: Path, tmp_path) -> None:
     out = tmp_path / "out"
     env = {**os.environ, "PYTHON": sys.executable, "GPU_DATA": str(carried), "OUT": str(out),
@@ -96,6 +97,7 @@ def test_packed_arrays_read_back_on_the_lattice(tmp_path) -> None:
     assert (scan.labels == labels[order]).all() and (scan.rgb == rgb[order]).all()
 
 
+@pytest.mark.slow
 def test_a_time_budget_stops_a_long_run_and_saves_it(tiny_training, tmp_path) -> None:
     cfg = tiny_training(epochs=10_000, steps_per_epoch=3, minutes=0.08, save_minutes=0.02,
                         packed_copy=tmp_path / "packed.pt")  # fmt: skip
@@ -128,6 +130,7 @@ def _zero_outside(wide: RandLANet, narrow: RandLANet) -> None:
     wide.load_state_dict(state)
 
 
+@pytest.mark.slow
 def test_a_sliced_narrow_network_computes_what_the_wide_one_does_on_its_channels(
     tiny_training,
 ) -> None:
@@ -175,6 +178,7 @@ def test_a_resumed_run_continues_its_own_weights_not_the_recipes_start(
     assert fresh.threads == max(1, len(os.sched_getaffinity(0)) // 3) and fresh.workers == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frozen", [True, False])
 def test_frozen_norms_keep_their_statistics_while_the_weights_learn(tiny_training, frozen) -> None:
     cfg = tiny_training(init=COLOUR_WEIGHTS, freeze_norm=frozen, lr=0.001)

@@ -59,6 +59,7 @@ def test_the_option_reaches_the_predictor_through_the_pipeline_config(random_wei
         PipelineConfig.model_validate({"network": {"randlanet": {"absent": 1}}})
 
 
+@pytest.mark.slow
 def test_whole_scan_inference_applies_it(small_room) -> None:
     from jointseg.network import load
     from jointseg.network.registry import REGISTRY

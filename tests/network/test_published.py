@@ -238,6 +238,7 @@ def test_built_in_checksums_match_the_shared_copies(shared_file) -> None:
         assert entry.url.endswith(f"pretrained/semseg_s3dis/model_{i}.t7")
 
 
+@pytest.mark.slow
 def test_cli_pull_and_list(catalogue: Path, tmp_path: Path) -> None:
     def cli(*args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

@@ -37,6 +37,7 @@ def _imports_torch(code: str) -> bool:
     return out.stdout.strip().splitlines()[-1] == "True"
 
 
+@pytest.mark.slow
 def test_the_registry_and_the_backend_records_import_no_torch() -> None:
     assert not _imports_torch(
         "import jointseg.network.registry\n"

@@ -57,6 +57,7 @@ def test_centre_weights_favour_rare_classes() -> None:
     assert np.isclose(p[labels == 11].sum(), p[labels == 0].sum())
 
 
+@pytest.mark.slow
 def test_training_on_a_folder_keeps_the_validation_scans_out(scan_folder, tiny_training) -> None:
     cfg = tiny_training(data=str(scan_folder), val_scans=["room_1"], synth_share=0.5)
     _, card, _ = load_checkpoint(train(cfg))

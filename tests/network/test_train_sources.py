@@ -69,6 +69,7 @@ def _config(tiny_training, a, b, **overrides):
     return tiny_training(**{**base, **overrides})
 
 
+@pytest.mark.slow
 def test_mixed_sources_validate_apart_and_keep_judging_scans_out(
     two_datasets, tiny_training
 ) -> None:
@@ -94,6 +95,7 @@ def test_mixed_sources_validate_apart_and_keep_judging_scans_out(
     assert "scene0002" not in card["data"]
 
 
+@pytest.mark.slow
 def test_the_best_checkpoint_is_kept_beside_the_last(two_datasets, tiny_training) -> None:
     a, b = two_datasets
     path = train(_config(tiny_training, a, b, epochs=3, lr=0.05))
@@ -155,6 +157,7 @@ def test_bad_sources_are_clear_errors(two_datasets, tiny_training, tmp_path) -> 
         train(tiny_training(data=[str(tmp_path / "empty")]))
 
 
+@pytest.mark.slow
 def test_neighbours_on_the_device_train_as_the_workers_do(two_datasets, tiny_training) -> None:
     """Crops sent bare and searched on the training device (the GPU path, here on the CPU) give
     the same steps as batches the workers complete."""

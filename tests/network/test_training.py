@@ -11,6 +11,7 @@ from jointseg.network.training.augment import augment
 from jointseg.network.training.loop import class_weights, train
 
 
+@pytest.mark.slow
 def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path, tiny_training) -> None:
     cfg = tiny_training()
     path = train(cfg)
@@ -25,6 +26,7 @@ def test_training_steps_write_a_resumable_checkpoint_with_a_card(tmp_path, tiny_
     assert body2["epoch"] == 2 and [h["epoch"] for h in card2["history"]] == [1, 2]
 
 
+@pytest.mark.slow
 def test_training_changes_the_weights(tmp_path, tiny_training) -> None:
     torch.manual_seed(0)
     path = train(tiny_training(seed=1))
@@ -72,6 +74,7 @@ def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path, tiny_training) ->
         train(tiny_training(data=str(tmp_path)))
 
 
+@pytest.mark.slow
 def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
     from jointseg.network.shipping import pack_checkpoint
 
@@ -101,6 +104,7 @@ def test_elastic_distortion_is_smooth_and_small() -> None:
     assert np.median(gap) < 0.1 * np.median(np.linalg.norm(d_near[:1000], axis=1))
 
 
+@pytest.mark.slow
 def test_prefetched_training_is_the_same_training(tmp_path, tiny_training) -> None:
     """The background thread draws the same batches in the same order: same weights."""
     torch.manual_seed(0)
@@ -139,6 +143,7 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
     assert not slow._thread.is_alive()
 
 
+@pytest.mark.slow
 def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
     from jointseg.network.backends import card_summary
     from jointseg.network.shipping import pack_checkpoint
@@ -167,6 +172,7 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
     assert "2 epochs" in line and "validation mIoU" in line and "S3DIS" in line
 
 
+@pytest.mark.slow
 def test_blending_two_checkpoints_interpolates_the_weights(tmp_path, tiny_training) -> None:
     from jointseg.exceptions import ConfigError
     from jointseg.network.shipping import blend_checkpoints

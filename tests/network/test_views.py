@@ -30,6 +30,7 @@ def test_views_turn_and_mirror_the_horizontal_coordinates_only() -> None:
     assert torch.allclose(turned, torch.cdist(coords[0], coords[0], compute_mode=exact), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_a_scan_turned_by_90_degrees_gets_the_same_labels_on_most_points() -> None:
     scan = make_room(3, points=30_000)
     turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])

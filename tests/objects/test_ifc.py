@@ -79,6 +79,7 @@ def _qto(entity: Any, name: str, model: Any) -> dict[str, float]:
     }
 
 
+@pytest.mark.slow
 def test_the_model_declares_millimetres_and_square_metres_and_validates(run) -> None:
     from jointseg.objects.ifc import validation_errors
 

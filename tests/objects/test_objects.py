@@ -40,6 +40,7 @@ def judged() -> list[tuple[Scan, object, object]]:
     return out
 
 
+@pytest.mark.slow
 def test_rooms_have_their_true_floor_area_and_ceiling_height(judged: list) -> None:
     for _, plan, layout in judged:
         rooms = layout.report.rooms
@@ -91,6 +92,7 @@ def test_every_wall_and_door_is_found(judged: list) -> None:
         assert np.allclose(found, true, atol=0.1), (found, true)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [30, 38, 39])
 def test_open_doors_and_hidden_corners(seed: int) -> None:
     """Rooms never tuned on: open doors (their far casing parted from the leaf, or unseen:
@@ -122,6 +124,7 @@ def test_trims_proud_of_a_door_leaf_are_not_its_width() -> None:
     assert inside_trims(u[ends], np.full(ends.sum(), -0.04), -0.52, 0.52) is None
 
 
+@pytest.mark.slow
 def test_a_three_room_floor_splits_into_its_rooms_and_corridor(floor22: Scan) -> None:
     scan = floor22
     truth = sorted(s.area for s in floor_layout(22, rooms=3).spaces)
@@ -131,6 +134,7 @@ def test_a_three_room_floor_splits_into_its_rooms_and_corridor(floor22: Scan) ->
     assert np.allclose(areas, truth, rtol=0.03), (areas, truth)
 
 
+@pytest.mark.slow
 def test_a_corridor_narrower_than_a_double_door_stays_a_room() -> None:
     """floor21's corridor is 1.91 m wide, wider than no door gap the walls close (1.9 m):
     its two sides must not be closed into one wall."""
@@ -174,6 +178,7 @@ def test_bad_input_gives_empty_sections_and_a_reason() -> None:
     assert no_walls.reason
 
 
+@pytest.mark.slow
 def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(
     tmp_path: Path, floor22: Scan
 ) -> None:
@@ -197,6 +202,7 @@ def test_the_ifc_model_validates_and_reads_back_with_the_layouts_counts(
     assert model.by_type("IfcProject") and model.by_type("IfcBuildingStorey")
 
 
+@pytest.mark.slow
 def test_segment_writes_objects_and_ifc_and_objects_rederives_them(tmp_path: Path) -> None:
     from jointseg.io import read_scan, write_scan
 
@@ -233,6 +239,7 @@ def test_segment_writes_objects_and_ifc_and_objects_rederives_them(tmp_path: Pat
     assert not (tmp_path / "bad.json").exists()
 
 
+@pytest.mark.slow
 def test_a_tiled_run_finds_the_same_rooms_and_keeps_objects_whole(tmp_path: Path) -> None:
     """A tiled run's objects and rooms equal those found on its own labels all at once: the
     voxel pass loses nothing, and tile borders cut no object."""

@@ -59,6 +59,7 @@ def test_scannet_objects_from_true_labels_reach_the_bar() -> None:
         assert f1(*counts)[2] >= 0.7, (c, counts)
 
 
+@pytest.mark.slow
 @needs_area6
 def test_the_ifc_model_of_a_segmented_real_scan_validates_and_matches_objects_json(
     tmp_path: Path,

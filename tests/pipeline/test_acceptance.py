@@ -11,10 +11,13 @@ from jointseg.network.registry import REGISTRY
 from jointseg.pipeline import PipelineConfig, load_predictor, run
 from jointseg.synth import make_room
 
-pytestmark = pytest.mark.skipif(
-    not REGISTRY["randlanet"].bundled.is_file(),
-    reason=f"no bundled weights at {REGISTRY['randlanet'].bundled}",
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not REGISTRY["randlanet"].bundled.is_file(),
+        reason=f"no bundled weights at {REGISTRY['randlanet'].bundled}",
+    ),
+    pytest.mark.slow,  # the whole method on held-out rooms of 100 k points
+]
 
 
 def test_default_fusion_gains_on_held_out_rooms_and_never_loses() -> None:

@@ -27,10 +27,13 @@ from jointseg.pipeline import PipelineConfig, load_predictor, run
 from jointseg.synth import room_mesh, write_room_mesh
 from jointseg.synth.export import Z_UP_TO_Y_UP
 
-pytestmark = pytest.mark.skipif(
-    not REGISTRY["randlanet"].bundled.is_file(),
-    reason=f"no bundled weights at {REGISTRY['randlanet'].bundled}",
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not REGISTRY["randlanet"].bundled.is_file(),
+        reason=f"no bundled weights at {REGISTRY['randlanet'].bundled}",
+    ),
+    pytest.mark.slow,  # meshes sampled and segmented end to end: not for `make test-fast`
+]
 
 #: A small office (3.8 x 4.5 m): its mesh samples to about 0.8 M points at the default spacing.
 SEED = 22

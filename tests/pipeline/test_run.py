@@ -43,6 +43,7 @@ def result(room, config):
     return run(room, config)
 
 
+@pytest.mark.slow
 def test_run_returns_every_stage_metrics_and_resolved_params(room, result) -> None:
     n = len(room)
     assert result.network_labels.shape == (n,) and result.network_probs.shape == (n, 13)
@@ -66,6 +67,7 @@ def test_run_returns_every_stage_metrics_and_resolved_params(room, result) -> No
     np.testing.assert_array_equal(again.labels, result.fused_labels)
 
 
+@pytest.mark.slow
 def test_concurrent_and_sequential_runs_agree(room, config, result) -> None:
     sequential = run(room, config.model_copy(update={"concurrent": False}))
     np.testing.assert_array_equal(sequential.network_labels, result.network_labels)
@@ -95,6 +97,7 @@ def test_scan_without_ground_truth_has_no_metrics(room, config) -> None:
     assert report_body(unlabelled, result)["metrics"] is None
 
 
+@pytest.mark.slow
 def test_progress_reaches_every_stage(room, config) -> None:
     predictor = load_predictor(config.network)
     calls: list[tuple[str, float]] = []

@@ -18,6 +18,9 @@ from jointseg.pipeline.tiled.store import prepare
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
 
+#: a floor segmented tiled and untiled (module fixtures), and the CLI: not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 POINTS = 160_000
 TILE_POINTS = 50_000
 

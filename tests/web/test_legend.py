@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from jointseg.classes import CLASS_NAMES, PALETTE
 from web.legend import class_title, iou_html, legend_html, present_classes
@@ -30,6 +31,7 @@ def test_legend_lists_present_classes_with_palette_and_counts() -> None:
     assert class_title(-1) == "unlabelled" and class_title(0) == "ceiling"
 
 
+@pytest.mark.slow
 def test_iou_table_from_a_real_report(results: Path) -> None:
     report = json.loads((results / "labelled.report.json").read_text())
     html = iou_html(report)

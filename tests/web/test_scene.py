@@ -189,6 +189,7 @@ def test_scene_cache_is_bounded_and_reloads_changed_files(results: Path, tmp_pat
     assert cache.load(copy) is not first
 
 
+@pytest.mark.slow
 def test_a_y_up_millimetre_result_is_shown_levelled_in_metres(tmp_path: Path) -> None:
     from jointseg.pipeline import PipelineConfig, segment_file
     from jointseg.pipeline.stages import load_predictor
