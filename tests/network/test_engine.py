@@ -35,13 +35,15 @@ from jointseg.network.registry import load
 from jointseg.synth import make_room
 
 room = make_room(21, points=60_000)
-plain = load("randlanet")
 fast = load("randlanet", params=RandLANetParams(engine="openvino"))
-a, b = plain.predict(room, seed=0), fast.predict(room, seed=0)
-print(json.dumps({"engines": [plain.engine, fast.engine],
-                  "agree": float((a.labels == b.labels).mean()),
-                  "max_prob_diff": float(np.abs(a.probs - b.probs).max()),
-                  "labels": b.labels[::97].tolist()}))
+b = fast.predict(room, seed=0)
+out = {"engines": [fast.engine], "labels": b.labels[::97].tolist()}
+if sys.argv[1:] != ["again"]:  # the second process only reads the cached export
+    plain = load("randlanet")
+    a = plain.predict(room, seed=0)
+    out.update(engines=[plain.engine, fast.engine], agree=float((a.labels == b.labels).mean()),
+               max_prob_diff=float(np.abs(a.probs - b.probs).max()))
+print(json.dumps(out))
 """
 
 SHAPES_BEYOND = """
@@ -92,6 +94,7 @@ def in_child(code: str, cache: Path, *args: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) -> None:
     first = in_child(SAME_LABELS, tmp_path)
     assert first["engines"] == ["torch", "openvino"]
@@ -100,11 +103,12 @@ def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) ->
     exports = sorted((tmp_path / "openvino").glob("randlanet-*.onnx"))
     assert len(exports) == 1  # every crop of the room has the one shape
     stamp = exports[0].stat().st_mtime_ns
-    again = in_child(SAME_LABELS, tmp_path)
-    assert again["labels"] == first["labels"]
+    again = in_child(SAME_LABELS, tmp_path, "again")  # no torch run: its labels are known
+    assert again["engines"] == ["openvino"] and again["labels"] == first["labels"]
     assert exports[0].stat().st_mtime_ns == stamp  # read from the cache, not exported again
 
 
+@pytest.mark.slow
 def test_shapes_beyond_the_compiled_ones_run_on_torch(tmp_path) -> None:
     out = in_child(SHAPES_BEYOND, tmp_path, str(tmp_path / "ov"))
     assert out == {"same": True, "exports": 0}  # torch's own output, nothing compiled
@@ -119,6 +123,7 @@ def test_the_engine_is_torch_on_a_gpu_and_refused_when_missing(monkeypatch) -> N
     assert net.engine == "torch"
 
 
+@pytest.mark.slow
 def test_the_torch_engine_never_loads_openvino(tmp_path: Path) -> None:
     """A default run must not load OpenVINO: its thread pools do not survive a fork (another
     test in this process may have loaded it through torch's compiler backends, so this is
