@@ -88,3 +88,64 @@ def test_the_ifc_model_of_a_segmented_real_scan_validates_and_matches_objects_js
     assert counts["IfcWindow"] == kinds.count("window")
     furniture = sum(kinds.count(k) for k in ("table", "chair", "sofa", "bookcase"))
     assert counts["IfcFurniture"] == furniture > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "path",
+    [
+        pytest.param(AREA6 / "area6_office_1.ply", marks=needs_area6, id="s3dis_office_1"),
+        pytest.param(SCANNET / "scene0002_00.ply", marks=needs_scannet, id="scannet_0002_00"),
+    ],
+)
+def test_real_scans_ifc_quantities_in_metres_and_las_classes_where_tools_look(
+    path: Path, tmp_path: Path
+) -> None:
+    """Issue 45 on real scans: the IFC's door, window and space quantities read back in metres
+    within 1 mm of objects.json; the LAZ result's classification is 64 + the fused class on
+    every point, the input's own labels kept in ``input_classification``."""
+    import ifcopenshell
+    import laspy
+    from ifcopenshell.util.element import get_psets
+    from ifcopenshell.util.unit import calculate_unit_scale
+
+    out = tmp_path / "result.laz"
+    run = subprocess.run(
+        [JOINTSEG, "segment", str(path), "-o", str(out), "--objects",
+         str(tmp_path / "objects.json"), "--ifc", str(tmp_path / "model.ifc")],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    body = json.loads((tmp_path / "objects.json").read_text())
+    model = ifcopenshell.open(str(tmp_path / "model.ifc"))
+    metre = float(calculate_unit_scale(model, "LENGTHUNIT"))
+    assert metre == 0.001  # the model declares millimetres: every length must be scaled
+    boxes = {o["id"]: o for o in body["objects"]}
+    openings = {o["object"]: o for w in body["walls"] for o in w["openings"]}
+    checked = 0
+    for ifc_class in ("IfcDoor", "IfcWindow"):
+        for entity in model.by_type(ifc_class):
+            obj = boxes[int(entity.Name.split()[-1])]
+            record = openings.get(obj["id"])
+            width, height = (
+                (record["width"], record["height"]) if record else (max(obj["size"][:2]),
+                                                                     obj["size"][2])
+            )  # fmt: skip
+            assert entity.OverallWidth * metre == pytest.approx(width, abs=1e-3)
+            assert entity.OverallHeight * metre == pytest.approx(height, abs=1e-3)
+            checked += 1
+    spaces = {s.Name: s for s in model.by_type("IfcSpace")}
+    for room in body["rooms"]:
+        qto = get_psets(spaces[room["name"]], qtos_only=True)["Qto_SpaceBaseQuantities"]
+        assert qto["NetFloorArea"] == pytest.approx(room["floor_area"], abs=1e-3)
+        if room["ceiling_height"] is not None:
+            assert qto["Height"] * metre == pytest.approx(room["ceiling_height"], abs=1e-3)
+        checked += 1
+    assert checked >= 2 and spaces
+    las = laspy.read(out)
+    fused = np.asarray(las["fused_label"], dtype=np.int64)
+    assert np.array_equal(np.asarray(las.classification, dtype=np.int64), 64 + fused)
+    source = read_scan(path)
+    assert source.labels is not None
+    kept = np.asarray(las["input_classification"], dtype=np.int64)
+    assert np.array_equal(kept, np.where(source.labels < 0, 255, source.labels))
