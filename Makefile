@@ -53,7 +53,9 @@ docs-build: setup
 docs: setup
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs serve --dev-addr 127.0.0.1:8001
 
-test: lint pytest docs-build
+# the suite builds the site itself (tests/docs/test_site.py: mkdocs build --strict), so the
+# docs-build target is not run a second time here
+test: lint pytest
 
 # the prepared GPU run (docs/guide/gpu.md): gpu-pack here (wheels for the GPU machine's Python and
 # the training data, into the ignored .gpu/), then on the lent machine, with .gpu carried:
