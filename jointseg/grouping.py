@@ -143,6 +143,36 @@ def group_sums(group: np.ndarray, n_groups: int, values: np.ndarray) -> np.ndarr
     )
 
 
+def group_quantiles(
+    group: np.ndarray, n_groups: int, values: np.ndarray, qs: tuple[float, ...]
+) -> list[np.ndarray]:
+    """Per-group quantiles of ``values`` from one sort: for each ``q`` of ``qs``, the lower
+    element at ``q`` of each group's sorted values (NaN for an empty group).
+
+    Parameters
+    ----------
+    group : ndarray of shape (N,), int
+        Group 0..n_groups-1 of every value.
+    n_groups : int
+    values : ndarray of shape (N,)
+    qs : tuple of float in [0, 1]
+
+    Returns
+    -------
+    list of ndarray of shape (n_groups,), one per ``q``
+    """
+    counts = np.bincount(group, minlength=n_groups)
+    if len(values) == 0:
+        return [np.full(n_groups, np.nan) for _ in qs]
+    ordered = values[np.lexsort((values, group))]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = []
+    for q in qs:
+        pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
+        out.append(np.where(counts > 0, ordered[np.minimum(pos, len(values) - 1)], np.nan))
+    return out
+
+
 def label_histogram(
     group: np.ndarray,
     n_groups: int,

@@ -221,3 +221,22 @@ def test_callers_agree_with_the_kernel() -> None:
     per_segment = _naive_majority(seg.tolist(), int(seg.max()) + 1, labels.tolist())
     assert oracle.tolist() == [per_segment[s] for s in seg]
     assert oracle.dtype == np.int32
+
+
+def test_group_quantiles_are_each_groups_lower_quantile_and_nan_when_empty() -> None:
+    from jointseg.grouping import group_quantiles
+
+    rng = np.random.default_rng(4)
+    group = rng.integers(0, 5, 2000)
+    group[group == 3] = 4  # group 3 is empty
+    values = rng.normal(size=2000)
+    low, mid, high = group_quantiles(group, 6, values, (0.02, 0.5, 0.98))
+    for g in range(6):
+        mine = values[group == g]
+        got = [low[g], mid[g], high[g]]
+        if mine.size == 0:
+            assert np.isnan(got).all()
+        else:
+            want = np.quantile(mine, [0.02, 0.5, 0.98], method="lower")
+            assert np.allclose(got, want)
+    assert all(np.isnan(q).all() for q in group_quantiles(group[:0], 2, values[:0], (0.5,)))

@@ -17,6 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from jointseg.classes import CLASS_INDEX
+from jointseg.grouping import group_quantiles
 
 DOOR = CLASS_INDEX["door"]
 #: Side (m) of the cells that join door points into one door.
@@ -79,15 +80,5 @@ def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ..
     lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
     np.minimum.at(lo, group, along)
     np.maximum.at(hi, group, along)
-    zlo, zhi = _quantiles(xyz[:, 2], group, n, 0.02), _quantiles(xyz[:, 2], group, n, 0.98)
+    zlo, zhi = group_quantiles(group, n, xyz[:, 2], (0.02, 0.98))
     return hi - lo, zhi - zlo, zlo, count
-
-
-def _quantiles(values: np.ndarray, group: np.ndarray, n: int, q: float) -> np.ndarray:
-    """Per group, the ``q`` quantile of ``values`` (lower element; inf for an empty group)."""
-    order = np.lexsort((values, group))
-    counts = np.bincount(group, minlength=n)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
-    picked = values[order][np.minimum(pos, max(len(values) - 1, 0))]
-    return np.where(counts > 0, picked, np.inf)

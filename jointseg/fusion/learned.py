@@ -36,6 +36,7 @@ from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion.fixtures import implausible_doors
 from jointseg.fusion.guard import segment_cells
+from jointseg.geometry.structure import floor_level
 from jointseg.grouping import group_sums, label_histogram, majority_label
 
 #: The model shipped with the library.
@@ -214,15 +215,6 @@ def _pick_offers(
     return point, offer, from_segment, only_structure
 
 
-def _floor_level(structure: StructureHint | None, xyz: np.ndarray) -> float | None:
-    """The floor level the structure reading found (median height of its floor points), or
-    None without one."""
-    if structure is None:
-        return None
-    floor = np.asarray(structure.kind) == CLASS_INDEX["floor"]
-    return float(np.median(xyz[floor, 2])) if floor.sum() >= 50 else None
-
-
 def _structure_columns(
     structure: StructureHint | None,
     point: np.ndarray,
@@ -235,7 +227,8 @@ def _structure_columns(
     """The structure reading's features of each offer: how sure it is of the offer and of
     the point's own label, whether only it makes the offer, whether the own label is a wall
     fixture of a believable size (:func:`implausible_doors`)."""
-    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels, _floor_level(structure, xyz))
+    floor_z = None if structure is None else floor_level(xyz[:, 2], structure.kind)
+    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels, floor_z)
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)

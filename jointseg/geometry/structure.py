@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jointseg.classes import CLASS_INDEX
+from jointseg.grouping import group_quantiles
 
 FLOOR, CEILING, WALL = CLASS_INDEX["floor"], CLASS_INDEX["ceiling"], CLASS_INDEX["wall"]
 #: A surface is horizontal (vertical) when its normal is within this of vertical (horizontal).
@@ -75,6 +76,18 @@ AREA_CELL = 0.1
 #: Points sampled for the height ranges and the behind-the-wall counts.
 SAMPLE = 200_000
 BEHIND_SAMPLE = 30_000
+
+
+#: The least points read as floor before they set the floor level.
+MIN_FLOOR_POINTS = 50
+
+
+def floor_level(z: np.ndarray, kind: np.ndarray) -> float | None:
+    """The floor level a structure reading gives (``kind``: per point, as
+    :meth:`Structure.point_kind`): the median height of the points read as floor, or None with
+    fewer than :data:`MIN_FLOOR_POINTS` (a tile or scan that shows too little floor)."""
+    floor = np.asarray(z)[np.asarray(kind) == FLOOR]
+    return float(np.median(floor)) if floor.size >= MIN_FLOOR_POINTS else None
 
 
 @dataclass(frozen=True)
@@ -160,25 +173,10 @@ def _fits(xyz: np.ndarray, seg: np.ndarray, n_seg: int) -> tuple[np.ndarray, ...
     return count, mean + origin, normal, thickness, cov
 
 
-def _quantiles(
-    values: np.ndarray, seg: np.ndarray, n_seg: int, qs: tuple[float, ...]
-) -> list[np.ndarray]:
-    """Per-segment quantiles of ``values`` (NaN for an empty segment), one sort."""
-    order = np.lexsort((values, seg))
-    counts = np.bincount(seg, minlength=n_seg)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    out = []
-    for q in qs:
-        pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
-        vals = values[order][np.minimum(pos, len(values) - 1)] if len(values) else pos * 0.0
-        out.append(np.where(counts > 0, vals, np.nan))
-    return out
-
-
 def _summarise(xyz: np.ndarray, seg: np.ndarray, n_seg: int, rng: np.random.Generator) -> _Segments:
     count, centre, normal, thickness, cov = _fits(xyz, seg, n_seg)
     pick = rng.choice(len(xyz), SAMPLE, replace=False) if len(xyz) > SAMPLE else slice(None)
-    z_low, z_high = _quantiles(xyz[pick, 2], seg[pick], n_seg, (0.02, 0.98))
+    z_low, z_high = group_quantiles(seg[pick], n_seg, xyz[pick, 2], (0.02, 0.98))
     # length along the floor, across the normal: a uniform spread of variance v spans sqrt(12 v)
     along = np.column_stack([-normal[:, 1], normal[:, 0], np.zeros(n_seg)])
     along /= np.maximum(np.linalg.norm(along, axis=1), 1e-9)[:, None]

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from jointseg.geometry.structure import MIN_FLOOR_POINTS, floor_level
 from jointseg.objects.params import CEILING, DOOR, FLOOR, WALL, ObjectParams
 
 #: Furniture lower than this above the floor hides floor under it.
@@ -64,9 +65,9 @@ class RoomGrid:
         return out
 
 
-#: The least points of a structure reading's floor (ceiling) before it sets the floor level
-#: (a room's ceiling height).
-MIN_FLOOR_POINTS, MIN_CEILING_POINTS = 50, 20
+#: The least points of a structure reading's ceiling before it sets a room's ceiling height
+#: (its floor: MIN_FLOOR_POINTS, jointseg.geometry.structure's).
+MIN_CEILING_POINTS = 20
 
 
 def floor_height(
@@ -75,9 +76,9 @@ def floor_height(
     """Median height of the geometry's floor planes (``structure``) where it read at least 50
     floor points, else of the points labelled floor; None with fewer than 50 of either."""
     if structure is not None:
-        planes = z[structure == FLOOR]
-        if planes.size >= MIN_FLOOR_POINTS:
-            return float(np.median(planes))
+        level = floor_level(z, structure)
+        if level is not None:
+            return level
     floor = z[labels == FLOOR]
     return float(np.median(floor)) if floor.size >= MIN_FLOOR_POINTS else None
 
