@@ -246,7 +246,7 @@ def room_row(item: Item, out: dict[str, np.ndarray]) -> str:
     g = geometry_output("default", item)
     height, seen = true_rooms(item.scan)
     assert item.scan.labels is not None
-    _, area = layout_rooms(item, item.scan.labels, g.get("structure"))
+    _, area = layout_rooms(item, item.scan.labels, None)  # the truth's own walls
     h0, a0 = layout_rooms(item, out["before"], None)
     h1, a1 = layout_rooms(item, out["after"], g.get("structure"))
 

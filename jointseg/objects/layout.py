@@ -20,7 +20,14 @@ from jointseg.objects.openings import add_openings
 from jointseg.objects.outline import fit_to_walls, room_outline
 from jointseg.objects.params import DOOR, WALL, ObjectParams
 from jointseg.objects.records import LayoutReport, ObjectRecord, RoomRecord, user_coords, vec
-from jointseg.objects.rooms import RoomGrid, ceiling_heights, floor_height, room_areas, room_grid
+from jointseg.objects.rooms import (
+    RoomGrid,
+    ceiling_heights,
+    floor_height,
+    plan_labels,
+    room_areas,
+    room_grid,
+)
 from jointseg.objects.shapes import fits_class
 from jointseg.objects.walls import join_door_pieces, wall_faces, wall_records
 
@@ -62,7 +69,8 @@ def find_layout(
         The geometry's structure reading per point (floor, ceiling or wall class, -1 for
         none; ``GeometryResult.structure``): the floor level and the rooms' ceiling heights
         come from its floor and ceiling planes where it has them, so they hold where the
-        labels are poor; default: from the labels alone.
+        labels are poor, and the floor plan is cut only by the wall points it reads as wall
+        (furniture voted wall cuts no room in two); default: from the labels alone.
     """
     params = params or ObjectParams()
     matrix = np.eye(4) if to_user is None else np.asarray(to_user, dtype=np.float64)
@@ -81,7 +89,7 @@ def find_layout(
         report.reason = "no floor found (fewer than 50 floor points): no rooms, no heights"
         report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, None, None)
         return Layout(instances, report)
-    grid = room_grid(xyz, labels, yaw, floor_z, params, barrier_normals)
+    grid = _plan(xyz, labels, structure, yaw, floor_z, params, spacing, barrier_normals)
     report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, floor_z, grid)
     if grid.labels.size == 0 or grid.labels.max() < 0:
         report.reason = "no room found: the floor is not closed by walls into any region"
@@ -105,6 +113,24 @@ def find_layout(
     if not report.walls:
         report.reason = "no wall plane long enough was found"
     return Layout(instances, report)
+
+
+def _plan(
+    xyz: np.ndarray,
+    labels: np.ndarray,
+    structure: np.ndarray | None,
+    yaw: float,
+    floor_z: float,
+    params: ObjectParams,
+    spacing: float,
+    barrier_normals: np.ndarray | None,
+) -> RoomGrid:
+    """The rooms' grid, cut by the walls the structure reading confirms (``plan_labels``)."""
+    cut = plan_labels(labels, structure)
+    if cut is not labels and barrier_normals is not None:
+        barrier = (cut == WALL) | (cut == DOOR)
+        barrier_normals = point_normals(xyz[barrier], spacing) if barrier.sum() >= 10 else None
+    return room_grid(xyz, cut, yaw, floor_z, params, barrier_normals)
 
 
 def _objects(

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 #: Classes whose points form objects (S3DIS order): beam, column, window, door, table, chair,
 #: sofa, bookcase, board, clutter. Ceiling, floor and wall are structure.
 THING_CLASSES: tuple[int, ...] = (3, 4, 5, 6, 7, 8, 9, 10, 11, 12)
-CEILING, FLOOR, WALL, WINDOW, DOOR = 0, 1, 2, 5, 6
+CEILING, FLOOR, WALL, WINDOW, DOOR, CLUTTER = 0, 1, 2, 5, 6, 12
 
 
 class ObjectParams(BaseModel):

@@ -13,9 +13,10 @@ from jointseg.geometry.structure import CEILING, FLOOR, WALL, read_structure
 from jointseg.scan import Scan
 from jointseg.synth import make_room
 
-#: Classes that lie in a wall's plane: reading them as wall is the geometry's honest view (the
-#: vote keeps their labels where the network sees them).
-IN_WALL = [CLASS_INDEX[c] for c in ("wall", "window", "door", "board", "column")]
+#: Classes that lie in or against a wall's plane, the wall and its fixtures as the vote knows
+#: them (a beam's side is as vertical as the wall above which it runs): reading them as wall is
+#: the geometry's honest view (the vote keeps their labels where the network sees them).
+IN_WALL = [CLASS_INDEX[c] for c in ("wall", "window", "door", "board", "column", "beam")]
 FURNITURE = [CLASS_INDEX[c] for c in ("table", "chair", "sofa", "bookcase")]
 
 

@@ -279,3 +279,28 @@ def test_a_tiled_run_finds_the_same_rooms_and_keeps_objects_whole(tmp_path: Path
         theirs = theirs[theirs >= 0]
         whole += bool(theirs.size) and np.bincount(theirs).max() >= 0.9 * (a == obj).sum()
     assert whole >= 0.85 * big.size, (whole, big.size)
+
+
+def test_furniture_voted_wall_cuts_no_room_where_the_reading_sees_no_wall() -> None:
+    """A tall thing across the room that the labels call wall (a wardrobe row, clutter voted
+    wall on ScanNet) cuts the room in two from the labels alone; with the structure reading,
+    which does not read it as wall, the room stays whole at its true area."""
+    from jointseg.geometry import segment
+
+    seed = 13
+    scan = make_room(seed, points=120_000, shape="box")
+    reading = segment(scan, seed=0).structure
+    assert scan.labels is not None and reading is not None
+    truth = room_layout(seed, shape="box").spaces[0].area
+    floor_z = float(np.median(scan.xyz[scan.labels == 1, 2]))
+    lo, hi = np.quantile(scan.xyz[:, :2], [0.01, 0.99], axis=0)
+    y, z = np.meshgrid(np.arange(lo[1], hi[1], 0.03), np.arange(0.05, 2.0, 0.03))
+    slab = np.c_[np.full(y.size, (lo[0] + hi[0]) / 2), y.ravel(), floor_z + z.ravel()]
+    xyz = np.vstack([scan.xyz, slab]).astype(np.float32)
+    labels = np.r_[scan.labels, np.full(len(slab), 2)]
+    structure = np.r_[reading, np.full(len(slab), -1)]
+    spacing = estimate_spacing(scan.xyz)
+    cut = find_layout(xyz, labels, None, spacing).report.rooms
+    whole = find_layout(xyz, labels, None, spacing, structure=structure).report.rooms
+    assert len(cut) == 2 or sum(r.floor_area for r in cut) < 0.9 * truth, cut
+    assert len(whole) == 1 and abs(whole[0].floor_area - truth) <= 0.03 * truth, whole
