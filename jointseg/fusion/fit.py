@@ -44,10 +44,20 @@ from jointseg.fusion.learned import DEFAULT_CELL_SIZE, FEATURES, Offers, Structu
 log = logging.getLogger(__name__)
 
 #: How a labeller's probabilities are deliberately distorted (see :func:`distort`).
-Distortion = Literal["biased", "overconfident", "underconfident"]
+Distortion = Literal["biased", "overconfident", "underconfident", "lost"]
 #: Class confusions a biased network makes (from -> to; 60 % of the first class's probability
 #: moves to the second): furniture swapped, objects taken for the wall behind them.
 BIAS = ((7, 8), (8, 7), (11, 2), (5, 2), (10, 12), (6, 2))
+#: What a network lost on a sensor it never saw takes the room's shell for (issue 43): from a
+#: structural class to one of the classes it is confused with, chosen per LOST_CELL-metre cell
+#: of the floor plan, so that whole wall stretches and floor patches are wrong alike.
+LOST = {
+    2: (12, 10, 6, 4, 5, 12),  # wall: clutter (twice as often), bookcase, door, column, window
+    1: (8, 7, 12),  # floor: chair, table, clutter
+    0: (12, 3),  # ceiling: clutter, beam
+}
+#: Share of a structural class's probability the lost network moves, and its cell size.
+LOST_SHARE, LOST_CELL = 0.7, 5.0
 
 
 class Labeller(BaseModel):
@@ -149,11 +159,16 @@ def read_plan(path: Path, **overrides: object) -> VotePlan:
     return plan
 
 
-def distort(probs: np.ndarray, kind: str) -> np.ndarray:
+def distort(probs: np.ndarray, kind: str, xyz: np.ndarray | None = None) -> np.ndarray:
     """Probabilities of a deliberately different network: 'biased' (the confusions of BIAS),
-    'overconfident' (temperature 0.5) or 'underconfident' (temperature 2)."""
+    'overconfident' (temperature 0.5), 'underconfident' (temperature 2) or 'lost' (the shell
+    taken for furniture and objects, see LOST; needs the points ``xyz``)."""
     p = probs.astype(np.float64)
-    if kind == "biased":
+    if kind == "lost":
+        if xyz is None:
+            raise ValueError("the 'lost' distortion needs the points")
+        p = lost(p, xyz)
+    elif kind == "biased":
         for a, b in BIAS:
             moved = 0.6 * p[:, a]
             p[:, a] -= moved
@@ -163,6 +178,21 @@ def distort(probs: np.ndarray, kind: str) -> np.ndarray:
     else:
         raise ValueError(f"unknown distortion {kind!r}")
     return (p / p.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def lost(p: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """LOST's confusions: in every plan cell, each structural class hands LOST_SHARE of its
+    probability to the confused class that cell draws (a fixed hash of the cell, so the same
+    scan is distorted the same way every time)."""
+    cell = np.floor(xyz[:, :2] / LOST_CELL).astype(np.int64)
+    draw = (cell[:, 0] * 73_856_093) ^ (cell[:, 1] * 19_349_663)
+    p = p.copy()
+    for source, targets in LOST.items():
+        target = np.asarray(targets)[np.abs(draw) % len(targets)]
+        moved = LOST_SHARE * p[:, source]
+        p[:, source] -= moved
+        np.add.at(p, (np.arange(len(p)), target), moved)
+    return p
 
 
 def structure_hint(geo: dict[str, np.ndarray]) -> StructureHint | None:
@@ -208,7 +238,7 @@ def load_room(item: TuningScan, who: Labeller, spec: str, sources: Sources, plan
     and only where it or the network's label is right (elsewhere neither choice helps)."""
     labels, probs = network_output(spec, item, sources.predictors, sources.cache)
     if who.distortion:
-        probs = distort(probs, who.distortion)
+        probs = distort(probs, who.distortion, item.scan.xyz)
         labels = probs.argmax(axis=1)
     g = geometry_output(item, cache=sources.cache)
     seg = g["segments"].astype(np.int64)

@@ -17,7 +17,18 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.fitting.provenance import Provenance, fit_record, write_model
-from jointseg.fusion.fit import BIAS, Loaded, Room, Sources, TreeParams, VotePlan, load_rooms
+from jointseg.fusion.fit import (
+    BIAS,
+    LOST,
+    LOST_CELL,
+    LOST_SHARE,
+    Loaded,
+    Room,
+    Sources,
+    TreeParams,
+    VotePlan,
+    load_rooms,
+)
 from jointseg.fusion.learned import FEATURES
 
 #: OpenMP threads the trees are fitted on: one, so that no sum depends on the machine.
@@ -130,7 +141,9 @@ def card(plan: VotePlan, loaded: Loaded) -> dict[str, Any]:
                 for d in plan.datasets
             },
             "distortions": f"biased: 60 % of a class's probability moved to a confused class "
-            f"for {list(BIAS)}; over/underconfident: temperature 0.5 / 2"
+            f"for {list(BIAS)}; over/underconfident: temperature 0.5 / 2; lost: "
+            f"{LOST_SHARE:.0%} of a structural class's probability moved to a confused class "
+            f"drawn per {LOST_CELL:g} m plan cell from {LOST}"
             if any("+" in n for n in names)
             else "none",
             "geometry": "GeometryParams() defaults",

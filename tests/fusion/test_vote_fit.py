@@ -227,3 +227,33 @@ def test_without_scikit_learn_the_fit_says_which_extra_to_install(
     with pytest.raises(ConfigError, match=r"pip install 'jointseg\[fit\]'"):
         fit_vote(read_plan(inputs / "plan.json"), inputs, tmp_path / "m.json", command="test")
     assert not (tmp_path / "m.json").exists()
+
+
+def test_the_lost_distortion_takes_the_shell_for_objects_stretch_by_stretch() -> None:
+    """'lost' (a network on a sensor it never saw) moves walls, floor and ceiling to classes
+    they are confused with, the same class over a whole plan cell and other classes alike in
+    other cells, the same way every time; what is not structure keeps its label."""
+    from jointseg.fusion.fit import LOST, LOST_CELL, distort
+
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(0, 10, (6000, 3))
+    truth = rng.integers(0, 13, len(xyz))
+    probs = np.full((len(xyz), 13), 0.1 / 12, np.float32)
+    probs[np.arange(len(xyz)), truth] = 0.9
+    lost = distort(probs, "lost", xyz)
+    again = distort(probs, "lost", xyz)
+    assert np.array_equal(lost, again)
+    assert np.allclose(lost.sum(axis=1), 1.0, atol=1e-5)
+    labels = lost.argmax(axis=1)
+    shell = np.isin(truth, list(LOST))
+    assert np.array_equal(labels[~shell], truth[~shell])
+    for source, targets in LOST.items():
+        rows = truth == source
+        assert set(np.unique(labels[rows])) <= set(targets), source
+        assert np.unique(labels[rows]).size >= 2  # stretch by stretch, not one class
+        cell = np.floor(xyz[rows, :2] / LOST_CELL).astype(np.int64)
+        key = cell[:, 0] * 1000 + cell[:, 1]
+        for k in np.unique(key)[:10]:
+            assert np.unique(labels[rows][key == k]).size == 1
+    with pytest.raises(ValueError, match="points"):
+        distort(probs, "lost")
