@@ -236,7 +236,7 @@ def test_the_lost_distortion_takes_the_shell_for_objects_stretch_by_stretch() ->
     from jointseg.fusion.fit import LOST, LOST_CELL, distort
 
     rng = np.random.default_rng(0)
-    xyz = rng.uniform(0, 10, (6000, 3))
+    xyz = rng.uniform(0, 40, (20_000, 3))  # 64 plan cells
     truth = rng.integers(0, 13, len(xyz))
     probs = np.full((len(xyz), 13), 0.1 / 12, np.float32)
     probs[np.arange(len(xyz)), truth] = 0.9
