@@ -37,8 +37,9 @@ lint: setup
 	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks scripts
 	$(BIN)/mypy
 
+# the 20 slowest tests at the end: where the suite's time goes (docs/contributing.md)
 pytest: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=20
 
 # the unit tests only, under 3 minutes on 2 cores: no chromium, no service processes or
 # databases, nothing marked slow (pyproject.toml's markers; docs/contributing.md)
