@@ -89,7 +89,7 @@ def find_layout(
         report.reason = "no floor found (fewer than 50 floor points): no rooms, no heights"
         report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, None, None)
         return Layout(instances, report)
-    grid = _plan(xyz, labels, structure, yaw, floor_z, params, spacing, barrier_normals)
+    grid = _plan(xyz, labels, structure, yaw, floor_z, params, barrier, barrier_normals)
     report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, floor_z, grid)
     if grid.labels.size == 0 or grid.labels.max() < 0:
         report.reason = "no room found: the floor is not closed by walls into any region"
@@ -122,14 +122,15 @@ def _plan(
     yaw: float,
     floor_z: float,
     params: ObjectParams,
-    spacing: float,
+    barrier: np.ndarray,
     barrier_normals: np.ndarray | None,
 ) -> RoomGrid:
-    """The rooms' grid, cut by the walls the structure reading confirms (``plan_labels``)."""
+    """The rooms' grid, cut by the walls the structure reading confirms (``plan_labels``):
+    their normals are those of ``barrier``'s points (wall and door labels), of which the
+    confirmed walls and the doors are a subset."""
     cut = plan_labels(labels, structure)
-    if cut is not labels and barrier_normals is not None:
-        barrier = (cut == WALL) | (cut == DOOR)
-        barrier_normals = point_normals(xyz[barrier], spacing) if barrier.sum() >= 10 else None
+    if barrier_normals is not None:
+        barrier_normals = barrier_normals[((cut == WALL) | (cut == DOOR))[barrier]]
     return room_grid(xyz, cut, yaw, floor_z, params, barrier_normals)
 
 
