@@ -26,7 +26,7 @@ from jointseg.fitting.scans import TuningScan, content_key
 #: out, RandLANetParams.absent_share), so no stale labels are reused.
 INFERENCE_VERSION = 3
 #: Part of every cached geometry output's key: bump it when the structure reading changes.
-STRUCTURE_VERSION = 7
+STRUCTURE_VERSION = 8
 
 #: A labeller that needs no network: the scan's own labels with patchy, confident mistakes
 #: (:func:`jointseg.synth.label_noise.corrupt_labels`), for tests and for measuring what a fit

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from jointseg.classes import CLASS_INDEX
 from jointseg.grouping import group_quantiles
 
-DOOR = CLASS_INDEX["door"]
+DOOR, COLUMN = CLASS_INDEX["door"], CLASS_INDEX["column"]
 #: Side (m) of the cells that join door points into one door.
 CELL = 0.1
 #: A door is at most this wide (m): a double door with its frame (S3DIS's widest, seen open,
@@ -34,6 +34,9 @@ MIN_HEIGHT = 1.0
 MAX_FOOT = 0.4
 #: Fewer door points than this are left alone (too few to measure).
 MIN_POINTS = 100
+#: A column (or a pilaster standing out of a wall) is at most this wide (m): S3DIS's, as the
+#: network finds them on the tuning rooms, span 0.7 to 1.05 m; a wider "column" is a wall.
+MAX_COLUMN_WIDTH = 1.2
 
 
 def implausible_doors(
@@ -47,13 +50,7 @@ def implausible_doors(
     idx = np.flatnonzero(np.asarray(labels) == DOOR)
     if len(idx) < MIN_POINTS:
         return out
-    cells = np.floor(np.asarray(xyz, dtype=np.float64)[idx] / CELL).astype(np.int64)
-    keys, cell_of = np.unique(cells, axis=0, return_inverse=True)
-    cell_of = cell_of.reshape(-1)
-    pairs = cKDTree(keys).query_pairs(np.sqrt(3) + 1e-6, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(keys),) * 2)
-    n_doors, door_of_cell = connected_components(graph, directed=False)
-    door = door_of_cell[cell_of]
+    door, n_doors = _pieces(xyz[idx])
     width, height, bottom, count = _extents(xyz[idx], door, n_doors)
     bad = (count >= MIN_POINTS) & (
         (width > MAX_WIDTH) | ((width > LOW_WIDTH) & (height < LOW_HEIGHT)) | (height < MIN_HEIGHT)
@@ -62,6 +59,31 @@ def implausible_doors(
         bad |= (count >= MIN_POINTS) & (bottom > floor_z + MAX_FOOT)
     out[idx[bad[door]]] = True
     return out
+
+
+def implausible_columns(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Points the network labelled column in "columns" wider than any column
+    (:data:`MAX_COLUMN_WIDTH`; bool, N): on other sensors the network calls stretches of wall
+    column, and the vote need not keep them. Columns are joined as doors are."""
+    out = np.zeros(len(labels), dtype=bool)
+    idx = np.flatnonzero(np.asarray(labels) == COLUMN)
+    if len(idx) < MIN_POINTS:
+        return out
+    column, n_columns = _pieces(xyz[idx])
+    width, _, _, count = _extents(xyz[idx], column, n_columns)
+    bad = (count >= MIN_POINTS) & (width > MAX_COLUMN_WIDTH)
+    out[idx[bad[column]]] = True
+    return out
+
+
+def _pieces(xyz: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected pieces of points: their occupied CELL cells, joined where they touch."""
+    cells = np.floor(np.asarray(xyz, dtype=np.float64) / CELL).astype(np.int64)
+    keys, cell_of = np.unique(cells, axis=0, return_inverse=True)
+    pairs = cKDTree(keys).query_pairs(np.sqrt(3) + 1e-6, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(keys),) * 2)
+    n, piece_of_cell = connected_components(graph, directed=False)
+    return piece_of_cell[cell_of.reshape(-1)], int(n)
 
 
 def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ...]:

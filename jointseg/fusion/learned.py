@@ -34,7 +34,7 @@ import numpy as np
 
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
-from jointseg.fusion.fixtures import implausible_doors
+from jointseg.fusion.fixtures import implausible_columns, implausible_doors
 from jointseg.fusion.guard import segment_cells
 from jointseg.geometry.structure import floor_level
 from jointseg.grouping import group_sums, label_histogram, majority_label
@@ -229,6 +229,7 @@ def _structure_columns(
     fixture of a believable size (:func:`implausible_doors`)."""
     floor_z = None if structure is None else floor_level(xyz[:, 2], structure.kind)
     fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels, floor_z)
+    fixture &= ~implausible_columns(xyz, labels)
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)

@@ -62,9 +62,13 @@ MIN_WALL_LENGTH = 0.4
 DOOR_LENGTH, DOOR_TOP, DOOR_FOOT = 1.3, 2.3, 0.15
 #: The least footprint (m²) of a piece of a ceiling.
 MIN_PIECE_AREA = 0.05
+#: The least points of a piece of a floor or ceiling level.
+MIN_PIECE_POINTS = 20
 #: A piece of a wall lies this close (m) to a read wall's plane, at most PIECE_REACH (m) beyond
-#: its ends, and has at least MIN_PIECE_POINTS points.
-PIECE_GAP, PIECE_REACH, MIN_PIECE_POINTS = 0.05, 1.0, 20
+#: its ends, has at least WALL_PIECE_POINTS points (of the voxelised scan), and is upright and
+#: parallel to the wall within PIECE_TILT_DEG: the small pieces an RGB-D reconstruction's
+#: colour and noise cut a wall into are neither quite flat nor quite in its plane.
+PIECE_GAP, PIECE_REACH, WALL_PIECE_POINTS, PIECE_TILT_DEG = 0.08, 1.0, 10, 25.0
 #: A plane bounds the scan when, behind it, there are at most this share of the points in front.
 BEHIND_SHARE = 0.08
 #: The points behind a plane are counted between these distances (m).
@@ -361,14 +365,15 @@ def _wall_pieces(
     """Walls seen only in part: smaller vertical segments in a read wall's plane, along its
     line (furniture, colour changes and holes cut a wall into pieces), read as wall with half
     that wall's confidence."""
-    pieces = np.flatnonzero(s.vertical & allowed & (kind < 0) & (s.count >= MIN_PIECE_POINTS))
+    upright = (np.abs(s.normal[:, 2]) <= np.sin(np.radians(PIECE_TILT_DEG))) & s.flat
+    pieces = np.flatnonzero(upright & allowed & (kind < 0) & (s.count >= WALL_PIECE_POINTS))
     if len(pieces) == 0 or len(walls) == 0:
         return
     n_w = s.normal[walls]
     rel = s.centre[pieces][:, None, :] - s.centre[walls][None, :, :]
     off = np.abs(np.einsum("pwi,wi->pw", rel, n_w))
     along = np.abs(rel[:, :, 0] * -n_w[None, :, 1] + rel[:, :, 1] * n_w[None, :, 0])
-    parallel = np.abs(s.normal[pieces] @ n_w.T) >= np.cos(np.radians(TILT_DEG))
+    parallel = np.abs(s.normal[pieces] @ n_w.T) >= np.cos(np.radians(PIECE_TILT_DEG))
     near = along <= 0.5 * s.length[walls][None, :] + PIECE_REACH
     fits = parallel & near & (off <= PIECE_GAP)
     found = fits.any(axis=1)

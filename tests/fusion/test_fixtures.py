@@ -1,4 +1,4 @@
-"""Which of the network's doors are believable (issue 43): a door has a door's size."""
+"""Which of the network's doors and columns are believable (issue 43): each has its size."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from jointseg.classes import CLASS_INDEX
-from jointseg.fusion.fixtures import implausible_doors
+from jointseg.fusion.fixtures import implausible_columns, implausible_doors
 
-DOOR, WALL = CLASS_INDEX["door"], CLASS_INDEX["wall"]
+DOOR, WALL, COLUMN = CLASS_INDEX["door"], CLASS_INDEX["wall"], CLASS_INDEX["column"]
 
 
 def panel(
@@ -72,3 +72,18 @@ def test_a_door_floating_above_the_floor_is_a_wall_the_network_mistook() -> None
     assert not flagged[: len(standing)].any() and flagged[len(standing) :].all()
     # a floor 1 m lower than the scan's bottom leaves no door standing on it
     assert implausible_doors(xyz, labels, floor_z=-1.0).all()
+
+
+@pytest.mark.parametrize(("width", "believable"), [(0.5, True), (1.0, True), (1.8, False)])
+def test_a_column_wider_than_any_column_is_a_wall_the_network_mistook(
+    width: float, believable: bool
+) -> None:
+    rng = np.random.default_rng(4)
+    column = panel(rng, 0.0, width, 2.6)
+    door = panel(rng, 3.0, 3.0, 2.1)  # a door of any size is not judged as a column
+    xyz = np.vstack([column, door])
+    labels = np.r_[np.full(len(column), COLUMN), np.full(len(door), DOOR)]
+    flagged = implausible_columns(xyz, labels)
+    assert not flagged[len(column) :].any()
+    assert flagged[: len(column)].all() == (not believable)
+    assert flagged[: len(column)].any() == (not believable)

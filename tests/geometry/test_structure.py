@@ -150,3 +150,26 @@ def test_a_wall_seen_only_above_the_furniture_is_wall_not_a_door_leaf() -> None:
     reading = read_structure(xyz, seg, 0.03)
     assert reading.kind[names["short piece"]] == WALL
     assert reading.kind[names["cabinet front"]] == -1
+
+
+def test_small_noisy_pieces_of_a_wall_are_wall_and_a_slanted_back_is_not() -> None:
+    # an RGB-D reconstruction cuts a wall into small pieces (colour, holes) that are neither
+    # quite upright nor quite in its plane: 15 degrees off, 6 cm out, a dozen points each;
+    # a chair back leaning 40 degrees in front of the wall is no piece of it
+    xyz, seg, names = _sweep(ceiling=False)
+    rng = np.random.default_rng(5)
+    tilt = np.radians(15.0)
+
+    def piece(x0: float, z0: float, lean: float, off: float) -> np.ndarray:
+        u, v = rng.uniform(0, 0.12, (2, 12))
+        return np.column_stack([x0 + u, off + v * np.sin(lean), z0 + v * np.cos(lean)])
+
+    pieces = [piece(1.0 + i, 1.0, tilt, 0.06) for i in range(3)]
+    back = piece(2.5, 0.5, np.radians(40.0), 0.3)
+    start = int(seg.max()) + 1
+    xyz = np.vstack([xyz, *pieces, back])
+    seg = np.concatenate([seg, *[np.full(12, start + i) for i in range(4)]])
+    reading = read_structure(xyz, seg, 0.03)
+    assert reading.kind[names["wall y0"]] == WALL
+    assert [int(k) for k in reading.kind[start : start + 3]] == [WALL] * 3
+    assert reading.kind[start + 3] == -1
