@@ -53,14 +53,16 @@ def _config(
 ) -> PipelineConfig:
     """The run's config: the file's, with the command line's overrides, and its device checked
     now (CUDA asked for on a machine without it fails before any reading or output)."""
-    from jointseg.network.base import pick_device
     from jointseg.pipeline.config import PipelineConfig
 
     extra: dict[str, object] | None = None if quality is None else {"quality": quality}
     cfg = load_params_file(config, PipelineConfig, extra).with_network(
         name=network, weights=weights, device=device
     )
-    pick_device(cfg.network.device)
+    if cfg.network.device not in (None, "", "cpu"):  # only a named device needs torch to check
+        from jointseg.network.base import pick_device
+
+        pick_device(cfg.network.device)
     return cfg
 
 
@@ -168,8 +170,6 @@ def segment_scan(
     A scan with more points than the tile size is processed tile by tile in bounded memory,
     with the same labels as a run on the whole scan on all but a few border points.
     """
-    from jointseg.pipeline import load_predictor, segment_file
-
     cfg = with_frame(_config(config, network, weights, device, quality), up, units, colour_free)
     if tile_points is not None:
         cfg = cfg.model_copy(
@@ -179,6 +179,9 @@ def segment_scan(
     info = probe_scan(source, max_points=max_points)
     if work_dir is not None and not work_dir.is_dir():
         raise ConfigError(f"--work-dir {work_dir}: not a folder")
+    # the pipeline (torch, open3d: seconds) only once every option holds
+    from jointseg.pipeline import load_predictor, segment_file
+
     started = time.perf_counter()
     predictor = load_predictor(cfg.network)
     load_s = time.perf_counter() - started

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from jointseg.exceptions import ConfigError
-from jointseg.fitting.provenance import LabellerRecord, file_sha256
+from jointseg.fitting.provenance import LabellerRecord, file_sha256, portable_path
 from jointseg.fitting.scans import TuningScan, content_key
 
 #: Part of every cached network output's key: bump it when whole-scan inference changes what it
@@ -102,8 +102,13 @@ def labeller_record(spec: str, name: str | None = None) -> LabellerRecord:
     path = weights_path(spec)
     if path is None or not path.is_file():
         raise ConfigError(f"labeller {spec!r}: no weights file at {path}")
+    backend, _, weights = spec.partition(":")
+    shown = f"{backend}:{portable_path(weights)}" if weights else spec
     return LabellerRecord(
-        name=name or network_name(spec), network=spec, weights=str(path), sha256=file_sha256(path)
+        name=name or network_name(spec),
+        network=shown,
+        weights=portable_path(path),
+        sha256=file_sha256(path),
     )
 
 

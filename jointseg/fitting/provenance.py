@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import platform
 import subprocess
 import time
@@ -115,6 +116,13 @@ def only_known(names: list[str], known: tuple[str, ...], what: str) -> list[str]
     if unknown:
         raise ValueError(f"unknown {what} {unknown}; known: {list(known)}")
     return names
+
+
+def portable_path(path: str | Path) -> str:
+    """``path`` as a record names it: relative to the project's root (``../shared/...`` for a
+    file beside the checkout), so a provenance file holds no one machine's directories."""
+    root = Path(__file__).resolve().parents[2]
+    return os.path.relpath(Path(path).resolve(), root)
 
 
 def provenance_path(model: Path) -> Path:

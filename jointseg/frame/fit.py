@@ -27,6 +27,7 @@ from jointseg.fitting.provenance import (
     file_sha256,
     fit_record,
     only_known,
+    portable_path,
     write_model,
 )
 from jointseg.fitting.scans import named_scan_files
@@ -254,7 +255,7 @@ def fit_up_axis(
     }
     facts = {
         "cases": len(rows),
-        "geometry_from": {"path": str(source), "sha256": file_sha256(source)},
+        "geometry_from": {"path": portable_path(source), "sha256": file_sha256(source)},
         "seconds": round(time.perf_counter() - started, 1),
     }
     record = fit_record(plan, command, records, [judge], facts)

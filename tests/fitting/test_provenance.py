@@ -11,8 +11,10 @@ from pathlib import Path
 import pytest
 
 from jointseg.exceptions import ConfigError
+from jointseg.fitting.outputs import labeller_record
 from jointseg.fitting.provenance import (
     git_commit,
+    portable_path,
     provenance_path,
     read_provenance,
     stable_json,
@@ -20,6 +22,7 @@ from jointseg.fitting.provenance import (
 from jointseg.frame.model import MODEL_FILE as UP_MODEL
 from jointseg.fusion.learned import MODEL_PATH as VOTE_MODEL
 
+ROOT = Path(__file__).resolve().parents[2]
 REFIT = {
     VOTE_MODEL: "jointseg fit vote --plan fit/vote.json --out jointseg/fusion/vote_model.json",
     UP_MODEL: "jointseg fit up-axis --plan fit/up_axis.json --out jointseg/frame/up_model.json",
@@ -62,3 +65,17 @@ def test_a_broken_provenance_is_an_error_naming_it(tmp_path: Path) -> None:
     path.write_text('{"model": "m.json"}')
     with pytest.raises(ConfigError, match=f"{path} is unreadable"):
         read_provenance(path)
+
+
+def test_a_record_names_files_from_the_project_root_not_this_machines_folders(
+    tmp_path: Path,
+) -> None:
+    bundled = labeller_record("randlanet")
+    assert bundled.weights == "jointseg/network/weights/randlanet_indoor.pt"
+    outside = tmp_path / "elsewhere.pt"
+    outside.write_bytes(Path(ROOT / bundled.weights).read_bytes())
+    record = labeller_record(f"randlanet:{outside}")
+    assert record.weights is not None and not Path(record.weights).is_absolute()
+    assert (ROOT / record.weights).resolve() == outside.resolve()
+    assert record.network == f"randlanet:{record.weights}"
+    assert portable_path(ROOT / "fit" / "vote.json") == "fit/vote.json"

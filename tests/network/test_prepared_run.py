@@ -1,6 +1,6 @@
-"""The prepared GPU run (issue 42): the whole command, as a lent machine runs it, for one minute on
-this CPU; and the pieces it adds to the trainer (time budget, timed and packed checkpoints,
-distillation, a narrow network started from a wide one)."""
+"""The prepared GPU run (issue 42): the whole command, as a lent machine runs it, for half a
+minute on this CPU; and the pieces it adds to the trainer (time budget, timed and packed
+checkpoints, distillation, a narrow network started from a wide one)."""
 
 from __future__ import annotations
 
@@ -44,17 +44,17 @@ def carried(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.slow
-def test_the_one_minute_run_leaves_eight_files_and_three_networks(carried: Path, tmp_path) -> None:
+def test_the_half_minute_run_leaves_eight_files_and_three_networks(carried: Path, tmp_path) -> None:
     out = tmp_path / "out"
     env = {**os.environ, "PYTHON": sys.executable, "GPU_DATA": str(carried), "OUT": str(out),
            "SAVE_MINUTES": "0.2", "JOINTSEG_GPU_WORK": str(tmp_path / "work")}  # fmt: skip
     started = time.monotonic()
     done = subprocess.run(
-        ["bash", "scripts/gpu_train.sh", "1"], cwd=ROOT, env=env, capture_output=True, text=True
+        ["bash", "scripts/gpu_train.sh", "0.5"], cwd=ROOT, env=env, capture_output=True, text=True
     )
     seconds = time.monotonic() - started
     assert done.returncode == 0, done.stderr[-2000:]
-    assert seconds < 90, f"a one-minute run took {seconds:.0f} s"
+    assert seconds < 60, f"a half-minute run took {seconds:.0f} s"
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(
         [f"{n}{s}.pt" for n in RECIPE for s in ("", ".best")] + ["summary.json", "train.log"]
@@ -67,7 +67,7 @@ def test_the_one_minute_run_leaves_eight_files_and_three_networks(carried: Path,
     for name in RECIPE:
         model, card, body = load_checkpoint(out / f"{name}.pt")
         assert card["weights_dtype"] == "float16" and "optimizer" not in body
-        assert card["train_config"]["minutes"] < 1 and card["colour"] == (name != "nocolour")
+        assert card["train_config"]["minutes"] < 0.5 and card["colour"] == (name != "nocolour")
         assert "no GPU" in card["hardware"]
     student_card = load_checkpoint(out / "student.pt")[1]
     assert student_card["train_config"]["teacher"].endswith("randlanet_indoor.pt")
