@@ -34,7 +34,7 @@ from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.registry import load
 from jointseg.synth import make_room
 
-room = make_room(21, points=60_000)
+room = make_room(21, points=20_000)
 fast = load("randlanet", params=RandLANetParams(engine="openvino"))
 b = fast.predict(room, seed=0)
 out = {"engines": [fast.engine], "labels": b.labels[::97].tolist()}
