@@ -47,11 +47,10 @@ def implausible_doors(
     width is its extent along its main horizontal direction. ``floor_z``: the floor level, where
     known (the structure reading's); a door whose bottom is over MAX_FOOT above it floats."""
     out = np.zeros(len(labels), dtype=bool)
-    idx = np.flatnonzero(np.asarray(labels) == DOOR)
-    if len(idx) < MIN_POINTS:
+    found = _measured(xyz, labels, DOOR)
+    if found is None:
         return out
-    door, n_doors = _pieces(xyz[idx])
-    width, height, bottom, count = _extents(xyz[idx], door, n_doors)
+    idx, door, (width, height, bottom, count) = found
     bad = (count >= MIN_POINTS) & (
         (width > MAX_WIDTH) | ((width > LOW_WIDTH) & (height < LOW_HEIGHT)) | (height < MIN_HEIGHT)
     )
@@ -66,14 +65,25 @@ def implausible_columns(xyz: np.ndarray, labels: np.ndarray) -> np.ndarray:
     (:data:`MAX_COLUMN_WIDTH`; bool, N): on other sensors the network calls stretches of wall
     column, and the vote need not keep them. Columns are joined as doors are."""
     out = np.zeros(len(labels), dtype=bool)
-    idx = np.flatnonzero(np.asarray(labels) == COLUMN)
-    if len(idx) < MIN_POINTS:
+    found = _measured(xyz, labels, COLUMN)
+    if found is None:
         return out
-    column, n_columns = _pieces(xyz[idx])
-    width, _, _, count = _extents(xyz[idx], column, n_columns)
+    idx, column, (width, _, _, count) = found
     bad = (count >= MIN_POINTS) & (width > MAX_COLUMN_WIDTH)
     out[idx[bad[column]]] = True
     return out
+
+
+def _measured(
+    xyz: np.ndarray, labels: np.ndarray, cls: int
+) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]] | None:
+    """The points labelled ``cls`` (their indices), the connected piece each belongs to and
+    each piece's :func:`_extents`; None with fewer than MIN_POINTS such points."""
+    idx = np.flatnonzero(np.asarray(labels) == cls)
+    if len(idx) < MIN_POINTS:
+        return None
+    piece, n = _pieces(xyz[idx])
+    return idx, piece, _extents(xyz[idx], piece, n)
 
 
 def _pieces(xyz: np.ndarray) -> tuple[np.ndarray, int]:

@@ -151,7 +151,11 @@ class _Segments:
 
     @property
     def vertical(self) -> np.ndarray:
-        return (np.abs(self.normal[:, 2]) <= np.sin(np.radians(TILT_DEG))) & self.flat
+        return self.upright(TILT_DEG)
+
+    def upright(self, tilt_deg: float) -> np.ndarray:
+        """Flat segments whose normal is within ``tilt_deg`` of horizontal."""
+        return (np.abs(self.normal[:, 2]) <= np.sin(np.radians(tilt_deg))) & self.flat
 
     @property
     def flat(self) -> np.ndarray:
@@ -365,7 +369,7 @@ def _wall_pieces(
     """Walls seen only in part: smaller vertical segments in a read wall's plane, along its
     line (furniture, colour changes and holes cut a wall into pieces), read as wall with half
     that wall's confidence."""
-    upright = (np.abs(s.normal[:, 2]) <= np.sin(np.radians(PIECE_TILT_DEG))) & s.flat
+    upright = s.upright(PIECE_TILT_DEG)
     pieces = np.flatnonzero(upright & allowed & (kind < 0) & (s.count >= WALL_PIECE_POINTS))
     if len(pieces) == 0 or len(walls) == 0:
         return
