@@ -20,14 +20,13 @@ from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
 from tests.support.result_files import synthetic_result
-from tests.support.shots import HIDE_OVERLAYS, panel_spans, settled
+from tests.support.shots import HIDE_OVERLAYS, VIEWPORT, panel_spans, settled
 from tests.support.viewer_pages import free_port, view_of
 from web.sources import DirectorySource
 from web.viewer import Viewer
 
 CAP = 20_000
 POINTS = 300_000
-VIEWPORT = {"width": 1600, "height": 900}
 
 
 @pytest.fixture(scope="module")

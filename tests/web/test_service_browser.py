@@ -31,7 +31,7 @@ from jointseg.io import read_scan, write_scan
 from jointseg.network import published
 from jointseg.synth import make_room
 from tests.support.download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
-from tests.support.shots import HIDE_OVERLAYS, palette_pixels, panel_spans, settled
+from tests.support.shots import HIDE_OVERLAYS, VIEWPORT, palette_pixels, panel_spans, settled
 from tests.support.viewer_pages import free_port, key_in, sign_in
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
@@ -158,7 +158,7 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         with page.expect_popup() as popup:
             row.locator("a.view-link").click()
         viewer = popup.value
-        viewer.set_viewport_size({"width": 1600, "height": 900})
+        viewer.set_viewport_size(VIEWPORT)
         viewer.add_style_tag(content=HIDE_OVERLAYS)
         sign_in(viewer, API_KEY)
         viewer.get_by_text("points shown").wait_for(timeout=60_000)
@@ -192,7 +192,7 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
 
         # the shared link opened by someone else: their own key, which may not see the job,
         # shows neither the job nor its name
-        other = browser.new_page(viewport={"width": 1600, "height": 900})
+        other = browser.new_page(viewport=VIEWPORT)
         try:
             other.goto(shared)
             sign_in(other, OTHER_KEY)
@@ -208,7 +208,7 @@ def test_upload_on_the_job_page_then_inspect_the_result_in_the_viewer(
         base = f"http://127.0.0.1:{service.viewer_port}"
         for query in ("", "?key=not-a-key"):
             ws = f"ws://127.0.0.1:{service.viewer_port}/job/{job_id}{query}"
-            locked = browser.new_page(viewport={"width": 1600, "height": 900})
+            locked = browser.new_page(viewport=VIEWPORT)
             try:
                 locked.goto(f"{base}/?websocket={quote(ws, safe='')}")
                 locked.get_by_text("Enter one of the job service's API keys").wait_for(
@@ -473,7 +473,7 @@ def test_every_download_of_the_job_page_and_the_viewer_parses(
         with page.expect_popup() as popup:
             row.locator("a.view-link").click()
         viewer = popup.value
-        viewer.set_viewport_size({"width": 1600, "height": 900})
+        viewer.set_viewport_size(VIEWPORT)
         sign_in(viewer, API_KEY)
         viewer.get_by_text("points shown").wait_for(timeout=60_000)
         for kind, label in VIEWER_BUTTONS.items():
@@ -527,7 +527,7 @@ def test_a_deleted_job_leaves_the_viewer_without_a_reload(
             ids[name] = _finished(http, _submit(http, scan, config).json()["id"])["id"]
         base = f"http://127.0.0.1:{service.viewer_port}"
         ws = f"ws://127.0.0.1:{service.viewer_port}/job/{ids['shown']}"
-        viewer = browser.new_page(viewport={"width": 1600, "height": 900})
+        viewer = browser.new_page(viewport=VIEWPORT)
         sockets: list[str] = []
         viewer.on("websocket", lambda socket: sockets.append(socket.url))
         try:

@@ -19,19 +19,33 @@ import numpy as np
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from server.messages import public_report
 from tests.support.download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
-from tests.support.shots import HIDE_OVERLAYS, ink, palette_pixels, panel_spans, settled
+from tests.support.shots import (
+    HIDE_OVERLAYS,
+    VIEWPORT,
+    WIDE_VIEWPORT,
+    ink,
+    palette_pixels,
+    panel_spans,
+    settled,
+)
 from tests.support.viewer_pages import view_of
 from web.scene import load_scene
 from web.viewer import Viewer
 
-VIEWPORT = {"width": 1600, "height": 900}
 #: The page's JavaScript heap after a forced collection (chromium runs with --expose-gc).
 HEAP_AFTER_GC = "() => { window.gc(); return performance.memory.usedJSHeapSize; }"
 
 
-def open_viewer(browser: Any, viewer: Viewer, job_id: str, *, toasts: bool = False) -> Any:
+def open_viewer(
+    browser: Any,
+    viewer: Viewer,
+    job_id: str,
+    *,
+    toasts: bool = False,
+    viewport: dict[str, int] = VIEWPORT,
+) -> Any:
     """A new tab on the viewer's link to ``job_id``, once the job is shown."""
-    page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
+    page = browser.new_page(viewport=viewport, accept_downloads=True)
     page.goto(viewer.link(job_id))
     if not toasts:
         page.add_style_tag(content=HIDE_OVERLAYS)
@@ -95,7 +109,7 @@ def test_only_changed_points_and_optional_panels(
 ) -> None:
     data = load_scene(jobs / "room.ply")
     assert 0 < data.changed.sum() < 0.5 * data.changed.size
-    page = open_viewer(browser, viewer, "room")
+    page = open_viewer(browser, viewer, "room", viewport=WIDE_VIEWPORT)
     try:
         before = settled(page)
         fused_before = panel_spans(before, 4)[2]

@@ -22,7 +22,14 @@ from PIL import Image
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
-from tests.support.shots import HIDE_OVERLAYS, canvas_box, panel_spans, settled
+from tests.support.shots import (
+    HIDE_OVERLAYS,
+    VIEWPORT,
+    WIDE_VIEWPORT,
+    canvas_box,
+    panel_spans,
+    settled,
+)
 from tests.support.viewer_pages import free_port, key_in, view_of, wait_for
 from web.layout import panel_offsets
 from web.overlay import layout
@@ -30,7 +37,6 @@ from web.scene import SEGMENTS
 from web.sources import DirectorySource
 from web.viewer import Viewer
 
-VIEWPORT = {"width": 1600, "height": 900}
 KEY = "s3cret-key"
 
 
@@ -44,8 +50,8 @@ def locked(jobs: Path) -> Iterator[Viewer]:
         instance.stop()
 
 
-def open_page(browser: Any, url: str) -> Any:
-    page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
+def open_page(browser: Any, url: str, viewport: dict[str, int] = VIEWPORT) -> Any:
+    page = browser.new_page(viewport=viewport, accept_downloads=True)
     page.goto(url)
     page.add_style_tag(content=HIDE_OVERLAYS)
     return page
@@ -227,7 +233,7 @@ def test_the_shown_points_line_follows_class_toggles_and_changed_only(
 
 
 def test_five_and_seven_panels_fit_the_view(browser: Any, viewer: Viewer, artifacts: Path) -> None:
-    page = open_page(browser, viewer.link("room"))
+    page = open_page(browser, viewer.link("room"), WIDE_VIEWPORT)
     try:
         shown(page)
         width = int(canvas_box(page)["width"])

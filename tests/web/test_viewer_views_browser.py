@@ -28,7 +28,15 @@ from PIL import Image
 from jointseg.io import read_scan, write_scan
 from tests.support.camera_math import corners, project
 from tests.support.result_files import with_stray_point
-from tests.support.shots import HIDE_OVERLAYS, canvas_box, ink, palette_pixels, panel_spans, settled
+from tests.support.shots import (
+    HIDE_OVERLAYS,
+    VIEWPORT,
+    canvas_box,
+    ink,
+    palette_pixels,
+    panel_spans,
+    settled,
+)
 from tests.support.viewer_pages import free_port, view_of, wait_for
 from web.layout import ORTHO_SCALE_ERROR, title_position
 from web.object_list import SELECTED_COLOUR
@@ -37,7 +45,6 @@ from web.sources import DirectorySource
 from web.viewer import Viewer
 
 log = logging.getLogger(__name__)
-VIEWPORT = {"width": 1600, "height": 900}
 FLOOR, WALL = 1, 2
 
 
