@@ -39,6 +39,11 @@ def test_every_shipped_model_has_a_provenance_that_matches_it(model: Path) -> No
         f"({record.model_sha256[:12]}): fit it with `{REFIT[model]}`, which writes both"
     )
     assert record.scans and record.labellers and record.command and record.date
+    # a dirty tree's commit does not name the code that fitted it: nobody could refit it
+    assert not record.code.commit.endswith("-dirty"), (
+        f"{model} was fitted from uncommitted code ({record.code.commit}): fit it from a clean "
+        f"checkout with `{REFIT[model]}`"
+    )
 
 
 def test_the_provenance_sits_beside_its_model() -> None:
