@@ -1,5 +1,6 @@
-"""What the viewer's browser tests share: a free loopback port, and the server-side view of
-the tab that shows a job. A module of its own (not conftest) so tests import it by name."""
+"""What the viewer's browser tests share: a free loopback port, a new tab in the tests' window,
+and the server-side view of the tab that shows a job. A module of its own (not conftest) so
+tests import it by name."""
 
 from __future__ import annotations
 
@@ -7,12 +8,30 @@ import socket
 import time
 from typing import Any
 
+from tests.support.shots import HIDE_OVERLAYS, VIEWPORT
+
 
 def free_port() -> int:
     """A loopback port nobody listens on now."""
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def open_tab(
+    browser: Any, url: str, *, viewport: dict[str, int] = VIEWPORT, overlays: bool = False
+) -> Any:
+    """A new tab on ``url`` (downloads accepted) in the tests' window, with the toasts and the
+    legend hidden from its screenshots unless ``overlays``; closed again if it cannot load."""
+    page = browser.new_page(viewport=viewport, accept_downloads=True)
+    try:
+        page.goto(url)
+        if not overlays:
+            page.add_style_tag(content=HIDE_OVERLAYS)
+    except BaseException:
+        page.close()
+        raise
+    return page
 
 
 def wait_for(condition: Any, what: str = "condition", timeout: float = 15.0) -> None:

@@ -20,8 +20,8 @@ from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
 from jointseg.synth import make_floor
 from tests.support.result_files import synthetic_result
-from tests.support.shots import HIDE_OVERLAYS, VIEWPORT, panel_spans, settled
-from tests.support.viewer_pages import free_port, view_of
+from tests.support.shots import panel_spans, settled
+from tests.support.viewer_pages import free_port, open_tab, view_of
 from web.sources import DirectorySource
 from web.viewer import Viewer
 
@@ -67,10 +67,8 @@ def rows_of(points: np.ndarray, scan: Scan) -> np.ndarray:
 def test_a_result_over_the_cap_shows_at_most_the_cap_spread_over_the_whole_scan(
     browser: Any, capped: Viewer, big: Path, artifacts: Path
 ) -> None:
-    page = browser.new_page(viewport=VIEWPORT)
+    page = open_tab(browser, capped.link("big"))
     try:
-        page.goto(capped.link("big"))
-        page.add_style_tag(content=HIDE_OVERLAYS)
         status = page.get_by_text("points shown")
         status.wait_for(timeout=60_000)
         image = settled(page)

@@ -20,7 +20,6 @@ from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from server.messages import public_report
 from tests.support.download_checks import SUFFIXES, VIEWER_BUTTONS, parsed
 from tests.support.shots import (
-    HIDE_OVERLAYS,
     VIEWPORT,
     WIDE_VIEWPORT,
     ink,
@@ -28,7 +27,7 @@ from tests.support.shots import (
     panel_spans,
     settled,
 )
-from tests.support.viewer_pages import view_of
+from tests.support.viewer_pages import open_tab, view_of
 from web.scene import load_scene
 from web.viewer import Viewer
 
@@ -45,10 +44,7 @@ def open_viewer(
     viewport: dict[str, int] = VIEWPORT,
 ) -> Any:
     """A new tab on the viewer's link to ``job_id``, once the job is shown."""
-    page = browser.new_page(viewport=viewport, accept_downloads=True)
-    page.goto(viewer.link(job_id))
-    if not toasts:
-        page.add_style_tag(content=HIDE_OVERLAYS)
+    page = open_tab(browser, viewer.link(job_id), viewport=viewport, overlays=toasts)
     page.get_by_text("points shown").wait_for(timeout=30_000)
     return page
 

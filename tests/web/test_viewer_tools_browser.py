@@ -30,7 +30,7 @@ from tests.support.shots import (
     panel_spans,
     settled,
 )
-from tests.support.viewer_pages import free_port, key_in, view_of, wait_for
+from tests.support.viewer_pages import free_port, key_in, open_tab, view_of, wait_for
 from web.layout import panel_offsets
 from web.overlay import layout
 from web.scene import SEGMENTS
@@ -50,13 +50,6 @@ def locked(jobs: Path) -> Iterator[Viewer]:
         instance.stop()
 
 
-def open_page(browser: Any, url: str, viewport: dict[str, int] = VIEWPORT) -> Any:
-    page = browser.new_page(viewport=viewport, accept_downloads=True)
-    page.goto(url)
-    page.add_style_tag(content=HIDE_OVERLAYS)
-    return page
-
-
 def shown(page: Any) -> Any:
     status = page.get_by_text("points shown")
     status.wait_for(timeout=30_000)
@@ -65,7 +58,7 @@ def shown(page: Any) -> Any:
 
 def settled_view(browser: Any, viewer: Viewer, job_id: str) -> tuple[Any, Any]:
     """A new tab on ``job_id`` once its scene is drawn, and its server-side view."""
-    page = open_page(browser, viewer.link(job_id))
+    page = open_tab(browser, viewer.link(job_id))
     shown(page)
     settled(page)
     return page, view_of(viewer, job_id)
@@ -146,7 +139,7 @@ def test_the_viewer_asks_for_the_key_and_shows_nothing_without_it(
     b64 = base64.urlsafe_b64encode(KEY.encode()).decode().rstrip("=")
     for query in (f"?key={KEY}", f"?v=k.{b64}"):
         ws = f"ws://127.0.0.1:{port}/job/bare{query}"
-        page = open_page(browser, f"http://127.0.0.1:{port}/?websocket={quote(ws, safe='')}")
+        page = open_tab(browser, f"http://127.0.0.1:{port}/?websocket={quote(ws, safe='')}")
         try:
             page.get_by_text("the one in this link was not used").wait_for(timeout=30_000)
             time.sleep(0.5)
@@ -174,7 +167,7 @@ def even_spans(image: np.ndarray, count: int) -> None:
 def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows(
     browser: Any, viewer: Viewer, artifacts: Path
 ) -> None:
-    page = open_page(browser, viewer.link("room"))
+    page = open_tab(browser, viewer.link("room"))
     try:
         shown(page)
         assert len(panel_spans(settled(page), 4)) == 4
@@ -209,7 +202,7 @@ def test_switching_jobs_lays_out_every_panel_without_overlap_and_the_url_follows
 def test_the_shown_points_line_follows_class_toggles_and_changed_only(
     browser: Any, viewer: Viewer, jobs: Path
 ) -> None:
-    page = open_page(browser, viewer.link("room"))
+    page = open_tab(browser, viewer.link("room"))
     try:
         shown(page)
         view = view_of(viewer, "room")
@@ -233,7 +226,7 @@ def test_the_shown_points_line_follows_class_toggles_and_changed_only(
 
 
 def test_five_and_seven_panels_fit_the_view(browser: Any, viewer: Viewer, artifacts: Path) -> None:
-    page = open_page(browser, viewer.link("room"), WIDE_VIEWPORT)
+    page = open_tab(browser, viewer.link("room"), viewport=WIDE_VIEWPORT)
     try:
         shown(page)
         width = int(canvas_box(page)["width"])
@@ -374,7 +367,7 @@ def test_a_click_tells_a_known_points_labels_object_and_room_and_two_clicks_meas
 def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
     browser: Any, viewer: Viewer
 ) -> None:
-    page = open_page(browser, viewer.link("room"))
+    page = open_tab(browser, viewer.link("room"))
     other = None
     try:
         shown(page)
@@ -388,7 +381,7 @@ def test_a_link_with_the_view_state_reproduces_camera_and_toggles(
         pose = ",".join(f"{v:.4f}" for v in before)
         wait_for(lambda: pose in unquote(address(page)) and "p." in address(page), what="address")
         link = address(page)
-        other = open_page(browser, link)
+        other = open_tab(browser, link)
         shown(other)
         copy = view_of(viewer, "room", exclude=(view,))
         try:
@@ -527,7 +520,7 @@ def test_object_boxes_follow_the_class_buttons_and_their_switch_is_in_the_link(
         assert "x.0" not in address(page)
         boxes.uncheck()
         wait_for(lambda: "x.0" in address(page), what="boxes off in the address")
-        other = open_page(browser, address(page))
+        other = open_tab(browser, address(page))
         shown(other)
         copy = view_of(viewer, "room", exclude=(view,))
         assert not other.get_by_label("Object boxes", exact=True).is_checked()

@@ -29,15 +29,13 @@ from jointseg.io import read_scan, write_scan
 from tests.support.camera_math import corners, project
 from tests.support.result_files import with_stray_point
 from tests.support.shots import (
-    HIDE_OVERLAYS,
-    VIEWPORT,
     canvas_box,
     ink,
     palette_pixels,
     panel_spans,
     settled,
 )
-from tests.support.viewer_pages import free_port, view_of, wait_for
+from tests.support.viewer_pages import free_port, open_tab, view_of, wait_for
 from web.layout import ORTHO_SCALE_ERROR, title_position
 from web.object_list import SELECTED_COLOUR
 from web.overlay import layout
@@ -69,10 +67,8 @@ def opened(
     browser: Any, viewer: Viewer, job_id: str, *, overlay: bool = False
 ) -> Iterator[tuple[Any, Any]]:
     """A new tab on ``job_id`` once its scene is drawn, and its server-side view; closed after."""
-    page = browser.new_page(viewport=VIEWPORT, accept_downloads=True)
+    page = open_tab(browser, viewer.link(job_id))
     try:
-        page.goto(viewer.link(job_id))
-        page.add_style_tag(content=HIDE_OVERLAYS)
         if overlay:  # show the legend again (the toasts stay hidden)
             page.add_style_tag(content="#jointseg-overlay { display: block !important; }")
         page.get_by_text("points shown").wait_for(timeout=30_000)
