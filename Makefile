@@ -37,9 +37,13 @@ lint: setup
 	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks scripts
 	$(BIN)/mypy
 
-# the 20 slowest tests at the end: where the suite's time goes (docs/contributing.md)
+# the whole suite in two runs (docs/contributing.md): the library, CLI and unit tests on two
+# xdist workers, one test file to a worker (a module's fixtures are built once); then the
+# service and browser tests one at a time (their servers, workers and chromium want both cores,
+# and their process tests time signals). Each run ends with its 20 slowest tests.
 pytest: setup
-	$(BIN)/python -m pytest -q --durations=20
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not service and not browser" --durations=20
+	$(BIN)/python -m pytest -q -m "service or browser" --durations=20
 
 # the unit tests only, under 3 minutes on 2 cores: no chromium, no service processes or
 # databases, nothing marked slow (pyproject.toml's markers; docs/contributing.md)
