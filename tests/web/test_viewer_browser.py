@@ -187,9 +187,8 @@ def test_downloads_send_every_format_the_job_page_offers(
 
 
 def test_an_unknown_job_is_reported_not_shown(browser: Any, viewer: Viewer) -> None:
-    page = browser.new_page(viewport=VIEWPORT)
+    page = open_tab(browser, viewer.link("no-such-job"), overlays=True)
     try:
-        page.goto(viewer.link("no-such-job"))
         page.get_by_text("Cannot show this job").wait_for(timeout=30_000)
         assert page.get_by_text("No job shown.").is_visible()
     finally:
