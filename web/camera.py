@@ -18,7 +18,11 @@ Three things are read from those reports:
   same;
 - whether the browser **applied a pose**: setting a pose on viser's camera handle changes the
   server's copy at once, so only a report says what the browser draws (a click aimed through a
-  pose the browser has not applied yet goes through the old one).
+  pose the browser has not applied yet goes through the old one). viser calls the viewer back
+  for a report with its live handle, which a pose set since then has already overwritten, so a
+  callback whose handle was last written by the viewer is no report at all: it is skipped (read
+  as the browser's, it would be the pose coming back; and the browser's next, older report, the
+  user moving away from it).
 """
 
 from __future__ import annotations
@@ -96,6 +100,7 @@ class CameraFollow:
         self._aspect = 0.0  # the canvas's aspect when it was sent
         self._echoed = False  # the browser has reported it back
         self._sent = 0.0
+        self._sent_at = 0.0  # time.time() of the last pose sent (viser stamps reports so)
         self._reported: tuple[np.ndarray, np.ndarray] | None = None
         camera.on_update(self._moved)
 
@@ -248,11 +253,14 @@ class CameraFollow:
             self._axis = (offset / distance, distance)
         # a pose the browser already shows is not reported again: it is back at once
         self._echoed, self._sent = self.reported(pose.position, pose.look_at), time.monotonic()
+        self._sent_at = time.time()
 
     def _moved(self, camera: viser.CameraHandle) -> None:
         """A camera report from the browser (viser runs this in its thread pool)."""
-        self._reported = (np.array(camera.position), np.array(camera.look_at))
         with self._lock:
+            if camera.update_timestamp <= self._sent_at:
+                return  # the handle holds the pose sent since: this report is older than it
+            self._reported = (np.array(camera.position), np.array(camera.look_at))
             pose = self._pose
             if not self.active or pose is None:
                 return

@@ -45,13 +45,17 @@ def wait_for(condition: Any, what: str = "condition", timeout: float = 15.0) -> 
 
 
 def view_of(viewer: Any, job_id: str, exclude: tuple[Any, ...] = ()) -> Any:
-    """The server-side view of a tab showing ``job_id`` (other than those in ``exclude``),
-    waiting up to 15 s for it."""
+    """The server-side view of the newest tab showing ``job_id`` (other than those in
+    ``exclude``), waiting up to 15 s for it.
+
+    The newest, because a tab an earlier test closed stays among the viewer's views until viser
+    has seen its websocket close: the oldest match can be that closed tab (viser numbers its
+    clients in the order they connect)."""
     deadline = time.monotonic() + 15
     while time.monotonic() < deadline:
         found = [v for v in list(viewer.views.values()) if v.job_id == job_id and v not in exclude]
         if found:
-            return found[0]
+            return max(found, key=lambda v: v.client.client_id)
         time.sleep(0.1)
     raise AssertionError(f"no client shows {job_id}")
 
