@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,14 +12,8 @@ import pytest
 from jointseg.cli import main
 from jointseg.io import read_scan
 from jointseg.pipeline import OUTPUT_FIELDS
+from tests.support.cli import run_cli
 from tests.support.service_process import free_port, scan_file
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    """The real entry point in a subprocess."""
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=300
-    )
 
 
 def run_here(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

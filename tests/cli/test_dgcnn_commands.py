@@ -4,9 +4,6 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,22 +12,12 @@ import pytest
 from jointseg.io import read_scan, write_scan
 from jointseg.scan import Scan
 from jointseg.synth import make_room
+from tests.support.cli import run_cli
 
 #: each test runs the CLI with DGCNN in a subprocess: not for `make test-fast`
 pytestmark = pytest.mark.slow
 
 ENV = "JOINTSEG_DGCNN_WEIGHTS"
-
-
-def run_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    environment = {k: v for k, v in os.environ.items() if k != ENV}
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        env={**environment, **(env or {})},
-    )
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +33,7 @@ def one_column(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_models_list_shows_dgcnn_and_where_to_get_it(dgcnn_random_weights) -> None:
-    result = run_cli("models", "list")
+    result = run_cli("models", "list", unset=[ENV])
     assert result.returncode == 0, result.stderr
     assert "dgcnn" in result.stdout and "antao97" in result.stdout
     result = run_cli("models", "list", env={ENV: str(dgcnn_random_weights), "COLUMNS": "200"})
@@ -58,7 +45,7 @@ def test_predict_with_dgcnn(one_column: Path, dgcnn_random_weights, tmp_path) ->
     out = tmp_path / "pred.ply"
     result = run_cli(
         "predict", str(one_column), "-o", str(out), "--network", "dgcnn",
-        "--weights", str(dgcnn_random_weights),
+        "--weights", str(dgcnn_random_weights), unset=[ENV],
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
     assert "with dgcnn" in result.stderr and "(1 crops)" in result.stderr
@@ -69,7 +56,7 @@ def test_predict_with_dgcnn(one_column: Path, dgcnn_random_weights, tmp_path) ->
 
 def test_dgcnn_without_weights_says_where_to_get_them(one_column: Path, tmp_path) -> None:
     out = tmp_path / "pred.ply"
-    result = run_cli("predict", str(one_column), "-o", str(out), "--network", "dgcnn")
+    result = run_cli("predict", str(one_column), "-o", str(out), "--network", "dgcnn", unset=[ENV])
     assert result.returncode == 2
     assert "jointseg models pull dgcnn-s3dis-5" in result.stderr and ENV in result.stderr
     assert "Traceback" not in result.stderr and not out.exists()
@@ -98,6 +85,7 @@ def test_misspelt_dgcnn_option_is_named(one_column: Path, tmp_path) -> None:
     config = tmp_path / "cfg.json"
     config.write_text(json.dumps({"network": {"dgcnn": {"strid": 1.0}}}))
     result = run_cli(
-        "segment", str(one_column), "-o", str(tmp_path / "o.ply"), "--config", str(config)
-    )
+        "segment", str(one_column), "-o", str(tmp_path / "o.ply"), "--config", str(config),
+        unset=[ENV],
+    )  # fmt: skip
     assert result.returncode == 2 and "strid" in result.stderr

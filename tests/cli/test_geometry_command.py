@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,12 +11,7 @@ import pytest
 from jointseg.io import read_scan, write_scan
 from jointseg.metrics import segment_purity
 from jointseg.synth import make_room
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=300
-    )
+from tests.support.cli import run_cli
 
 
 @pytest.fixture(scope="module")

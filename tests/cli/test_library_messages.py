@@ -4,8 +4,6 @@ debug text, C++ source paths or multi-line advice of libE57Format and torch."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -15,6 +13,7 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network import registry
+from tests.support.cli import run_cli
 
 #: What a library's dump carries and a user's message must not.
 DEBUG_TEXT = (
@@ -29,16 +28,6 @@ DEBUG_TEXT = (
     "Error(s) in loading",
     "errors.pydantic.dev",
 )
-
-
-def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=cwd,
-    )
 
 
 def assert_one_clean_line(text: str, name: str) -> None:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +12,7 @@ from jointseg.io import read_scan, write_scan
 from jointseg.network.checkpoint import save_checkpoint
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.synth import make_room
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=300
-    )
+from tests.support.cli import run_cli
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,21 +16,12 @@ from jointseg.metrics import evaluate
 from jointseg.pipeline import OUTPUT_FIELDS
 from jointseg.scan import Scan
 from jointseg.synth import make_room
+from tests.support.cli import run_cli
 
 #: each test runs the CLI with the network in a subprocess: not for `make test-fast`
 pytestmark = pytest.mark.slow
 
 FIELDS = set(OUTPUT_FIELDS)
-
-
-def run_cli(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=cwd,
-    )
 
 
 @pytest.fixture(scope="module")

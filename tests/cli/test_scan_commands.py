@@ -4,8 +4,6 @@ in a subprocess, checking files written, what is printed and exit codes."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,15 +11,7 @@ import pytest
 
 from jointseg.io import read_scan, write_scan
 from jointseg.synth import make_room
-
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+from tests.support.cli import run_cli
 
 
 @pytest.fixture(scope="module")

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +21,7 @@ from jointseg.io import READ_EXTENSIONS, probe_scan, read_scan
 from jointseg.io.mesh import check_single_file
 from jointseg.io.mesh_sample import SAMPLE_SPACING
 from jointseg.io.stream import open_chunks
+from tests.support.cli import run_cli
 
 #: A 1 m x 1 m quad on z = 0 (two triangles).
 QUAD_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float64)
@@ -47,12 +46,6 @@ def textured_quad() -> trimesh.Trimesh:
         baseColorTexture=red_image(), baseColorFactor=[255, 255, 255, 255]
     )
     return quad(visual=trimesh.visual.TextureVisuals(uv=QUAD_UV, material=material))
-
-
-def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=300
-    )
 
 
 def glb_json(path: Path) -> dict[str, Any]:
@@ -521,13 +514,13 @@ def test_cli_info_on_a_glb_and_a_bad_glb(
 ) -> None:
     path = tmp_path / "quad.glb"
     textured_quad().export(path)
-    shown = cli("info", "--json", str(path))
+    shown = run_cli("info", "--json", str(path))
     assert shown.returncode == 0, shown.stderr
     summary = json.loads(shown.stdout)
     assert summary["source_format"] == "glb" and summary["points"] == PER_M2
     bad, _ = bad_meshes["truncated.glb"]
     for args in (("info", str(bad)), ("segment", str(bad), "-o", str(tmp_path / "x.ply"))):
-        result = cli(*args)
+        result = run_cli(*args)
         assert result.returncode == 2, result.stderr
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and "truncated GLB" in lines[0], result.stderr

@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import subprocess
-import sys
 import threading
 import typing
 from collections.abc import Iterator
@@ -21,6 +19,7 @@ import pytest
 from jointseg.exceptions import ConfigError
 from jointseg.network import published
 from jointseg.network.registry import REGISTRY, resolve_weights
+from tests.support.cli import run_cli
 
 GOOD = bytes(range(256)) * 4096  # 1 MiB
 CUT = bytes(reversed(range(256))) * 6000
@@ -240,18 +239,13 @@ def test_built_in_checksums_match_the_shared_copies(shared_file) -> None:
 
 @pytest.mark.slow
 def test_cli_pull_and_list(catalogue: Path, tmp_path: Path) -> None:
-    def cli(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [sys.executable, "-m", "jointseg", *args], capture_output=True, text=True, timeout=120
-        )
-
-    done = cli("models", "pull", "good")
+    done = run_cli("models", "pull", "good")
     assert done.returncode == 0, done.stderr
     assert "--weights good" in done.stderr
     assert (tmp_path / "cache" / "weights" / "good.t7").read_bytes() == GOOD
-    failed = cli("models", "pull", "bad")
+    failed = run_cli("models", "pull", "bad")
     assert failed.returncode != 0
     assert failed.stderr.strip().count("\n") == 0 and "checksum mismatch" in failed.stderr
-    listed = cli("models", "list")
+    listed = run_cli("models", "list")
     assert listed.returncode == 0, listed.stderr
     assert "dgcnn-s3dis-6" in listed.stdout and str(tmp_path / "cache") in listed.stdout
