@@ -239,13 +239,13 @@ def test_built_in_checksums_match_the_shared_copies(shared_file) -> None:
 
 @pytest.mark.slow
 def test_cli_pull_and_list(catalogue: Path, tmp_path: Path) -> None:
-    done = run_cli("models", "pull", "good")
+    done = run_cli("models", "pull", "good", timeout=120)
     assert done.returncode == 0, done.stderr
     assert "--weights good" in done.stderr
     assert (tmp_path / "cache" / "weights" / "good.t7").read_bytes() == GOOD
-    failed = run_cli("models", "pull", "bad")
+    failed = run_cli("models", "pull", "bad", timeout=120)
     assert failed.returncode != 0
     assert failed.stderr.strip().count("\n") == 0 and "checksum mismatch" in failed.stderr
-    listed = run_cli("models", "list")
+    listed = run_cli("models", "list", timeout=120)
     assert listed.returncode == 0, listed.stderr
     assert "dgcnn-s3dis-6" in listed.stdout and str(tmp_path / "cache") in listed.stdout
