@@ -33,6 +33,11 @@ from jointseg.fusion.learned import FEATURES
 
 #: OpenMP threads the trees are fitted on: one, so that no sum depends on the machine.
 FIT_THREADS = 1
+#: Decimals the offers' features are rounded to before the trees see them. A split's threshold
+#: lies halfway between two feature values, so a last-bit difference in one of them (a float64
+#: logarithm or sum taken on another SIMD path, with or without AVX-512) would move it and
+#: change the file; rounded, the values are the same on every machine.
+FEATURE_DECIMALS = 9
 #: What the model's probability means (the card's first line).
 WHAT = "P(a label offered by a point's segment or cell is right where the network disagrees)"
 
@@ -52,12 +57,11 @@ MONOTONIC = [
 
 
 def features(room: Room, drop: list[str]) -> np.ndarray:
-    """The room's offer features, with the ``drop`` columns held constant (unusable)."""
-    x = room.offers.features
-    if not drop:
-        return x
-    x = x.copy()
-    x[:, [FEATURES.index(name) for name in drop]] = 0.0
+    """The room's offer features rounded to :data:`FEATURE_DECIMALS`, with the ``drop`` columns
+    held constant (unusable)."""
+    x = np.round(room.offers.features, FEATURE_DECIMALS)
+    if drop:
+        x[:, [FEATURES.index(name) for name in drop]] = 0.0
     return x
 
 

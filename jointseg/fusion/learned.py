@@ -69,8 +69,11 @@ FEATURES = (
 #: The features of a model fitted before the structure reading (issue 43): such a model is
 #: still read, evaluated on these columns only, and is never offered the structure's labels.
 FEATURES_BEFORE_STRUCTURE = FEATURES[:17]
-#: Probabilities are clipped to [EPS, 1 - EPS] before the logit.
+#: Probabilities are clipped to [EPS, 1 - EPS] before the logit (taken in float64, as the
+#: entropy is: see :func:`normalised_entropy`).
 EPS = 1e-4
+#: Rows whose entropy is taken at once (float64 copies of at most this many rows).
+ENTROPY_BLOCK = 1 << 18
 #: Classes that are the room's shell: a label moving between them and an object class is the
 #: vote's riskiest change (a board in its wall plane), so the model sees it.
 STRUCTURAL = np.zeros(NUM_CLASSES, dtype=bool)
@@ -87,7 +90,7 @@ DEFAULT_CELL_SIZE = 0.3
 
 
 def _logit(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, EPS, 1 - EPS)
+    x = np.clip(np.asarray(x, dtype=np.float64), EPS, 1 - EPS)
     return np.log(x / (1 - x))
 
 
@@ -137,9 +140,17 @@ class Offers:
 
 
 def normalised_entropy(probs: np.ndarray) -> np.ndarray:
-    """Entropy of each row of ``probs`` (N, C) divided by log C: 0 sure, 1 uniform."""
-    n_classes = probs.shape[1]
-    return -(probs * np.log(probs + 1e-6)).sum(axis=1) / np.log(n_classes)
+    """Entropy of each row of ``probs`` (N, C) divided by log C: 0 sure, 1 uniform.
+
+    Taken in float64, a block of rows at a time: numpy's float32 logarithm differs in the last
+    bit between its SIMD paths (with AVX2 or without), and those bits moved the thresholds of
+    a refitted vote from one machine to another."""
+    n, n_classes = probs.shape
+    out = np.empty(n)
+    for start in range(0, n, ENTROPY_BLOCK):
+        p = np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64)
+        out[start : start + ENTROPY_BLOCK] = -(p * np.log(p + 1e-6)).sum(axis=1)
+    return out / np.log(n_classes)
 
 
 def _shares(

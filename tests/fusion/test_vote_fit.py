@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -89,6 +91,52 @@ def test_the_same_plan_gives_the_same_file(fitted: tuple[Path, Path]) -> None:
     assert first.read_bytes() == second.read_bytes()
     body = json.loads(first.read_text())
     assert len(body["trees"]) >= 1 and "date" not in json.dumps(body["card"])
+
+
+def _numpy_has(feature: str) -> bool:
+    from numpy._core._multiarray_umath import __cpu_features__
+
+    return bool(__cpu_features__.get(feature))
+
+
+#: The offers' features a fit sees, of a fixed scene with a network's soft probabilities,
+#: written to the .npy file named by the first argument.
+FEATURES_OF_A_SCENE = """
+import sys
+import numpy as np
+from jointseg.fusion.fit_trees import FEATURE_DECIMALS
+from jointseg.fusion.learned import StructureHint, vote_offers
+rng = np.random.default_rng(7)
+n = 20_000
+xyz = rng.uniform(0, 4, (n, 3))
+seg = (xyz[:, 0] // 0.5).astype(np.int64) * 8 + (xyz[:, 1] // 0.5).astype(np.int64)
+probs = rng.dirichlet(np.full(13, 0.3), n).astype(np.float32)
+labels = probs.argmax(axis=1)
+kind = np.where(xyz[:, 2] < 0.1, 1, np.where(xyz[:, 0] > 3.9, 2, -1))
+hint = StructureHint(kind, np.where(kind >= 0, rng.uniform(0.3, 1, n), 0.0))
+offers = vote_offers(xyz, seg, 64, labels, probs, structure=hint)
+np.save(sys.argv[1], np.round(offers.features, FEATURE_DECIMALS))
+"""
+
+
+@pytest.mark.skipif(
+    not _numpy_has("AVX2"), reason="this CPU has no AVX2: numpy takes one SIMD path only"
+)
+def test_the_features_a_fit_sees_are_the_same_on_another_simd_path(tmp_path: Path) -> None:
+    # numpy without its AVX2 paths (X86_V3), as on an older CPU: its float32 logarithm differs
+    # in the last bit, and such bits moved the thresholds of a refitted vote (on 2026-11-29 the
+    # shipped plan, refitted on another machine than the shipped model's, wrote other bytes)
+    found = []
+    for i, env in enumerate(({}, {"NPY_DISABLE_CPU_FEATURES": "X86_V3"})):
+        out = tmp_path / f"features{i}.npy"
+        done = subprocess.run(
+            [sys.executable, "-c", FEATURES_OF_A_SCENE, str(out)],
+            capture_output=True, text=True, timeout=120, env={**os.environ, **env},
+        )  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        found.append(np.load(out))
+    assert len(found[0]) > 1000  # the scene makes offers
+    np.testing.assert_array_equal(found[0], found[1])
 
 
 def test_the_provenance_names_every_input_by_its_content(
