@@ -56,10 +56,15 @@ MONOTONIC = [
 ]
 
 
+def rounded(x: np.ndarray) -> np.ndarray:
+    """Offer features as the trees see them: rounded to :data:`FEATURE_DECIMALS` (a copy)."""
+    return np.round(x, FEATURE_DECIMALS)
+
+
 def features(room: Room, drop: list[str]) -> np.ndarray:
-    """The room's offer features rounded to :data:`FEATURE_DECIMALS`, with the ``drop`` columns
-    held constant (unusable)."""
-    x = np.round(room.offers.features, FEATURE_DECIMALS)
+    """The room's offer features as the trees see them (:func:`rounded`), with the ``drop``
+    columns held constant (unusable)."""
+    x = rounded(room.offers.features)
     if drop:
         x[:, [FEATURES.index(name) for name in drop]] = 0.0
     return x

@@ -104,7 +104,7 @@ def _numpy_has(feature: str) -> bool:
 FEATURES_OF_A_SCENE = """
 import sys
 import numpy as np
-from jointseg.fusion.fit_trees import FEATURE_DECIMALS
+from jointseg.fusion.fit_trees import rounded
 from jointseg.fusion.learned import StructureHint, vote_offers
 rng = np.random.default_rng(7)
 n = 20_000
@@ -115,7 +115,7 @@ labels = probs.argmax(axis=1)
 kind = np.where(xyz[:, 2] < 0.1, 1, np.where(xyz[:, 0] > 3.9, 2, -1))
 hint = StructureHint(kind, np.where(kind >= 0, rng.uniform(0.3, 1, n), 0.0))
 offers = vote_offers(xyz, seg, 64, labels, probs, structure=hint)
-np.save(sys.argv[1], np.round(offers.features, FEATURE_DECIMALS))
+np.save(sys.argv[1], rounded(offers.features))
 """
 
 
