@@ -119,6 +119,7 @@ np.save(sys.argv[1], rounded(offers.features))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     not _numpy_has("AVX2"), reason="this CPU has no AVX2: numpy takes one SIMD path only"
 )
