@@ -33,6 +33,8 @@ from jointseg.network.training.data import stable_order
 
 #: The shipped vote's plan.
 PLAN = BENCH.parent / "fit" / "vote.json"
+#: Issue 43's bar: no scan should lose more than this (points) against its network.
+LOSS_BAR = 0.5
 
 
 def gains(clf: Any, rooms: list[Room], plan: VotePlan, thresholds: list[float]) -> np.ndarray:
@@ -72,7 +74,8 @@ def cross_validate(
 
 
 def table(found: dict[tuple[str, str], list[np.ndarray]], thresholds: list[float]) -> None:
-    """Mean / worst gain per dataset x labeller, and the worst group and scan over all."""
+    """Mean / worst gain per dataset x labeller, the worst group and scan over all, and how
+    many scans lose more than LOSS_BAR."""
     print("| dataset | labeller | scans | " + " | ".join(f"t={t}" for t in thresholds) + " |")
     print("|---" * (3 + len(thresholds)) + "|")
     for (dataset, labeller), values in sorted(found.items()):
@@ -87,6 +90,8 @@ def table(found: dict[tuple[str, str], list[np.ndarray]], thresholds: list[float
         f"{group_means[:, j].min():+.2f} / {every[:, j].min():+.2f}" for j in range(len(thresholds))
     )
     print(f"| **all** | worst group mean / worst scan | {len(every)} | {cells} |")
+    losing = " | ".join(str(int((every[:, j] < -LOSS_BAR).sum())) for j in range(len(thresholds)))
+    print(f"| **all** | scans losing over {LOSS_BAR} points | {len(every)} | {losing} |")
 
 
 def adjusted(plan: VotePlan, args: argparse.Namespace) -> VotePlan:
