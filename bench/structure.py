@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import AREA6, M6, MODELS, SCANNET
-from helpers.report import header
+from helpers.report import LOSS_BAR, header
 from helpers.scans import (
     Item,
     colourless,
@@ -71,8 +71,6 @@ NETWORKS = {
     "dgcnn": M6,
 }
 FLOOR, CEILING = CLASS_INDEX["floor"], CLASS_INDEX["ceiling"]
-#: Issue 43: on no judging scan may the vote lose more than this (points) against the network.
-LOSS_BAR = 0.5
 
 
 @dataclass

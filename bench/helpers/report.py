@@ -64,3 +64,8 @@ def header(title: str = "") -> None:
         print(f"# {title}")
     print(f"machine: {machine()}")
     print(f"reproduce: {command()}\n", flush=True)
+
+
+#: Issue 43's bar: on no judging scan may the vote lose more than this (mIoU points) against
+#: its network; bench/structure.py and bench/fit_vote.py count the scans that do.
+LOSS_BAR = 0.5
