@@ -11,6 +11,12 @@ does.
     .venv/bin/python bench/fit_vote.py --cv 5 --thresholds 0.5 0.6 0.7
     .venv/bin/python bench/fit_vote.py --cv-datasets --depth 3 --trees 100
     .venv/bin/python bench/fit_vote.py --cv 5 --dataset-weight ScanNet=2 --skip-dataset synthetic
+    .venv/bin/python bench/fit_vote.py --cv 5 --fit-geometry-version 8
+
+With --fit-geometry-version N every fold is fitted on the offers of the geometry an older
+commit cached (its jointseg.fitting.outputs.STRUCTURE_VERSION was N; run that commit's
+`jointseg fit vote --cache bench/_cache` first) and judged on the held-out rooms' offers of
+today's geometry: what shipping a geometry change without refitting the vote does.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ import numpy as np
 from helpers.inputs import BENCH, CACHE
 from helpers.report import LOSS_BAR, header
 
+from jointseg.fitting import outputs
 from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
 from jointseg.fusion.fit_trees import features, fit_trees
 from jointseg.fusion.learned import FEATURES, best_offers
@@ -57,18 +64,43 @@ def folds(rooms: list[Room], n: int, by_dataset: bool) -> dict[str, str]:
 
 
 def cross_validate(
-    rooms: list[Room], plan: VotePlan, fold_of: dict[str, str], thresholds: list[float]
+    rooms: list[Room],
+    plan: VotePlan,
+    fold_of: dict[str, str],
+    thresholds: list[float],
+    fit_rooms: list[Room] | None = None,
 ) -> dict[tuple[str, str], list[np.ndarray]]:
-    """Held-out gains per (dataset, labeller), every fold fitted without its rooms."""
+    """Held-out gains per (dataset, labeller), every fold fitted without its rooms (on
+    ``fit_rooms``, the same scans and labellers in the same order, where given)."""
     weights = {d.name: d.weight for d in plan.datasets}
+    fit_rooms = rooms if fit_rooms is None else fit_rooms
     found: dict[tuple[str, str], list[np.ndarray]] = {}
     for k in sorted(set(fold_of.values())):
         test = [r for r in rooms if fold_of[r.room] == k]
-        clf = fit_trees([r for r in rooms if fold_of[r.room] != k], plan.fit, weights)
+        clf = fit_trees([r for r in fit_rooms if fold_of[r.room] != k], plan.fit, weights)
         for r, g in zip(test, gains(clf, test, plan, thresholds), strict=True):
             kind = f"{r.dataset} slices" if r.name.endswith(" slice") else r.dataset
             found.setdefault((kind, r.labeller), []).append(g)
     return found
+
+
+def rooms_at_version(plan: VotePlan, base: Path, version: int) -> list[Room]:
+    """The plan's rooms with the geometry an older commit cached (STRUCTURE_VERSION
+    ``version``); a scan whose geometry of that version is not in the cache stops the run,
+    since today's code would compute it under the old key."""
+    current, original = outputs.STRUCTURE_VERSION, outputs.cached
+
+    def only_cached(path: Path | None, compute: Any) -> dict[str, np.ndarray]:
+        if path is not None and path.parent.name == "geo" and not path.is_file():
+            raise SystemExit(f"{path}: no geometry of version {version} cached; run that "
+                             f"version's `jointseg fit vote --cache {CACHE}` first")  # fmt: skip
+        return original(path, compute)
+
+    outputs.STRUCTURE_VERSION, outputs.cached = version, only_cached
+    try:
+        return load_rooms(plan, base, Sources({}, CACHE)).rooms
+    finally:
+        outputs.STRUCTURE_VERSION, outputs.cached = current, original
 
 
 def table(found: dict[tuple[str, str], list[np.ndarray]], thresholds: list[float]) -> None:
@@ -126,6 +158,9 @@ def arguments() -> argparse.Namespace:
         help="DATASET=W: that dataset weighs W (repeat)",
     )
     parser.add_argument("--skip-dataset", action="append", help="a dataset of the plan left out")
+    parser.add_argument(
+        "--fit-geometry-version", type=int, help="fit on an older commit's cached geometry"
+    )
     return parser.parse_args()
 
 
@@ -146,8 +181,17 @@ def main() -> None:
     }
     plan = adjusted(read_plan(args.plan, **overrides), args)
     rooms = load_rooms(plan, args.plan.parent, Sources({}, CACHE)).rooms
-    found = cross_validate(rooms, plan, folds(rooms, args.cv, args.cv_datasets), args.thresholds)
+    fit_rooms = None
+    if args.fit_geometry_version is not None:
+        fit_rooms = rooms_at_version(plan, args.plan.parent, args.fit_geometry_version)
+        same = [(r.dataset, r.name, r.labeller) for r in rooms]
+        if [(r.dataset, r.name, r.labeller) for r in fit_rooms] != same:
+            raise SystemExit("the older geometry's rooms are not the same scans and labellers")
+    fold_of = folds(rooms, args.cv, args.cv_datasets)
+    found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms)
     how = "leave one dataset out" if args.cv_datasets else f"{args.cv} folds by room"
+    if fit_rooms is not None:
+        how += f", fitted on geometry version {args.fit_geometry_version}"
     print(f"\n### {how}: {plan.fit.model_dump()} (mean / worst gain, points)\n")
     table(found, args.thresholds)
 

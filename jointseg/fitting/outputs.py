@@ -25,8 +25,10 @@ from jointseg.fitting.scans import TuningScan, content_key
 #: computes (2: RandLA-Net's linear possibility weight; 3: classes a scan does not hold taken
 #: out, RandLANetParams.absent_share), so no stale labels are reused.
 INFERENCE_VERSION = 3
-#: Part of every cached geometry output's key: bump it when the structure reading changes.
-STRUCTURE_VERSION = 8
+#: Part of every cached geometry output's key: bump it when the structure reading or how the
+#: thresholds are derived changes (9, 10: the voxel and plane tolerance capped at a
+#: SPARSE_SPACING of 1.6, then 2 cm).
+STRUCTURE_VERSION = 10
 
 #: A labeller that needs no network: the scan's own labels with patchy, confident mistakes
 #: (:func:`jointseg.synth.label_noise.corrupt_labels`), for tests and for measuring what a fit

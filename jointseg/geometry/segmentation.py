@@ -11,7 +11,12 @@ from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
 from jointseg.geometry import alignment, clustering, planes
-from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams, resolve
+from jointseg.geometry.params import (
+    GeometryParams,
+    ResolvedGeometryParams,
+    detail_spacing,
+    resolve,
+)
 from jointseg.geometry.structure import read_structure
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -139,7 +144,7 @@ def segment(
     else:
         params, spacing = resolved, resolved.spacing
     laps.lap("spacing", 0.05)
-    work = _voxelise(xyz, scan.rgb, params.voxel_factor * spacing)
+    work = _voxelise(xyz, scan.rgb, params.voxel_factor * detail_spacing(spacing))
     laps.lap("voxels", 0.1)
     yaw = None if resolved is None else resolved.yaw_deg
     frame = _align(work.xyz, max(spacing, work.voxel), align=params.align, yaw=yaw)
@@ -214,7 +219,7 @@ def scan_params(
     rng = np.random.default_rng(seed)
     xyz = scan.xyz - scan.xyz.mean(axis=0)
     spacing = estimate_spacing(xyz, rng=rng) or 1e-3
-    work = _voxelise(xyz, scan.rgb, params.voxel_factor * spacing)
+    work = _voxelise(xyz, scan.rgb, params.voxel_factor * detail_spacing(spacing))
     frame = _align(work.xyz, max(spacing, work.voxel), align=params.align)
     n = len(scan) if n_points is None else n_points
     return _neighbours(work, params, n_points=n, spacing=spacing, yaw=frame.yaw)[2]
