@@ -13,11 +13,10 @@ judging scans apart (bench/helpers/scans.py's split, levelled with the up axis f
 - the vote's pooled wall IoU, and the same with every point that is door in the truth or in
   the vote left out: what the wall row would read if the doors were told apart;
 - a label-free door-leaf rule for scans without a seen ceiling (the reading applies it only
-  with one): segments read as wall that are door-sized (at most ``DOOR_LENGTH`` long, standing
-  on the floor, their top at most ``DOOR_TOP`` above it and ``WALL_TOP / 2`` below the scan's
-  top), each at least --top m high. It counts the true wall, door and other points such a rule
-  would take out of the wall reading (the segments' fits over all points, the pipeline's over
-  voxel centroids).
+  with one): segments read as wall that are door-sized (jointseg.geometry.structure.door_sized,
+  the scan's top standing for the storey's), each at least --top m high. It counts the true
+  wall, door and other points such a rule would take out of the wall reading (the segments'
+  fits over all points, the pipeline's over voxel centroids).
 
 Network and geometry outputs are cached under bench/_cache (bench/helpers/scans.py).
 
@@ -34,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from helpers.inputs import SCANNET
 from helpers.report import header
-from helpers.scans import Item, geometry_output, load_items, network_output
+from helpers.scans import Item, geometry_output, load_items
 from structure import NETWORKS, before_model, levelled, votes
 
 from jointseg.classes import CLASS_INDEX
@@ -77,7 +76,7 @@ def door_segments(item: Item, labels: np.ndarray, share: float) -> np.ndarray:
     return chosen[seg]
 
 
-def door_sized(item: Item, min_top: float) -> np.ndarray:
+def door_rule_points(item: Item, min_top: float) -> np.ndarray:
     """Points of segments read as wall on a scan without a seen ceiling that a door-leaf rule
     without the ceiling's condition would take out of the wall reading."""
     g = geometry_output("default", item)
@@ -87,17 +86,9 @@ def door_sized(item: Item, min_top: float) -> np.ndarray:
     if found.floor_z is None or found.ceiling_z is not None:
         return np.zeros(len(seg), bool)
     s = reading._summarise(xyz, seg, int(seg.max()) + 1, np.random.default_rng(0))
-    top = float(np.quantile(xyz[:, 2], 0.995))
-    floor = found.floor_z
-    sized = (
-        (found.kind == WALL)
-        & (s.length <= reading.DOOR_LENGTH)
-        & (s.z_low <= floor + reading.DOOR_FOOT)
-        & (s.z_high <= floor + reading.DOOR_TOP)
-        & (s.z_high <= top - 0.5 * reading.WALL_TOP)
-        & (s.z_high >= floor + min_top)
-    )
-    return sized[seg] & found.on_surface
+    top = float(np.quantile(xyz[:, 2], 0.995))  # the reading's storey top without a ceiling
+    sized = reading.door_sized(s, found.floor_z, top) & (s.z_high >= found.floor_z + min_top)
+    return (sized & (found.kind == WALL))[seg] & found.on_surface
 
 
 def network_rows(net: str, items: list[Item], share: float) -> None:
@@ -113,14 +104,14 @@ def network_rows(net: str, items: list[Item], share: float) -> None:
         chosen = [i for i in items if i.split == split]
         hits, seg_truth, seg_vote, walls = np.zeros(3), np.zeros(3), np.zeros(2), np.zeros((2, 3))
         for item in chosen:
-            labels, _ = network_output(NETWORKS[net], item, predictors)
+            out = votes(item, NETWORKS[net], predictors, before)
+            labels, after = out["network"], out["after"]
             truth = item.scan.labels
             assert truth is not None
             hits += (np.sum((labels == DOOR) & (truth == DOOR)), np.sum(labels == DOOR),
                      np.sum(truth == DOOR))  # fmt: skip
             mask = door_segments(item, labels, share)
             seg_truth += wall_door_other(truth, mask)
-            after = votes(item, NETWORKS[net], predictors, before)["after"]
             seg_vote += (np.sum(mask & (truth == WALL) & (after == WALL)),
                          np.sum(mask & (truth == DOOR) & (after == WALL)))  # fmt: skip
             walls += wall_counts(truth, after)
@@ -141,7 +132,7 @@ def rule_rows(items: list[Item], tops: list[float]) -> None:
             counts = np.zeros(3)
             for item in (i for i in items if i.split == split):
                 assert item.scan.labels is not None
-                counts += wall_door_other(item.scan.labels, door_sized(item, min_top))
+                counts += wall_door_other(item.scan.labels, door_rule_points(item, min_top))
             cells = " | ".join(f"{v:.0f}" for v in counts)
             print(f"| {min_top:g} | {split} | {cells} |")
 

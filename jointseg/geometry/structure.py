@@ -321,6 +321,17 @@ def read_structure(
     return Structure(kind, confidence, on_surface, floor_z, ceiling_z)
 
 
+def door_sized(s: _Segments, floor_z: float, top: float) -> np.ndarray:
+    """Segments of a door leaf's size: at most DOOR_LENGTH long, standing on the floor, their
+    top at most DOOR_TOP above it and half of WALL_TOP below the storey's ``top``."""
+    return (
+        (s.length <= DOOR_LENGTH)
+        & (s.z_low <= floor_z + DOOR_FOOT)
+        & (s.z_high <= floor_z + DOOR_TOP)
+        & (s.z_high <= top - 0.5 * WALL_TOP)
+    )
+
+
 def _read_walls(
     xyz: np.ndarray,
     s: _Segments,
@@ -339,13 +350,7 @@ def _read_walls(
     tall = upright & ((span >= WALL_SPAN * height) | (s.z_high >= top - WALL_TOP))
     # a door leaf: door-sized, with the wall going on above it up to a ceiling; without a seen
     # ceiling a wall captured only up to door height looks the same, and is far more common
-    door = (
-        (s.length <= DOOR_LENGTH)
-        & (s.z_low <= floor_z + DOOR_FOOT)
-        & (s.z_high <= floor_z + DOOR_TOP)
-        & (s.z_high <= top - 0.5 * WALL_TOP)
-        & (ceiling_z is not None)
-    )
+    door = door_sized(s, floor_z, top) & (ceiling_z is not None)
     candidates = np.flatnonzero((tall | (upright & (span >= LOW_WALL))) & ~door)
     if len(candidates) == 0:
         return
