@@ -24,7 +24,7 @@ colour-free one, DGCNN model_6 where its weights are on this machine):
 Network and geometry outputs are cached under bench/_cache (bench/helpers/scans.py).
 
     .venv/bin/python bench/structure.py [--networks bundled,nocolour,dgcnn] [--splits judge,tune]
-        [--before-ref 4dc3e5d] [--speed]
+        [--before-ref 4dc3e5d] [--speed] [--flip-threshold 0.5 --metric-iou 0.8]
 """
 
 from __future__ import annotations
@@ -126,18 +126,26 @@ def before_model(ref: str) -> TreeEnsemble:
         return TreeEnsemble.from_json(path)
 
 
-def votes(item: Item, spec: str, predictors: dict, before: TreeEnsemble) -> dict[str, np.ndarray]:
-    """Network labels and the vote's before and after on one scan."""
+def votes(
+    item: Item,
+    spec: str,
+    predictors: dict,
+    before: TreeEnsemble,
+    params: FusionParams | None = None,
+) -> dict[str, np.ndarray]:
+    """Network labels and the vote's before and after on one scan; "after" with ``params``
+    (default: the library's), "before" always at the library's default threshold."""
     labels, probs = network_output(spec, item, predictors)
     g = geometry_output("default", item)
     seg = g["segments"].astype(np.int64)
+    after = params or FusionParams()
     params = FusionParams()
     old, _ = learned_labels(
         item.scan.xyz, seg, int(seg.max()) + 1, labels, point_probs(labels, probs),
         threshold=params.flip_threshold, min_support=params.min_support,
         main_plane=g["plane_id"] >= 0, model=before,
     )  # fmt: skip
-    new = fuse(item.scan.xyz, seg, labels, probs, params, main_plane=g["plane_id"] >= 0,
+    new = fuse(item.scan.xyz, seg, labels, probs, after, main_plane=g["plane_id"] >= 0,
                structure=structure_hint(g), has_colour=item.scan.rgb is not None)  # fmt: skip
     return {"network": labels, "before": old, "after": new.labels.astype(np.int64)}
 
@@ -207,7 +215,11 @@ def main() -> None:
     parser.add_argument("--judge", type=int, default=10)
     parser.add_argument("--before-ref", default="4dc3e5d")
     parser.add_argument("--speed", action="store_true")
+    parser.add_argument("--flip-threshold", type=float, help="the vote's (default: library's)")
+    parser.add_argument("--metric-iou", type=float, help="the vote's (default: library's)")
     args = parser.parse_args()
+    chosen = {"flip_threshold": args.flip_threshold, "metric_iou": args.metric_iou}
+    after = FusionParams(**{k: v for k, v in chosen.items() if v is not None})
     header()
     logging.basicConfig(level=logging.WARNING)
     print(f"`{Path(sys.argv[0]).name} {' '.join(sys.argv[1:])}`")
@@ -226,7 +238,7 @@ def main() -> None:
         pools: dict[str, Pool] = {}
         rooms: list[str] = []
         for item in [colourless(i) for i in items] if net == "nocolour" else items:
-            out = votes(item, spec, predictors, before)
+            out = votes(item, spec, predictors, before, after)
             assert item.scan.labels is not None
             pool = pools.setdefault(f"{item.dataset} {item.split}", Pool())
             pool.add(item.name, item.scan.labels, out)

@@ -40,11 +40,15 @@ class ScanTotals:
     disagreement : float
         Share of the whole scan's points whose network label is not their segment's most
         common label (:func:`jointseg.fusion.learned.disagreement_share`).
+    class_counts : tuple of int, optional
+        The whole scan's network labels per class (the learned vote's thresholds,
+        :func:`jointseg.fusion.learned.offer_thresholds`); counted in the part when not given.
     """
 
     points: int
     mean_entropy: float
     disagreement: float
+    class_counts: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -328,6 +332,10 @@ def _learned_vote(
         else (totals.points, totals.mean_entropy, totals.disagreement),
         structure=structure,
         has_colour=has_colour,
+        metric_iou=params.metric_iou,
+        class_counts=None
+        if totals is None or totals.class_counts is None
+        else np.asarray(totals.class_counts),
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

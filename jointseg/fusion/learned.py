@@ -18,7 +18,10 @@ majorities are no better than its points). A gradient-boosted
 tree ensemble over these (``vote_model.json``, fitted by `jointseg fit vote` on tuning scans
 of S3DIS, ScanNet and synthetic rooms, labelled by strong, weak and distorted networks, never on
 the judging scans) gives P(the offer is right);
-a point takes its most probable offer above the threshold. The model is plain JSON evaluated
+a point takes its most probable offer above its threshold. The threshold weighs what the
+judge of the result, the mIoU, weighs (:func:`offer_thresholds`): a wrong move out of a class
+the scan holds little of costs that class's IoU more than a right one gains the large class it
+joins, so such offers need stronger evidence. The model is plain JSON evaluated
 with numpy: no learning library is needed at run time.
 """
 
@@ -85,6 +88,9 @@ FIXTURE = np.zeros(NUM_CLASSES, dtype=bool)
 FIXTURE[[CLASS_INDEX[c] for c in ("window", "door", "board", "column", "beam")]] = True
 #: Trees with at most this many split nodes are evaluated through a lookup table.
 MAX_TABLE_BITS = 12
+#: :func:`offer_thresholds` counts every class as at least this share of the scan (a class
+#: of a few points would otherwise ask for certainty, or be joined on no evidence).
+MIN_CLASS_SHARE = 0.001
 #: Cell side (m) the shipped model was fitted with, when its file names none.
 DEFAULT_CELL_SIZE = 0.3
 
@@ -451,11 +457,38 @@ def shipped_model() -> TreeEnsemble:
     return TreeEnsemble.from_json(MODEL_PATH)
 
 
+def offer_thresholds(
+    counts: np.ndarray, own: np.ndarray, offer: np.ndarray, threshold: float, metric_iou: float
+) -> np.ndarray:
+    """The least P(right) at which each offer is taken, so that a taken offer raises the
+    expected mIoU (the metric every class counts in alike).
+
+    Moving one point from class a (``own``) to b (``offer``) changes the IoUs, to first order
+    in the classes' unions U (here the network's point counts, ``counts``, with every class
+    at least :data:`MIN_CLASS_SHARE` of the scan), by ``k / U_a + 1 / U_b`` where the offer is
+    right and by ``-(1 / U_a + k / U_b)`` where the network was, k being the classes' IoU
+    (``metric_iou``, one guess for all). The offer pays where its odds exceed the ratio of
+    the two, times the odds of ``threshold``: between classes of one size that is
+    ``threshold``; out of a class the scan has little of (a board in its wall) it asks for
+    more, into one for less. ``metric_iou`` 1 gives ``threshold`` everywhere."""
+    n = np.asarray(counts, dtype=np.float64)
+    u = np.maximum(n, MIN_CLASS_SHARE * max(float(n.sum()), 1.0))
+    ua, ub = u[own], u[offer]
+    base = threshold / max(1.0 - threshold, EPS)
+    odds = base * (1 / ua + metric_iou / ub) / (metric_iou / ua + 1 / ub)
+    return odds / (1 + odds)
+
+
 def best_offers(
-    labels: np.ndarray, point: np.ndarray, label: np.ndarray, p: np.ndarray, threshold: float
+    labels: np.ndarray,
+    point: np.ndarray,
+    label: np.ndarray,
+    p: np.ndarray,
+    threshold: float | np.ndarray,
 ) -> np.ndarray:
     """``labels`` (copied, int64) with each point's most probable offer above ``threshold``
-    taken; ``point``, ``label`` and ``p`` describe the offers."""
+    (one for all, or one per offer) taken; ``point``, ``label`` and ``p`` describe the
+    offers."""
     fused = np.asarray(labels, dtype=np.int64).copy()
     take = np.flatnonzero(p > threshold)
     # a point with two accepted offers takes the more probable one
@@ -481,11 +514,16 @@ def learned_labels(
     totals: tuple[int, float, float] | None = None,
     structure: StructureHint | None = None,
     has_colour: bool = True,
+    metric_iou: float = 1.0,
+    class_counts: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
-    ``threshold``, else the network's label. An offer of a class the network gave the point
-    less than ``min_support`` probability is never taken. ``structure`` (the geometry's floor,
-    ceiling and wall reading) is offered too where the model was fitted with it.
+    its threshold (:func:`offer_thresholds` of ``threshold`` and ``metric_iou``), else the
+    network's label. An offer of a class the network gave the point less than ``min_support``
+    probability is never taken. ``structure`` (the geometry's floor, ceiling and wall reading)
+    is offered too where the model was fitted with it. ``class_counts``: the network's points
+    per class in the whole scan, where these points are a part of it (a tile); else counted
+    here.
 
     Returns
     -------
@@ -508,4 +546,8 @@ def learned_labels(
         has_colour=has_colour,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
-    return best_offers(labels, offers.point, offers.label, p, threshold), offers.segment_votes
+    labels = np.asarray(labels, dtype=np.int64)
+    if class_counts is None:
+        class_counts = np.bincount(labels, minlength=probs.shape[1])
+    at = offer_thresholds(class_counts, labels[offers.point], offers.label, threshold, metric_iou)
+    return best_offers(labels, offers.point, offers.label, p, at), offers.segment_votes

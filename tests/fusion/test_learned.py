@@ -14,9 +14,12 @@ from jointseg.exceptions import ConfigError
 from jointseg.fusion import FusionParams, fuse
 from jointseg.fusion.learned import (
     FEATURES,
+    MIN_CLASS_SHARE,
     MODEL_PATH,
     TreeEnsemble,
     disagreement_share,
+    learned_labels,
+    offer_thresholds,
     shipped_model,
     vote_offers,
 )
@@ -188,3 +191,51 @@ def test_whether_the_scan_has_colour_reaches_the_features() -> None:
     without = vote_offers(line(10), seg, 1, labels, probs, has_colour=False)
     assert len(with_colour.point) > 0
     assert (with_colour.features[:, column] == 1).all() and (without.features[:, column] == 0).all()
+
+
+def test_the_threshold_asks_more_to_leave_a_small_class_than_a_large_one() -> None:
+    counts = np.zeros(13)
+    counts[[2, 11]] = [9000, 100]  # wall, board
+    own, offer = np.array([11, 2, 2]), np.array([2, 11, 2])
+    t = offer_thresholds(counts, own, offer, 0.5, 0.8)
+    assert t[0] > 0.55 > 0.5 > 0.45 > t[1]  # board -> wall asks more, wall -> board less
+    assert t[2] == pytest.approx(0.5)  # one class's size against itself: the threshold
+    np.testing.assert_allclose(offer_thresholds(counts, own, offer, 0.55, 1.0), 0.55)
+    # a class the network gave no point counts as MIN_CLASS_SHARE of the scan, not as nothing
+    floor = offer_thresholds(counts, np.array([5]), np.array([2]), 0.5, 0.8)
+    counts[5] = MIN_CLASS_SHARE * counts.sum()
+    assert floor == pytest.approx(offer_thresholds(counts, np.array([5]), np.array([2]), 0.5, 0.8))
+
+
+def constant_model(path: Path, p: float) -> TreeEnsemble:
+    """A model giving every offer P(right) = p."""
+    stump_model(path, feature=0, threshold=1e9)
+    body = json.loads(path.read_text())
+    body["base"] = float(np.log(p / (1 - p)))
+    body["trees"][0]["value"] = [0.0, 0.0, 0.0]
+    path.write_text(json.dumps(body))
+    return TreeEnsemble.from_json(path)
+
+
+def test_a_small_class_keeps_points_a_large_one_gives_up_on_the_same_evidence(tmp_path) -> None:
+    # a wall segment with a board's 60 points in it, a chair segment with 60 wall specks in
+    # it; the model is 54 % sure of every offer
+    board = [{11: 0.5, 2: 0.3}] * 60
+    wall_in_chair = [{2: 0.5, 8: 0.3}] * 60
+    rows = [{2: 0.6}] * 3000 + board + [{8: 0.6}] * 800 + wall_in_chair
+    probs = probs_for(rows)
+    labels = probs.argmax(axis=1)
+    seg = np.r_[np.zeros(3060, np.int64), np.ones(860, np.int64)]
+    model = constant_model(tmp_path / "m.json", 0.54)
+    args = (line(len(rows)), seg, 2, labels, probs)
+    fused, _ = learned_labels(*args, threshold=0.5, metric_iou=0.8, model=model)
+    assert (fused[3000:3060] == 11).all()  # out of the rare board: 0.54 is not enough
+    assert (fused[3860:] == 8).all()  # out of the common wall into chair: it is
+    plain, _ = learned_labels(*args, threshold=0.5, metric_iou=1.0, model=model)
+    assert (plain[3000:3060] == 2).all() and (plain[3860:] == 8).all()
+    # the same points fused as a part of a scan with few walls weigh as that scan's classes
+    counts = np.bincount(labels, minlength=13)
+    counts[2] = 60
+    tile, _ = learned_labels(*args, threshold=0.5, metric_iou=0.8, model=model,
+                             class_counts=counts)  # fmt: skip
+    assert (tile[3860:] == 2).all()

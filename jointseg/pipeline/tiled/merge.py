@@ -25,6 +25,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from jointseg.classes import NUM_CLASSES
 from jointseg.fusion import ScanTotals, StructureHint, fuse
 from jointseg.fusion.learned import disagreement_share, normalised_entropy
 from jointseg.grouping import compact_ids
@@ -328,6 +329,9 @@ def _vote(
         points=n,
         mean_entropy=gathered.entropy_sum / max(n, 1),
         disagreement=disagreement_share(segment, int(segment.max()) + 1, gathered.labels),
+        class_counts=tuple(
+            int(c) for c in np.bincount(gathered.labels, minlength=NUM_CLASSES)[:NUM_CLASSES]
+        ),
     )
     seg_batch, n_batches = _batches(segment, plan.params.max_points)
     point_batch = seg_batch.astype(np.int32)[segment]
