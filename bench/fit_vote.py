@@ -12,6 +12,7 @@ does.
     .venv/bin/python bench/fit_vote.py --cv-datasets --depth 3 --trees 100
     .venv/bin/python bench/fit_vote.py --cv 5 --dataset-weight ScanNet=2 --skip-dataset synthetic
     .venv/bin/python bench/fit_vote.py --cv 5 --fit-geometry-version 8
+    .venv/bin/python bench/fit_vote.py --cv 5 --thresholds 0.5 --metric-iou 0.8
 
 With --fit-geometry-version N every fold is fitted on the offers of the geometry an older
 commit cached (its jointseg.fitting.outputs.STRUCTURE_VERSION was N; run that commit's
@@ -30,10 +31,11 @@ import numpy as np
 from helpers.inputs import BENCH, CACHE
 from helpers.report import LOSS_BAR, header
 
+from jointseg.classes import NUM_CLASSES
 from jointseg.fitting import outputs
 from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
 from jointseg.fusion.fit_trees import features, fit_trees
-from jointseg.fusion.learned import FEATURES, best_offers
+from jointseg.fusion.learned import FEATURES, best_offers, offer_thresholds
 from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
 from jointseg.network.training.data import stable_order
@@ -42,15 +44,21 @@ from jointseg.network.training.data import stable_order
 PLAN = BENCH.parent / "fit" / "vote.json"
 
 
-def gains(clf: Any, rooms: list[Room], plan: VotePlan, thresholds: list[float]) -> np.ndarray:
-    """mIoU gain (points) of the rule on each room (rows) at each threshold (columns)."""
+def gains(
+    clf: Any, rooms: list[Room], plan: VotePlan, thresholds: list[float], metric_iou: float = 1.0
+) -> np.ndarray:
+    """mIoU gain (points) of the rule on each room (rows) at each threshold (columns), each
+    offer's threshold weighed by the classes' sizes as ``fusion.metric_iou`` weighs it."""
     out = np.zeros((len(rooms), len(thresholds)))
     for i, r in enumerate(rooms):
         x = features(r, plan.fit.drop_features)
         p = clf.predict_proba(x)[:, 1] if len(r.truth) else np.zeros(0)
         net = evaluate(r.gt, r.labels).miou or 0.0
+        counts = np.bincount(r.labels, minlength=NUM_CLASSES)
+        own = r.labels[r.offers.point]
         for j, t in enumerate(thresholds):
-            fused = best_offers(r.labels, r.offers.point, r.offers.label, p, t)
+            at = offer_thresholds(counts, own, r.offers.label, t, metric_iou)
+            fused = best_offers(r.labels, r.offers.point, r.offers.label, p, at)
             out[i, j] = 100 * ((evaluate(r.gt, fused).miou or 0.0) - net)
     return out
 
@@ -69,6 +77,7 @@ def cross_validate(
     fold_of: dict[str, str],
     thresholds: list[float],
     fit_rooms: list[Room] | None = None,
+    metric_iou: float = 1.0,
 ) -> dict[tuple[str, str], list[np.ndarray]]:
     """Held-out gains per (dataset, labeller), every fold fitted without its rooms (on
     ``fit_rooms``, the same scans and labellers in the same order, where given)."""
@@ -78,7 +87,7 @@ def cross_validate(
     for k in sorted(set(fold_of.values())):
         test = [r for r in rooms if fold_of[r.room] == k]
         clf = fit_trees([r for r in fit_rooms if fold_of[r.room] != k], plan.fit, weights)
-        for r, g in zip(test, gains(clf, test, plan, thresholds), strict=True):
+        for r, g in zip(test, gains(clf, test, plan, thresholds, metric_iou), strict=True):
             kind = f"{r.dataset} slices" if r.name.endswith(" slice") else r.dataset
             found.setdefault((kind, r.labeller), []).append(g)
     return found
@@ -148,6 +157,9 @@ def arguments() -> argparse.Namespace:
         parser.add_argument(f"--{name}", type=int, help="(default: the plan's)")
     for name in ("l2", "learning-rate"):
         parser.add_argument(f"--{name}", type=float, help="(default: the plan's)")
+    parser.add_argument(
+        "--metric-iou", type=float, default=1.0, help="fusion.metric_iou (1: one threshold)"
+    )
     parser.add_argument("--monotonic", action=argparse.BooleanOptionalAction, default=None)
     parser.add_argument("--structure", action=argparse.BooleanOptionalAction, default=None)
     parser.add_argument("--drop-feature", action="append", choices=FEATURES)
@@ -188,8 +200,10 @@ def main() -> None:
         if [(r.dataset, r.name, r.labeller) for r in fit_rooms] != same:
             raise SystemExit("the older geometry's rooms are not the same scans and labellers")
     fold_of = folds(rooms, args.cv, args.cv_datasets)
-    found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms)
+    found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms, args.metric_iou)
     how = "leave one dataset out" if args.cv_datasets else f"{args.cv} folds by room"
+    if args.metric_iou != 1.0:
+        how += f", metric_iou {args.metric_iou}"
     if fit_rooms is not None:
         how += f", fitted on geometry version {args.fit_geometry_version}"
     print(f"\n### {how}: {plan.fit.model_dump()} (mean / worst gain, points)\n")
