@@ -131,15 +131,15 @@ def votes(
     spec: str,
     predictors: dict,
     before: TreeEnsemble,
-    params: FusionParams | None = None,
+    after: FusionParams | None = None,
 ) -> dict[str, np.ndarray]:
-    """Network labels and the vote's before and after on one scan; "after" with ``params``
-    (default: the library's), "before" always at the library's default threshold."""
+    """Network labels and the vote's before and after on one scan; "after" with ``after``
+    (default: the library's parameters), "before" always at the library's default threshold."""
     labels, probs = network_output(spec, item, predictors)
     g = geometry_output("default", item)
     seg = g["segments"].astype(np.int64)
-    after = params or FusionParams()
     params = FusionParams()
+    after = after or params
     old, _ = learned_labels(
         item.scan.xyz, seg, int(seg.max()) + 1, labels, point_probs(labels, probs),
         threshold=params.flip_threshold, min_support=params.min_support,

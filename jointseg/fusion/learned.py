@@ -471,6 +471,8 @@ def offer_thresholds(
     the two, times the odds of ``threshold``: between classes of one size that is
     ``threshold``; out of a class the scan has little of (a board in its wall) it asks for
     more, into one for less. ``metric_iou`` 1 gives ``threshold`` everywhere."""
+    if metric_iou >= 1:
+        return np.full(len(own), threshold, dtype=np.float64)
     n = np.asarray(counts, dtype=np.float64)
     u = np.maximum(n, MIN_CLASS_SHARE * max(float(n.sum()), 1.0))
     ua, ub = u[own], u[offer]
@@ -546,8 +548,11 @@ def learned_labels(
         has_colour=has_colour,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
-    labels = np.asarray(labels, dtype=np.int64)
-    if class_counts is None:
-        class_counts = np.bincount(labels, minlength=probs.shape[1])
-    at = offer_thresholds(class_counts, labels[offers.point], offers.label, threshold, metric_iou)
+    at: float | np.ndarray = threshold
+    if metric_iou < 1:
+        labels = np.asarray(labels, dtype=np.int64)
+        if class_counts is None:
+            class_counts = np.bincount(labels, minlength=probs.shape[1])
+        own = labels[offers.point]
+        at = offer_thresholds(class_counts, own, offers.label, threshold, metric_iou)
     return best_offers(labels, offers.point, offers.label, p, at), offers.segment_votes
