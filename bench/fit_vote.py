@@ -31,7 +31,6 @@ import numpy as np
 from helpers.inputs import BENCH, CACHE
 from helpers.report import LOSS_BAR, header
 
-from jointseg.classes import NUM_CLASSES
 from jointseg.fitting import outputs
 from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
 from jointseg.fusion.fit_trees import features, fit_trees
@@ -45,7 +44,11 @@ PLAN = BENCH.parent / "fit" / "vote.json"
 
 
 def gains(
-    clf: Any, rooms: list[Room], plan: VotePlan, thresholds: list[float], metric_iou: float = 1.0
+    clf: Any,
+    rooms: list[Room],
+    plan: VotePlan,
+    thresholds: list[float],
+    metric_iou: float | str = 1.0,
 ) -> np.ndarray:
     """mIoU gain (points) of the rule on each room (rows) at each threshold (columns), each
     offer's threshold weighed by the classes' sizes as ``fusion.metric_iou`` weighs it."""
@@ -54,10 +57,9 @@ def gains(
         x = features(r, plan.fit.drop_features)
         p = clf.predict_proba(x)[:, 1] if len(r.truth) else np.zeros(0)
         net = evaluate(r.gt, r.labels).miou or 0.0
-        counts = np.bincount(r.labels, minlength=NUM_CLASSES)
         own = r.labels[r.offers.point]
         for j, t in enumerate(thresholds):
-            at = offer_thresholds(counts, own, r.offers.label, t, metric_iou)
+            at = offer_thresholds(r.classes, own, r.offers.label, t, metric_iou)
             fused = best_offers(r.labels, r.offers.point, r.offers.label, p, at)
             out[i, j] = 100 * ((evaluate(r.gt, fused).miou or 0.0) - net)
     return out
@@ -77,19 +79,19 @@ def cross_validate(
     fold_of: dict[str, str],
     thresholds: list[float],
     fit_rooms: list[Room] | None = None,
-    metric_iou: float = 1.0,
-) -> dict[tuple[str, str], list[np.ndarray]]:
-    """Held-out gains per (dataset, labeller), every fold fitted without its rooms (on
-    ``fit_rooms``, the same scans and labellers in the same order, where given)."""
+    metric_iou: float | str = 1.0,
+) -> dict[tuple[str, str], list[tuple[str, np.ndarray]]]:
+    """Held-out gains per (dataset, labeller) and scan, every fold fitted without its rooms
+    (on ``fit_rooms``, the same scans and labellers in the same order, where given)."""
     weights = {d.name: d.weight for d in plan.datasets}
     fit_rooms = rooms if fit_rooms is None else fit_rooms
-    found: dict[tuple[str, str], list[np.ndarray]] = {}
+    found: dict[tuple[str, str], list[tuple[str, np.ndarray]]] = {}
     for k in sorted(set(fold_of.values())):
         test = [r for r in rooms if fold_of[r.room] == k]
         clf = fit_trees([r for r in fit_rooms if fold_of[r.room] != k], plan.fit, weights)
         for r, g in zip(test, gains(clf, test, plan, thresholds, metric_iou), strict=True):
             kind = f"{r.dataset} slices" if r.name.endswith(" slice") else r.dataset
-            found.setdefault((kind, r.labeller), []).append(g)
+            found.setdefault((kind, r.labeller), []).append((r.name, g))
     return found
 
 
@@ -112,25 +114,32 @@ def rooms_at_version(plan: VotePlan, base: Path, version: int) -> list[Room]:
         outputs.STRUCTURE_VERSION, outputs.cached = current, original
 
 
-def table(found: dict[tuple[str, str], list[np.ndarray]], thresholds: list[float]) -> None:
-    """Mean / worst gain per dataset x labeller, the worst group and scan over all, and how
-    many scans lose more than LOSS_BAR."""
+def table(
+    found: dict[tuple[str, str], list[tuple[str, np.ndarray]]], thresholds: list[float]
+) -> None:
+    """Mean / worst gain per dataset x labeller, the worst group and scan over all, how many
+    scans lose more than LOSS_BAR, and which."""
     print("| dataset | labeller | scans | " + " | ".join(f"t={t}" for t in thresholds) + " |")
     print("|---" * (3 + len(thresholds)) + "|")
-    for (dataset, labeller), values in sorted(found.items()):
-        a = np.array(values)
+    for (dataset, labeller), named in sorted(found.items()):
+        a = np.array([g for _, g in named])
         cells = " | ".join(
             f"{a[:, j].mean():+.2f} / {a[:, j].min():+.2f}" for j in range(a.shape[1])
         )
         print(f"| {dataset} | {labeller} | {len(a)} | {cells} |")
-    every = np.concatenate([np.array(v) for v in found.values()])
-    group_means = np.array([np.array(v).mean(axis=0) for v in found.values()])
+    every = np.concatenate([np.array([g for _, g in v]) for v in found.values()])
+    group_means = np.array([np.array([g for _, g in v]).mean(axis=0) for v in found.values()])
     cells = " | ".join(
         f"{group_means[:, j].min():+.2f} / {every[:, j].min():+.2f}" for j in range(len(thresholds))
     )
     print(f"| **all** | worst group mean / worst scan | {len(every)} | {cells} |")
     losing = " | ".join(str(int((every[:, j] < -LOSS_BAR).sum())) for j in range(len(thresholds)))
     print(f"| **all** | scans losing over {LOSS_BAR} points | {len(every)} | {losing} |")
+    print(f"\nScans losing over {LOSS_BAR} points at any threshold:\n")
+    for (dataset, labeller), named in sorted(found.items()):
+        for name, g in named:
+            if (g < -LOSS_BAR).any():
+                print(f"- {name} ({dataset}, {labeller}): " + ", ".join(f"{v:+.2f}" for v in g))
 
 
 def adjusted(plan: VotePlan, args: argparse.Namespace) -> VotePlan:
@@ -158,7 +167,10 @@ def arguments() -> argparse.Namespace:
     for name in ("l2", "learning-rate"):
         parser.add_argument(f"--{name}", type=float, help="(default: the plan's)")
     parser.add_argument(
-        "--metric-iou", type=float, default=1.0, help="fusion.metric_iou (1: one threshold)"
+        "--metric-iou",
+        type=lambda t: t if t == "auto" else float(t),
+        default=FusionParams().metric_iou,
+        help="fusion.metric_iou: auto, or one IoU for every class (1: one threshold)",
     )
     parser.add_argument("--monotonic", action=argparse.BooleanOptionalAction, default=None)
     parser.add_argument("--structure", action=argparse.BooleanOptionalAction, default=None)
@@ -202,8 +214,7 @@ def main() -> None:
     fold_of = folds(rooms, args.cv, args.cv_datasets)
     found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms, args.metric_iou)
     how = "leave one dataset out" if args.cv_datasets else f"{args.cv} folds by room"
-    if args.metric_iou != 1.0:
-        how += f", metric_iou {args.metric_iou}"
+    how += f", metric_iou {args.metric_iou}"
     if fit_rooms is not None:
         how += f", fitted on geometry version {args.fit_geometry_version}"
     print(f"\n### {how}: {plan.fit.model_dump()} (mean / worst gain, points)\n")

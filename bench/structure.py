@@ -216,7 +216,11 @@ def main() -> None:
     parser.add_argument("--before-ref", default="4dc3e5d")
     parser.add_argument("--speed", action="store_true")
     parser.add_argument("--flip-threshold", type=float, help="the vote's (default: library's)")
-    parser.add_argument("--metric-iou", type=float, help="the vote's (default: library's)")
+    parser.add_argument(
+        "--metric-iou",
+        type=lambda t: t if t == "auto" else float(t),
+        help="the vote's: auto, or one IoU for every class (default: library's)",
+    )
     args = parser.parse_args()
     chosen = {"flip_threshold": args.flip_threshold, "metric_iou": args.metric_iou}
     after = FusionParams(**{k: v for k, v in chosen.items() if v is not None})

@@ -39,7 +39,14 @@ from jointseg.fitting.scans import (
     synthetic_rooms,
     variant,
 )
-from jointseg.fusion.learned import DEFAULT_CELL_SIZE, FEATURES, Offers, StructureHint, vote_offers
+from jointseg.fusion.learned import (
+    DEFAULT_CELL_SIZE,
+    FEATURES,
+    ClassTally,
+    Offers,
+    StructureHint,
+    vote_offers,
+)
 
 log = logging.getLogger(__name__)
 
@@ -219,6 +226,7 @@ class Room:
     offers: Offers
     truth: np.ndarray  # ground truth at each offer's point
     weight: np.ndarray  # per offer: inverse frequency of the true class, rooms weigh alike
+    classes: ClassTally  # the network's output per class (the vote's thresholds)
 
 
 def labeller_name(who: Labeller, spec: str) -> str:
@@ -268,7 +276,16 @@ def load_room(item: TuningScan, who: Labeller, spec: str, sources: Sources, plan
     room = f"{item.dataset}/{item.room or item.name}"
     name = labeller_name(who, spec)
     return Room(
-        item.name, item.dataset, room, name, gt, labels, offers, truth, w / max(w.sum(), 1e-12)
+        item.name,
+        item.dataset,
+        room,
+        name,
+        gt,
+        labels,
+        offers,
+        truth,
+        w / max(w.sum(), 1e-12),
+        ClassTally.of(labels, probs),
     )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion import evidence, guard, learned
-from jointseg.fusion.learned import StructureHint
+from jointseg.fusion.learned import ClassTally, StructureHint
 from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
 from jointseg.fusion.transfer import transfer_labels
 from jointseg.grouping import compact_ids, group_sums, label_histogram
@@ -40,15 +40,15 @@ class ScanTotals:
     disagreement : float
         Share of the whole scan's points whose network label is not their segment's most
         common label (:func:`jointseg.fusion.learned.disagreement_share`).
-    class_counts : tuple of int, optional
-        The whole scan's network labels per class (the learned vote's thresholds,
-        :func:`jointseg.fusion.learned.offer_thresholds`); counted in the part when not given.
+    classes : ClassTally, optional
+        The whole scan's network output per class (the learned vote's thresholds,
+        :func:`jointseg.fusion.learned.offer_thresholds`); tallied in the part when not given.
     """
 
     points: int
     mean_entropy: float
     disagreement: float
-    class_counts: tuple[int, ...] | None = None
+    classes: ClassTally | None = None
 
 
 @dataclass(frozen=True)
@@ -333,9 +333,7 @@ def _learned_vote(
         structure=structure,
         has_colour=has_colour,
         metric_iou=params.metric_iou,
-        class_counts=None
-        if totals is None or totals.class_counts is None
-        else np.asarray(totals.class_counts),
+        classes=None if totals is None else totals.classes,
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

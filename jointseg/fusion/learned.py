@@ -91,6 +91,9 @@ MAX_TABLE_BITS = 12
 #: :func:`offer_thresholds` counts every class as at least this share of the scan (a class
 #: of a few points would otherwise ask for certainty, or be joined on no evidence).
 MIN_CLASS_SHARE = 0.001
+#: :meth:`ClassTally.ious` takes no class's expected IoU as lower than this (a class the
+#: network seems never to find right would otherwise hold its points against any evidence).
+MIN_EXPECTED_IOU = 0.4
 #: Cell side (m) the shipped model was fitted with, when its file names none.
 DEFAULT_CELL_SIZE = 0.3
 
@@ -457,27 +460,99 @@ def shipped_model() -> TreeEnsemble:
     return TreeEnsemble.from_json(MODEL_PATH)
 
 
+@dataclass(frozen=True)
+class ClassTally:
+    """What the network's output says of each class over a scan, for :func:`offer_thresholds`:
+    the points it gave the class, the class's probability summed over every point (the points
+    expected truly of the class) and, over the points it gave the class, that probability
+    summed (those expected right). Parts of a scan (tiles) add up.
+
+    Attributes
+    ----------
+    counts, expected, agreed : ndarray of shape (C,), float64
+    """
+
+    counts: np.ndarray
+    expected: np.ndarray
+    agreed: np.ndarray
+
+    @classmethod
+    def of(cls, labels: np.ndarray, probs: np.ndarray) -> ClassTally:
+        """The tally of points labelled ``labels`` (N,) with probabilities ``probs`` (N, C)."""
+        labels = np.asarray(labels, dtype=np.int64)
+        n_classes = probs.shape[1]
+        expected = np.zeros(n_classes)
+        own = np.empty(len(labels))
+        for start in range(0, len(labels), ENTROPY_BLOCK):
+            rows = np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64)
+            expected += rows.sum(axis=0)
+            block = labels[start : start + ENTROPY_BLOCK]
+            own[start : start + len(block)] = rows[np.arange(len(block)), block]
+        return cls(
+            counts=np.bincount(labels, minlength=n_classes).astype(np.float64),
+            expected=expected,
+            agreed=np.bincount(labels, weights=own, minlength=n_classes),
+        )
+
+    @classmethod
+    def empty(cls, n_classes: int = NUM_CLASSES) -> ClassTally:
+        """The tally of no points."""
+        return cls(np.zeros(n_classes), np.zeros(n_classes), np.zeros(n_classes))
+
+    def __add__(self, other: ClassTally) -> ClassTally:
+        return ClassTally(
+            self.counts + other.counts,
+            self.expected + other.expected,
+            self.agreed + other.agreed,
+        )
+
+    def unions(self) -> np.ndarray:
+        """Each class's expected union of truth and labels, at least :data:`MIN_CLASS_SHARE`
+        of the scan (a class of a few points would otherwise ask for certainty, or be joined
+        on no evidence)."""
+        union = self.expected + self.counts - self.agreed
+        return np.maximum(union, MIN_CLASS_SHARE * max(float(self.counts.sum()), 1.0))
+
+    def ious(self) -> np.ndarray:
+        """Each class's expected IoU, at least :data:`MIN_EXPECTED_IOU`."""
+        union = self.expected + self.counts - self.agreed
+        iou = np.where(union > 0, self.agreed / np.maximum(union, 1e-12), 1.0)
+        return np.clip(iou, MIN_EXPECTED_IOU, 1.0)
+
+
 def offer_thresholds(
-    counts: np.ndarray, own: np.ndarray, offer: np.ndarray, threshold: float, metric_iou: float
+    tally: ClassTally,
+    own: np.ndarray,
+    offer: np.ndarray,
+    threshold: float,
+    metric_iou: float | str,
 ) -> np.ndarray:
     """The least P(right) at which each offer is taken, so that a taken offer raises the
     expected mIoU (the metric every class counts in alike).
 
     Moving one point from class a (``own``) to b (``offer``) changes the IoUs, to first order
-    in the classes' unions U (here the network's point counts, ``counts``, with every class
-    at least :data:`MIN_CLASS_SHARE` of the scan), by ``k / U_a + 1 / U_b`` where the offer is
-    right and by ``-(1 / U_a + k / U_b)`` where the network was, k being the classes' IoU
-    (``metric_iou``, one guess for all). The offer pays where its odds exceed the ratio of
-    the two, times the odds of ``threshold``: between classes of one size that is
-    ``threshold``; out of a class the scan has little of (a board in its wall) it asks for
-    more, into one for less. ``metric_iou`` 1 gives ``threshold`` everywhere."""
-    if metric_iou >= 1:
+    in the classes' unions U and IoUs k, by ``k_a / U_a + 1 / U_b`` where the offer is right
+    and by ``-(1 / U_a + k_b / U_b)`` where the network was. The offer pays where its odds
+    exceed the ratio of the two, times the odds of ``threshold``: out of a class the scan has
+    little of (a board in its wall) it asks for more, into one for less, and out of a class
+    the network finds poorly (k_a small: taking its false points away gains it little, taking
+    its true ones loses it much) for more still.
+
+    ``metric_iou`` "auto": U and k are those the network's own probabilities expect
+    (:meth:`ClassTally.unions`, :meth:`ClassTally.ious`). A number: one guess of k for all
+    classes, U the network's counts (at least :data:`MIN_CLASS_SHARE` of the scan); 1 gives
+    ``threshold`` everywhere."""
+    if metric_iou == "auto":
+        u, k = tally.unions(), tally.ious()
+    elif float(metric_iou) >= 1:
         return np.full(len(own), threshold, dtype=np.float64)
-    n = np.asarray(counts, dtype=np.float64)
-    u = np.maximum(n, MIN_CLASS_SHARE * max(float(n.sum()), 1.0))
-    ua, ub = u[own], u[offer]
+    else:
+        n = tally.counts
+        u = np.maximum(n, MIN_CLASS_SHARE * max(float(n.sum()), 1.0))
+        k = np.full(len(n), float(metric_iou))
+    ua, ub, ka, kb = u[own], u[offer], k[own], k[offer]
     base = threshold / max(1.0 - threshold, EPS)
-    odds = base * (1 / ua + metric_iou / ub) / (metric_iou / ua + 1 / ub)
+    odds = base * (1 / ua + kb / ub) / (ka / ua + 1 / ub)
     return odds / (1 + odds)
 
 
@@ -516,16 +591,16 @@ def learned_labels(
     totals: tuple[int, float, float] | None = None,
     structure: StructureHint | None = None,
     has_colour: bool = True,
-    metric_iou: float = 1.0,
-    class_counts: np.ndarray | None = None,
+    metric_iou: float | str = 1.0,
+    classes: ClassTally | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     its threshold (:func:`offer_thresholds` of ``threshold`` and ``metric_iou``), else the
     network's label. An offer of a class the network gave the point less than ``min_support``
     probability is never taken. ``structure`` (the geometry's floor, ceiling and wall reading)
-    is offered too where the model was fitted with it. ``class_counts``: the network's points
-    per class in the whole scan, where these points are a part of it (a tile); else counted
-    here.
+    is offered too where the model was fitted with it. ``classes``: the network's
+    :class:`ClassTally` over the whole scan, where these points are a part of it (a tile);
+    else tallied here.
 
     Returns
     -------
@@ -549,10 +624,9 @@ def learned_labels(
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
     at: float | np.ndarray = threshold
-    if metric_iou < 1:
+    if metric_iou == "auto" or float(metric_iou) < 1:
         labels = np.asarray(labels, dtype=np.int64)
-        if class_counts is None:
-            class_counts = np.bincount(labels, minlength=probs.shape[1])
+        tally = ClassTally.of(labels, probs) if classes is None else classes
         own = labels[offers.point]
-        at = offer_thresholds(class_counts, own, offers.label, threshold, metric_iou)
+        at = offer_thresholds(tally, own, offers.label, threshold, metric_iou)
     return best_offers(labels, offers.point, offers.label, p, at), offers.segment_votes

@@ -8,7 +8,7 @@ network's correct minority labels (the paper's own Table 1 loses board and clutt
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, PositiveInt
 
@@ -104,17 +104,15 @@ class FusionParams(BaseModel):
         "vote model's probability that the change is right exceeds this (higher: fewer, safer "
         "changes), between two classes the scan holds as many points of; see metric_iou.",
     )
-    metric_iou: float = Field(
-        1.0,
-        gt=0,
-        le=1,
-        description="'learned': below 1, the threshold follows the expected change of the "
-        "mIoU, taking this as every class's IoU: a point leaves a class the network gave few "
-        "points of only on stronger evidence (one wrong move costs that class more than one "
-        "right move gains the larger one) and joins one on weaker. 1 (default) keeps "
-        "flip_threshold for every pair of classes; flip_threshold 0.5 with metric_iou 0.8 "
-        "gains more on average, most on RGB-D scans, but more single scans lose "
-        "(docs/guide/fusion.md).",
+    metric_iou: Literal["auto"] | Annotated[float, Field(gt=0, le=1)] = Field(
+        "auto",
+        description="'learned': how the threshold follows the expected change of the mIoU. "
+        "A point leaves a class the network gave few points of, or finds poorly, only on "
+        "stronger evidence (one wrong move costs that class more than one right move gains "
+        "the class it joins) and joins one on weaker. 'auto' (default): every class's "
+        "size and IoU as the network's own probabilities expect them; a number in (0, 1]: "
+        "that IoU for every class and the network's counts as sizes; 1 keeps flip_threshold "
+        "for every pair of classes (docs/guide/fusion.md).",
     )
     min_support: float = Field(
         0.03,

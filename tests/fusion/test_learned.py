@@ -15,7 +15,9 @@ from jointseg.fusion import FusionParams, fuse
 from jointseg.fusion.learned import (
     FEATURES,
     MIN_CLASS_SHARE,
+    MIN_EXPECTED_IOU,
     MODEL_PATH,
+    ClassTally,
     TreeEnsemble,
     disagreement_share,
     learned_labels,
@@ -138,11 +140,14 @@ def test_main_plane_of_the_wrong_shape_is_a_config_error() -> None:
         fuse(line(10), np.zeros(10, int), probs.argmax(1), probs, main_plane=np.zeros(3, bool))
 
 
-def scene(first: list[dict[int, float]]) -> tuple[np.ndarray, ...]:
-    """Points on a line 1 cm apart: segment 0 is ``first``, then nine 200-point ceiling
-    segments, so segment 0 is a tenth of the scan as an object in a room is. Probabilities are
-    as soft as a real network's (DGCNN on S3DIS gives its own label about 0.4-0.6)."""
-    probs = probs_for(first + [{0: 0.6}] * 1800)
+def scene(
+    first: list[dict[int, float]], rest: dict[int, float] | None = None
+) -> tuple[np.ndarray, ...]:
+    """Points on a line 1 cm apart: segment 0 is ``first``, then nine 200-point segments of
+    ``rest`` (ceiling), so segment 0 is a tenth of the scan as an object in a room is.
+    Probabilities are as soft as a real network's (DGCNN on S3DIS gives its own label about
+    0.4-0.6)."""
+    probs = probs_for(first + [rest or {0: 0.6}] * 1800)
     seg = np.r_[np.zeros(len(first), np.int64), 1 + np.arange(1800) // 200]
     return line(len(probs)), seg, probs, probs.argmax(axis=1)
 
@@ -151,14 +156,16 @@ def test_unsure_specks_follow_a_confident_segment() -> None:
     rows = [{7: 0.6, 8: 0.05}] * 200
     for i in (50, 100, 150):
         rows[i] = {8: 0.35, 7: 0.3}  # chair specks on a table
-    xyz, seg, probs, labels = scene(rows)
+    # in a room with chairs the network finds (were these specks a scan's only chair points,
+    # chair would look a class found poorly, and offer_thresholds would keep them)
+    xyz, seg, probs, labels = scene(rows, {8: 0.6})
     result = fuse(xyz, seg, labels, probs, LEARNED)
     assert (labels[[50, 100, 150]] == 8).all()
     assert (result.labels[:200] == 7).all()
     # with the specks as sure of themselves as the table is of itself, they stay
     for i in (50, 100, 150):
         rows[i] = {8: 0.97, 7: 0.01}
-    xyz, seg, probs, labels = scene(rows)
+    xyz, seg, probs, labels = scene(rows, {8: 0.6})
     assert (fuse(xyz, seg, labels, probs, LEARNED).labels[[50, 100, 150]] == 8).all()
 
 
@@ -193,18 +200,73 @@ def test_whether_the_scan_has_colour_reaches_the_features() -> None:
     assert (with_colour.features[:, column] == 1).all() and (without.features[:, column] == 0).all()
 
 
+def sized(counts: np.ndarray) -> ClassTally:
+    """A tally of only the classes' sizes (all a fixed ``metric_iou`` reads)."""
+    return ClassTally(np.asarray(counts, float), np.zeros(len(counts)), np.zeros(len(counts)))
+
+
 def test_the_threshold_asks_more_to_leave_a_small_class_than_a_large_one() -> None:
     counts = np.zeros(13)
     counts[[2, 11]] = [9000, 100]  # wall, board
     own, offer = np.array([11, 2, 2]), np.array([2, 11, 2])
-    t = offer_thresholds(counts, own, offer, 0.5, 0.8)
+    t = offer_thresholds(sized(counts), own, offer, 0.5, 0.8)
     assert t[0] > 0.55 > 0.5 > 0.45 > t[1]  # board -> wall asks more, wall -> board less
     assert t[2] == pytest.approx(0.5)  # one class's size against itself: the threshold
-    np.testing.assert_allclose(offer_thresholds(counts, own, offer, 0.55, 1.0), 0.55)
+    np.testing.assert_allclose(offer_thresholds(sized(counts), own, offer, 0.55, 1.0), 0.55)
     # a class the network gave no point counts as MIN_CLASS_SHARE of the scan, not as nothing
-    floor = offer_thresholds(counts, np.array([5]), np.array([2]), 0.5, 0.8)
+    floor = offer_thresholds(sized(counts), np.array([5]), np.array([2]), 0.5, 0.8)
     counts[5] = MIN_CLASS_SHARE * counts.sum()
-    assert floor == pytest.approx(offer_thresholds(counts, np.array([5]), np.array([2]), 0.5, 0.8))
+    again = offer_thresholds(sized(counts), np.array([5]), np.array([2]), 0.5, 0.8)
+    assert floor == pytest.approx(again)
+
+
+def test_the_tally_expects_each_class_iou_from_the_probabilities() -> None:
+    # 100 wall points the network is 0.9 sure of; 10 board points it is 0.6 sure of, whose
+    # other 0.4 is wall; 10 wall points with 0.3 board in them
+    rows = [{2: 0.9, 0: 0.1}] * 100 + [{11: 0.6, 2: 0.4}] * 10 + [{2: 0.7, 11: 0.3}] * 10
+    probs = probs_for(rows)
+    labels = probs.argmax(axis=1)
+    tally = ClassTally.of(labels, probs)
+    assert tally.counts[[2, 11]].tolist() == [110, 10]
+    assert tally.expected[11] == pytest.approx(10 * 0.6 + 10 * 0.3, rel=1e-5)
+    assert tally.expected[2] == pytest.approx(90 + 4 + 7, rel=1e-5)
+    assert tally.agreed[11] == pytest.approx(6.0, rel=1e-5)
+    # board: 6 expected right of 10 labelled and 9 expected true -> IoU 6 / 13
+    assert tally.ious()[11] == pytest.approx(6 / 13, rel=1e-4)  # above MIN_EXPECTED_IOU
+    assert tally.unions()[11] == pytest.approx(13, rel=1e-4)
+    assert tally.ious()[11] < tally.ious()[2]
+    # tallies of parts add up to the whole's; a class never expected floors at MIN_EXPECTED_IOU
+    parts = ClassTally.of(labels[:50], probs[:50]) + ClassTally.of(labels[50:], probs[50:])
+    np.testing.assert_allclose(parts.expected, tally.expected, rtol=1e-6)
+    np.testing.assert_allclose(parts.agreed, tally.agreed, rtol=1e-6)
+    assert parts.counts.tolist() == tally.counts.tolist()
+    assert (tally.ious() >= MIN_EXPECTED_IOU).all()
+
+
+def test_auto_asks_more_to_leave_a_small_class_the_network_finds_poorly() -> None:
+    # 100 board points in a scan of 10 000 wall points the network finds well (IoU 0.82)
+    def tally(board_right: float) -> ClassTally:
+        t = ClassTally(np.full(13, 1.0), np.full(13, 1.0), np.full(13, 1.0))
+        t.counts[[2, 11]], t.expected[[2, 11]], t.agreed[[2, 11]] = (
+            [10_000, 100],
+            [10_000, 100],
+            [9_000, board_right],  # fmt: skip
+        )
+        return t
+
+    own, offer = np.array([11, 2]), np.array([2, 11])
+    poorly = offer_thresholds(tally(46), own, offer, 0.5, "auto")  # board IoU 0.30
+    well = offer_thresholds(tally(90), own, offer, 0.5, "auto")  # board IoU 0.82
+    # out of a board found poorly: its false points cost it little, its true ones much; its
+    # IoU counts as MIN_EXPECTED_IOU (0.4; 0.764 at its 0.30)
+    assert MIN_EXPECTED_IOU == 0.4
+    assert poorly[0] == pytest.approx(0.710, abs=0.002)
+    assert well[0] == pytest.approx(0.549, abs=0.002)
+    assert poorly[1] < well[1] < 0.5  # into the small board: less evidence, least when poor
+    # the number form reads only the classes' sizes
+    assert offer_thresholds(tally(46), own, offer, 0.5, 0.8)[0] == pytest.approx(
+        offer_thresholds(tally(90), own, offer, 0.5, 0.8)[0]
+    )
 
 
 def constant_model(path: Path, p: float) -> TreeEnsemble:
@@ -237,5 +299,5 @@ def test_a_small_class_keeps_points_a_large_one_gives_up_on_the_same_evidence(tm
     counts = np.bincount(labels, minlength=13)
     counts[2] = 60
     tile, _ = learned_labels(*args, threshold=0.5, metric_iou=0.8, model=model,
-                             class_counts=counts)  # fmt: skip
+                             classes=sized(counts))  # fmt: skip
     assert (tile[3860:] == 2).all()

@@ -21,7 +21,14 @@ from jointseg.fitting.provenance import arrays_sha256, file_sha256, read_provena
 from jointseg.fitting.scans import TuningScan, content_key
 from jointseg.fusion.fit import read_plan
 from jointseg.fusion.fit_trees import fit_vote
-from jointseg.fusion.learned import TreeEnsemble, best_offers, learned_labels, vote_offers
+from jointseg.fusion.learned import (
+    ClassTally,
+    TreeEnsemble,
+    best_offers,
+    learned_labels,
+    offer_thresholds,
+    vote_offers,
+)
 from jointseg.geometry import segment
 from jointseg.io import write_scan
 from jointseg.metrics import evaluate
@@ -172,12 +179,17 @@ def test_the_fitted_model_is_read_and_followed_by_the_vote(fitted: tuple[Path, P
     geo = segment(room, seed=0)
     n_seg = int(geo.segments.max()) + 1
     fused, _ = learned_labels(
-        room.xyz, geo.segments, n_seg, labels, probs, threshold=0.5, model=model
+        room.xyz, geo.segments, n_seg, labels, probs, threshold=0.5, model=model, metric_iou="auto"
     )
     offers = vote_offers(room.xyz, geo.segments, n_seg, labels, probs, cell_size=model.cell_size)
     p = model.probability(offers.features)
     assert p.std() > 0  # the model tells offers apart
-    np.testing.assert_array_equal(fused, best_offers(labels, offers.point, offers.label, p, 0.5))
+    # each offer's threshold weighs the classes as the network's probabilities expect them
+    at = offer_thresholds(
+        ClassTally.of(labels, probs), labels[offers.point], offers.label, 0.5, "auto"
+    )
+    assert at.std() > 0
+    np.testing.assert_array_equal(fused, best_offers(labels, offers.point, offers.label, p, at))
     network = evaluate(room.labels, labels).miou or 0.0
     assert (evaluate(room.labels, fused).miou or 0.0) > network  # it learned to mend mistakes
 

@@ -10,9 +10,17 @@ import numpy as np
 import pytest
 
 from jointseg.exceptions import Cancelled
+from jointseg.fusion.learned import ClassTally
 from jointseg.io import read_scan, write_scan
 from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file
-from jointseg.pipeline.tiled.merge import MIN_LINK_POINTS, _Gathered, join_segments, merge
+from jointseg.pipeline.tiled.merge import (
+    MIN_LINK_POINTS,
+    _gather,
+    _Gathered,
+    _network_outputs,
+    join_segments,
+    merge,
+)
 from jointseg.pipeline.tiled.run import cells_path, load_result, result_path, run_tile
 from jointseg.pipeline.tiled.store import prepare
 from jointseg.scan import Scan
@@ -98,6 +106,21 @@ def test_fused_labels_match_the_untiled_run_on_nearly_every_point(tiled, untiled
     assert agree > 0.96, agree
     changed = np.mean(untiled.fused_labels != untiled.network_labels)
     assert changed > 0.005, "the vote changed nothing: the comparison would prove nothing"
+
+
+def test_the_vote_weighs_the_whole_scans_classes_in_every_tile(
+    tiled, untiled, config: PipelineConfig
+) -> None:
+    """The learned vote's thresholds (metric_iou 'auto') read the network's classes over the
+    whole scan, not over a tile's batch: the merge tallies them as the untiled run would."""
+    work, plan, _ = tiled
+    gathered = _gather(work, plan, None, None)
+    _network_outputs(work, plan, gathered, config)
+    whole = ClassTally.of(untiled.network_labels, untiled.network.probs)
+    assert gathered.tally.counts.sum() == POINTS
+    np.testing.assert_allclose(gathered.tally.counts, whole.counts, atol=POINTS * 1e-3)
+    np.testing.assert_allclose(gathered.tally.expected, whole.expected, rtol=1e-3, atol=1.0)
+    np.testing.assert_allclose(gathered.tally.ious(), whole.ious(), atol=2e-3)
 
 
 def test_segments_crossing_tile_borders_are_joined(tiled) -> None:
@@ -268,3 +291,7 @@ def test_a_network_without_a_shared_crop_plan_runs_each_tile_on_its_own(
     assert first.network.probs is not None and first.network.labels is not None
     assert first.network.probs.shape == (len(first.core_index), 13)
     assert np.array_equal(merged.network_label[first.core_index], first.network.labels)
+    # the vote's class tally adds up every tile's own outputs
+    tally = _gather(tmp_path, plan, None, None).tally
+    assert tally.counts.tolist() == np.bincount(merged.network_label, minlength=13).tolist()
+    assert tally.expected.sum() == pytest.approx(len(small), rel=1e-3)

@@ -25,9 +25,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from jointseg.classes import NUM_CLASSES
 from jointseg.fusion import ScanTotals, StructureHint, fuse
-from jointseg.fusion.learned import disagreement_share, normalised_entropy
+from jointseg.fusion.learned import ClassTally, disagreement_share, normalised_entropy
 from jointseg.grouping import compact_ids
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.presence import drop_absent
@@ -98,6 +97,8 @@ class _Gathered:
     tile_timings: list[dict[str, float]]
     point_cell: np.ndarray | None = None
     cells: CellTable | None = None
+    #: the network's output per class over the whole scan (the vote's thresholds)
+    tally: ClassTally = field(default_factory=ClassTally.empty)
 
 
 @dataclass(frozen=True)
@@ -236,6 +237,8 @@ def _take_network(out: _Gathered, network: TileNetwork, core_idx: np.ndarray) ->
         return
     out.labels[core_idx] = network.labels
     out.confidence[core_idx] = network.confidence
+    if network.probs is not None and network.labels is not None:
+        out.tally += ClassTally.of(network.labels, network.probs)
 
 
 def _network_outputs(
@@ -268,7 +271,9 @@ def _network_outputs(
     for start in range(0, plan.points, CHUNK_POINTS):
         cells = gathered.point_cell[start : start + CHUNK_POINTS]
         rows = gathered.cells.lookup(cells)
-        gathered.labels[start : start + len(rows)] = rows.argmax(axis=1)
+        labels = rows.argmax(axis=1)
+        gathered.labels[start : start + len(rows)] = labels
+        gathered.tally += ClassTally.of(labels, rows)
         gathered.confidence[start : start + len(rows)] = rows.max(axis=1)
         gathered.entropy_sum += float(normalised_entropy(rows).sum())
 
@@ -329,9 +334,7 @@ def _vote(
         points=n,
         mean_entropy=gathered.entropy_sum / max(n, 1),
         disagreement=disagreement_share(segment, int(segment.max()) + 1, gathered.labels),
-        class_counts=tuple(
-            int(c) for c in np.bincount(gathered.labels, minlength=NUM_CLASSES)[:NUM_CLASSES]
-        ),
+        classes=gathered.tally,
     )
     seg_batch, n_batches = _batches(segment, plan.params.max_points)
     point_batch = seg_batch.astype(np.int32)[segment]
