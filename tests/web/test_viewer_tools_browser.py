@@ -438,6 +438,21 @@ def test_the_screenshot_button_downloads_a_png_and_the_point_budget_caps_the_poi
         page.close()
 
 
+def well_inside_a_room(xyz: np.ndarray, rooms: list[dict], margin: float = 0.25) -> np.ndarray:
+    """Points whose plan position lies inside a room's footprint, as do the four points
+    ``margin`` away along x and y (matplotlib's test, not the viewer's)."""
+    from matplotlib.path import Path as Outline
+
+    out = np.zeros(len(xyz), dtype=bool)
+    for room in rooms:
+        outline = Outline(np.asarray(room["footprint"], dtype=np.float64))
+        ok = np.ones(len(xyz), dtype=bool)
+        for dx, dy in ((0, 0), (margin, 0), (-margin, 0), (0, margin), (0, -margin)):
+            ok &= outline.contains_points(xyz[:, :2] + (dx, dy))
+        out |= ok
+    return out
+
+
 def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     """Objects and rooms: boxes drawn, listed by class, told on a click (issue 33)."""
     import json
@@ -459,8 +474,13 @@ def check_objects(page: Any, view: Any, jobs: Path, artifacts: Path) -> None:
     page.get_by_label("Click to", exact=True).click()
     page.get_by_role("option", name="Pick a point").click()
     rows = visible_rows(view, "fused")
-    # an object's point that no drawn point hides (a wall in front of a board on it does)
-    target = clear_point(data, rows, BACK, 0.25, candidates=rows[data.instance[rows] >= 0])
+    # an object's point inside a room, 25 cm or more from its outline (a clutter object on
+    # the wall is outside the room), that no drawn point hides (a wall in front of a board
+    # on it does)
+    inner = well_inside_a_room(data.xyz[rows] + data.centre, rooms)
+    target = clear_point(
+        data, rows, BACK, 0.25, candidates=rows[(data.instance[rows] >= 0) & inner]
+    )
     aim(page, view, "fused", target, BACK)
     click_centre(page)
     m = answer(page, r"object: (\w+) (\d+)")
