@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 from helpers.inputs import BENCH, CACHE
-from helpers.report import LOSS_BAR, header
+from helpers.report import LOSS_BAR, header, metric_iou_value
 
 from jointseg.fitting import outputs
 from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
@@ -168,7 +168,7 @@ def arguments() -> argparse.Namespace:
         parser.add_argument(f"--{name}", type=float, help="(default: the plan's)")
     parser.add_argument(
         "--metric-iou",
-        type=lambda t: t if t == "auto" else float(t),
+        type=metric_iou_value,
         default=FusionParams().metric_iou,
         help="fusion.metric_iou: auto, or one IoU for every class (1: one threshold)",
     )

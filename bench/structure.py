@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 from helpers.inputs import AREA6, M6, MODELS, SCANNET
-from helpers.report import LOSS_BAR, header
+from helpers.report import LOSS_BAR, header, metric_iou_value
 from helpers.scans import (
     Item,
     colourless,
@@ -218,7 +218,7 @@ def main() -> None:
     parser.add_argument("--flip-threshold", type=float, help="the vote's (default: library's)")
     parser.add_argument(
         "--metric-iou",
-        type=lambda t: t if t == "auto" else float(t),
+        type=metric_iou_value,
         help="the vote's: auto, or one IoU for every class (default: library's)",
     )
     args = parser.parse_args()

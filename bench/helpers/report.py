@@ -69,3 +69,8 @@ def header(title: str = "") -> None:
 #: Issue 43's bar: on no judging scan may the vote lose more than this (mIoU points) against
 #: its network; bench/structure.py and bench/fit_vote.py count the scans that do.
 LOSS_BAR = 0.5
+
+
+def metric_iou_value(text: str) -> str | float:
+    """A ``--metric-iou`` option's value as fusion.metric_iou takes it: "auto" or a number."""
+    return text if text == "auto" else float(text)

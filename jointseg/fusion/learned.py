@@ -506,18 +506,25 @@ class ClassTally:
             self.agreed + other.agreed,
         )
 
+    def _union(self) -> np.ndarray:
+        """Each class's expected union of truth and labels, as tallied."""
+        return self.expected + self.counts - self.agreed
+
     def unions(self) -> np.ndarray:
-        """Each class's expected union of truth and labels, at least :data:`MIN_CLASS_SHARE`
-        of the scan (a class of a few points would otherwise ask for certainty, or be joined
-        on no evidence)."""
-        union = self.expected + self.counts - self.agreed
-        return np.maximum(union, MIN_CLASS_SHARE * max(float(self.counts.sum()), 1.0))
+        """Each class's expected union of truth and labels (:func:`at_least_min_share`)."""
+        return at_least_min_share(self._union(), float(self.counts.sum()))
 
     def ious(self) -> np.ndarray:
         """Each class's expected IoU, at least :data:`MIN_EXPECTED_IOU`."""
-        union = self.expected + self.counts - self.agreed
+        union = self._union()
         iou = np.where(union > 0, self.agreed / np.maximum(union, 1e-12), 1.0)
         return np.clip(iou, MIN_EXPECTED_IOU, 1.0)
+
+
+def at_least_min_share(sizes: np.ndarray, points: float) -> np.ndarray:
+    """Class sizes, each at least :data:`MIN_CLASS_SHARE` of a scan of ``points`` (a class of a
+    few points would otherwise ask for certainty, or be joined on no evidence)."""
+    return np.maximum(sizes, MIN_CLASS_SHARE * max(points, 1.0))
 
 
 def offer_thresholds(
@@ -547,9 +554,8 @@ def offer_thresholds(
     elif float(metric_iou) >= 1:
         return np.full(len(own), threshold, dtype=np.float64)
     else:
-        n = tally.counts
-        u = np.maximum(n, MIN_CLASS_SHARE * max(float(n.sum()), 1.0))
-        k = np.full(len(n), float(metric_iou))
+        u = at_least_min_share(tally.counts, float(tally.counts.sum()))
+        k = np.full(len(u), float(metric_iou))
     ua, ub, ka, kb = u[own], u[offer], k[own], k[offer]
     base = threshold / max(1.0 - threshold, EPS)
     odds = base * (1 / ua + kb / ub) / (ka / ua + 1 / ub)

@@ -102,7 +102,7 @@ class FusionParams(BaseModel):
         le=1,
         description="'learned': a point takes the label its segment or cell offers where the "
         "vote model's probability that the change is right exceeds this (higher: fewer, safer "
-        "changes), between two classes the scan holds as many points of; see metric_iou.",
+        "changes), between two classes alike in size and IoU; see metric_iou.",
     )
     metric_iou: Literal["auto"] | Annotated[float, Field(gt=0, le=1)] = Field(
         "auto",
