@@ -334,6 +334,7 @@ def _learned_vote(
         has_colour=has_colour,
         metric_iou=params.metric_iou,
         classes=None if totals is None else totals.classes,
+        seen_fixture_share=params.seen_fixture_share,
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
     confidence = _confidence(fused, labels, probs, shares[seg, fused])

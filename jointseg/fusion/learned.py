@@ -96,6 +96,10 @@ MIN_CLASS_SHARE = 0.001
 MIN_EXPECTED_IOU = 0.4
 #: Cell side (m) the shipped model was fitted with, when its file names none.
 DEFAULT_CELL_SIZE = 0.3
+#: A wall fixture the network sees keeps its label against a wall that only the structure
+#: reading offers: the network's soft share of the fixture in the point's cell is above this
+#: (:func:`seen_fixtures`; 1 turns the rule off).
+SEEN_FIXTURE_SHARE = 0.7
 
 
 def _logit(x: np.ndarray) -> np.ndarray:
@@ -562,6 +566,25 @@ def offer_thresholds(
     return odds / (1 + odds)
 
 
+def seen_fixtures(
+    features: np.ndarray, offer: np.ndarray, share: float = SEEN_FIXTURE_SHARE
+) -> np.ndarray:
+    """Offers never taken (bool, M): a wall offered only by the structure reading to a point
+    the network labels a believable wall fixture, in a cell the network gives mostly to that
+    fixture. The reading cannot tell a board or window from its wall; where the network sees
+    one, the vote keeps it, whatever the model learned of such offers on average (without
+    colour, a whiteboard and its wall are one segment, and the model moved the board)."""
+    if features.shape[1] < len(FEATURES) or share >= 1:
+        return np.zeros(len(offer), dtype=bool)
+    col = FEATURES.index
+    return (
+        (features[:, col("own label is a wall fixture")] > 0.5)
+        & (features[:, col("offer only from structure")] > 0.5)
+        & (np.asarray(offer) == CLASS_INDEX["wall"])
+        & (features[:, col("logit cell soft share of own")] > _logit(np.array([share]))[0])
+    )
+
+
 def best_offers(
     labels: np.ndarray,
     point: np.ndarray,
@@ -599,6 +622,7 @@ def learned_labels(
     has_colour: bool = True,
     metric_iou: float | str = 1.0,
     classes: ClassTally | None = None,
+    seen_fixture_share: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fused labels: each point's most probable offer where the model's P(right) exceeds
     its threshold (:func:`offer_thresholds` of ``threshold`` and ``metric_iou``), else the
@@ -606,7 +630,8 @@ def learned_labels(
     probability is never taken. ``structure`` (the geometry's floor, ceiling and wall reading)
     is offered too where the model was fitted with it. ``classes``: the network's
     :class:`ClassTally` over the whole scan, where these points are a part of it (a tile);
-    else tallied here.
+    else tallied here. ``seen_fixture_share``: the :func:`seen_fixtures` rule's share (1, the
+    default here, leaves it out; ``FusionParams`` turns it on).
 
     Returns
     -------
@@ -629,6 +654,7 @@ def learned_labels(
         has_colour=has_colour,
     )
     p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
+    p = np.where(seen_fixtures(offers.features, offers.label, seen_fixture_share), 0.0, p)
     at: float | np.ndarray = threshold
     if metric_iou == "auto" or float(metric_iou) < 1:
         labels = np.asarray(labels, dtype=np.int64)

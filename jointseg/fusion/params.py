@@ -114,6 +114,16 @@ class FusionParams(BaseModel):
         "that IoU for every class and the network's counts as sizes; 1 keeps flip_threshold "
         "for every pair of classes (docs/guide/fusion.md).",
     )
+    seen_fixture_share: float = Field(
+        0.7,
+        gt=0,
+        le=1,
+        description="'learned': a point the network labels a wall fixture of a believable size "
+        "(window, door, board, column, beam) keeps its label against a wall that only the "
+        "structure reading offers, where the network gives that fixture more than this share "
+        "of the point's cell (it sees the fixture there; the reading cannot tell a fixture in "
+        "a wall's plane from the wall); 1 disables.",
+    )
     min_support: float = Field(
         0.03,
         ge=0,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jointseg.exceptions import ConfigError
-from jointseg.fusion import FusionParams, fuse
+from jointseg.fusion import FusionParams, StructureHint, fuse
 from jointseg.fusion.learned import (
     FEATURES,
     MIN_CLASS_SHARE,
@@ -22,6 +22,7 @@ from jointseg.fusion.learned import (
     disagreement_share,
     learned_labels,
     offer_thresholds,
+    seen_fixtures,
     shipped_model,
     vote_offers,
 )
@@ -301,3 +302,48 @@ def test_a_small_class_keeps_points_a_large_one_gives_up_on_the_same_evidence(tm
     tile, _ = learned_labels(*args, threshold=0.5, metric_iou=0.8, model=model,
                              classes=sized(counts))  # fmt: skip
     assert (tile[3860:] == 2).all()
+
+
+def test_a_board_the_network_sees_is_not_taken_into_its_wall_on_the_reading_alone(
+    tmp_path,
+) -> None:
+    # without colour a bookcase, a whiteboard and their wall are one segment, mostly bookcase,
+    # and the structure reading calls all of it wall; the model trusts the reading's offers
+    # (P 0.97) and no other (0.18)
+    model = TreeEnsemble.from_json(
+        stump_model(
+            tmp_path / "m.json", feature=FEATURES.index("offer only from structure"), threshold=0.5
+        )  # fmt: skip
+    )
+    core = [{11: 0.8, 2: 0.15}] * 300  # ten 0.3 m cells the network gives to the board
+    edge = [{11: 0.8, 2: 0.15}, {2: 0.6, 11: 0.3}] * 30  # two cells it half gives to it
+    probs = probs_for([{10: 0.7, 2: 0.2}] * 1500 + core + edge)
+    labels = probs.argmax(axis=1)
+    n = len(labels)
+    hint = StructureHint(np.full(n, 2), np.full(n, 0.95))
+    args = (line(n), np.zeros(n, np.int64), 1, labels, probs)
+    kw = {"threshold": 0.55, "model": model, "structure": hint}
+    fused, _ = learned_labels(*args, **kw, seen_fixture_share=0.7)
+    assert (fused[1500:1800] == 11).all()  # the board the network sees stays board
+    edge_board = 1800 + np.flatnonzero(labels[1800:] == 11)
+    assert len(edge_board) == 30 and (fused[edge_board] == 2).all()  # its doubtful edge: wall
+    assert (fused[:1500] == 2).all()  # elsewhere the model's word stands
+    off, _ = learned_labels(*args, **kw, seen_fixture_share=1.0)
+    assert (off[1500:1800] == 2).all()  # without the rule the reading takes the board
+
+
+def test_seen_fixtures_asks_every_condition() -> None:
+    col = FEATURES.index
+    row = np.zeros(len(FEATURES))
+    row[col("own label is a wall fixture")] = 1
+    row[col("offer only from structure")] = 1
+    row[col("logit cell soft share of own")] = 2.0  # a share of 0.88
+    rows = np.tile(row, (5, 1))
+    rows[1, col("own label is a wall fixture")] = 0
+    rows[2, col("offer only from structure")] = 0
+    rows[3, col("logit cell soft share of own")] = 0.0  # a share of 0.5
+    offer = np.array([2, 2, 2, 2, 10])  # the last is offered bookcase, not wall
+    assert seen_fixtures(rows, offer, 0.7).tolist() == [True, False, False, False, False]
+    assert not seen_fixtures(rows, offer, 1.0).any()
+    # a model fitted before the structure reading has no such offers
+    assert not seen_fixtures(rows[:, :17], offer, 0.7).any()
