@@ -1,7 +1,8 @@
 """Real scans as users deliver them (issue 31): axes, units, frames, tilt, strays, colour, noise.
 
 Each room goes in other axis conventions, units and frames, tilted, with stray points, without
-or with poor colour, or noisier (bench/helpers/deliveries.py), made in memory from the clean
+or with poor colour, noisier, or as one depth camera's view in the camera's frame
+(bench/helpers/deliveries.py), made in memory from the clean
 labelled room (default: the judging rooms, never trained or tuned on: area6_office_4,
 scene0002_00/01, scene0005_00/01, scene0007_00), written to a real file without its ground
 truth (PLY, or LAS 1.4 with scale, offsets and a WKT CRS), and segmented as a user would:

@@ -1,6 +1,7 @@
 """Scans as users deliver them (issue 31): one clean room in another axis convention, unit or
-georeferenced frame, tilted, with stray points, without or with poor colour, or noisier, written
-to a real file (PLY, or LAS 1.4 with scale, offsets and a CRS) with no ground truth in it.
+georeferenced frame, tilted, with stray points, without or with poor colour, noisier, or as one
+depth camera's view of it in the camera's frame, written to a real file (PLY, or LAS 1.4 with
+scale, offsets and a CRS) with no ground truth in it.
 
 Every maker takes the clean room (``xyz`` float64 (N, 3), metres, z up; ``rgb`` uint8 (N, 3) or
 None) and a numpy Generator and returns a :class:`Delivery`: the new coordinates and colour,
@@ -33,6 +34,7 @@ from jointseg.frame.decide import rotation_about
 from jointseg.frame.units import UNITS
 from jointseg.io import write_scan
 from jointseg.scan import Scan
+from jointseg.synth.views import camera_view
 
 #: US survey feet per metre (1 ftUS = 1200/3937 m) and international feet per metre.
 FT_US_PER_M = 1.0 / UNITS["us-ft"]
@@ -276,6 +278,17 @@ def nearest_axis(up: np.ndarray) -> tuple[str, float]:
     return f"{sign}{AXIS_NAMES[i]}", float(np.degrees(np.arccos(cos)))
 
 
+def camera_frame(xyz: np.ndarray, rgb: np.ndarray | None, rng: np.random.Generator) -> Delivery:
+    """One depth camera's view of the room, in the camera's frame (x right, y down, z forward):
+    held 1.0-1.7 m up inside the room, pitched -25 to +10 deg, rolled up to 5 deg, 58 x 45 deg,
+    only the nearest surface per pixel (jointseg.synth.views)."""
+    view = camera_view(Scan(np.asarray(xyz, dtype=np.float64), rgb), rng)
+    if view is None:
+        raise ValueError("no camera view of this room sees 2 000 points")
+    info = {"rotation": view.rotation, "offset": -(view.rotation @ view.eye), "step": "camera"}
+    return Delivery(view.scan.xyz, view.scan.rgb, view.points.astype(np.int64), info)
+
+
 def deliver(
     steps: tuple[Maker, ...],
     xyz: np.ndarray,
@@ -378,6 +391,7 @@ VARIANTS: dict[str, Variant] = {
     "noise": Variant((noisy,), "Gaussian noise 5 mm per axis"),
     "dim": Variant((dim,), "colour x0.45"),
     "tint": Variant((tint,), "white balance: red x1.2, blue x0.8"),
+    "camera": Variant((camera_frame,), "one depth camera view, in the camera's frame, PLY"),
     "combo": Variant((strays, y_up, millimetres, no_colour), "0.3% strays + y up + mm + no colour"),
 }
 

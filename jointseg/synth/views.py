@@ -27,12 +27,19 @@ class CameraView:
         The room's up in the camera's frame.
     pitch_degrees, roll_degrees : float
         How the camera was held (pitch below 0: looking down).
+    points : ndarray of shape (M,), int64
+        The room's points the view holds, in the view's order.
+    rotation, eye : ndarray of shape (3, 3) and (3,)
+        The camera: view = (room - eye) @ rotation.T.
     """
 
     scan: Scan
     up: np.ndarray
     pitch_degrees: float
     roll_degrees: float
+    points: np.ndarray
+    rotation: np.ndarray
+    eye: np.ndarray
 
 
 def camera_rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -102,5 +109,6 @@ def camera_view(
             None if room.labels is None else room.labels[keep],
             source_format="ply",
         )
-        return CameraView(scan, rot @ np.array([0.0, 0.0, 1.0]), float(pitch), float(roll))
+        up = rot @ np.array([0.0, 0.0, 1.0])
+        return CameraView(scan, up, float(pitch), float(roll), np.flatnonzero(keep), rot, eye)
     return None

@@ -82,6 +82,20 @@ def test_a_camera_view_is_told_from_a_room(room) -> None:
     assert capture_kind(far).kind == "scan"
 
 
+def test_a_camera_view_says_which_room_points_it_holds_and_from_where(room) -> None:
+    view = camera_view(room, np.random.default_rng(2))
+    assert view is not None and len(view.points) == len(view.scan.xyz)
+    # the view is the room's points it names, seen from its camera (bench/real_world.py scores
+    # camera deliveries against the room's labels through these)
+    expected = (room.xyz[view.points] - view.eye) @ view.rotation.T
+    np.testing.assert_allclose(view.scan.xyz, expected, atol=1e-9)
+    np.testing.assert_allclose(view.rotation @ view.rotation.T, np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(view.up, view.rotation @ [0.0, 0.0, 1.0])
+    assert view.scan.labels is not None and room.labels is not None
+    assert (view.scan.labels == room.labels[view.points]).all()
+    assert 1.0 <= view.eye[2] - np.quantile(room.xyz[:, 2], 0.02) <= 1.7
+
+
 def test_the_network_features_measure_a_room() -> None:
     xyz = np.zeros((4, 3))
     xyz[:, 2] = [0.0, 0.0, 1.0, 2.5]
