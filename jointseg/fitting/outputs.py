@@ -27,8 +27,9 @@ from jointseg.fitting.scans import TuningScan, content_key
 INFERENCE_VERSION = 3
 #: Part of every cached geometry output's key: bump it when the structure reading or how the
 #: thresholds are derived changes (9, 10: the voxel and plane tolerance capped at a
-#: SPARSE_SPACING of 1.6, then 2 cm).
-STRUCTURE_VERSION = 10
+#: SPARSE_SPACING of 1.6, then 2 cm; 11: no floor level above a sizeable surface, which reads
+#: every bench room as 10 did).
+STRUCTURE_VERSION = 11
 
 #: A labeller that needs no network: the scan's own labels with patchy, confident mistakes
 #: (:func:`jointseg.synth.label_noise.corrupt_labels`), for tests and for measuring what a fit

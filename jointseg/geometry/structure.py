@@ -222,12 +222,21 @@ def _level_areas(z: np.ndarray, area: np.ndarray, cand: np.ndarray) -> tuple[np.
 
 def _floor_level(s: _Segments, area: np.ndarray, cand: np.ndarray, bottom: float) -> float | None:
     """The lowest level with MIN_LEVEL_AREA of horizontal surface, near the scan's bottom (the
-    largest such level within FLOOR_BAND of the lowest)."""
+    largest such level within FLOOR_BAND of the lowest), unless MIN_SURFACE_AREA of horizontal
+    surface lies more than STEP under it: then the lowest such level."""
     heights, _, level = _level_areas(s.centre[:, 2], area, cand)
     ok = np.flatnonzero((level >= MIN_LEVEL_AREA) & (heights <= bottom + FLOOR_REACH))
     if len(ok) == 0:
         return None
     near = ok[heights[ok] <= heights[ok[0]] + FLOOR_BAND]
+    floor_z = float(heights[near[np.argmax(level[near])]])
+    # nothing sizeable lies under a floor: a level found above such a surface is furniture (a
+    # camera's single view may see more table and seat tops than floor), and the floor is the
+    # lowest such surface
+    under = np.flatnonzero((level >= MIN_SURFACE_AREA) & (heights < floor_z - STEP))
+    if len(under) == 0:
+        return floor_z
+    near = under[heights[under] <= heights[under[0]] + FLOOR_BAND]
     return float(heights[near[np.argmax(level[near])]])
 
 

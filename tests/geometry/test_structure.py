@@ -173,3 +173,29 @@ def test_small_noisy_pieces_of_a_wall_are_wall_and_a_slanted_back_is_not() -> No
     assert reading.kind[names["wall y0"]] == WALL
     assert [int(k) for k in reading.kind[start : start + 3]] == [WALL] * 3
     assert reading.kind[start + 3] == -1
+
+
+def plane_points(x: tuple[float, float], y: tuple[float, float], z: float) -> np.ndarray:
+    """A horizontal rectangle sampled every 2 cm."""
+    gx, gy = np.meshgrid(np.arange(*x, 0.02), np.arange(*y, 0.02))
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)])
+
+
+def test_a_level_above_a_sizeable_surface_is_not_the_floor() -> None:
+    # a camera's view of a living room: 0.6 m² of floor, 1.2 m² of table and seat tops 0.45 m
+    # above it, and the back of a cabinet standing 1.5 m high
+    floor = plane_points((0.0, 1.0), (0.0, 0.6), 0.0)
+    tops = [plane_points((1.2, 2.2), (0.0, 0.6), 0.45), plane_points((1.2, 2.2), (0.8, 1.4), 0.46)]
+    gz, gy = np.meshgrid(np.arange(0.0, 1.5, 0.02), np.arange(0.0, 1.4, 0.02))
+    back = np.column_stack([np.full(gz.size, 3.0), gy.ravel(), gz.ravel()])
+    parts = [floor, *tops, back]
+    xyz = np.concatenate(parts)
+    seg = np.concatenate([np.full(len(p), i) for i, p in enumerate(parts)])
+    reading = read_structure(xyz, seg, 0.02)
+    assert reading.floor_z == pytest.approx(0.0, abs=0.01)
+    assert reading.kind[0] == FLOOR and reading.kind[1] != FLOOR and reading.kind[2] != FLOOR
+    # without the floor under them, the tops are the lowest large level: the floor
+    alone = np.concatenate(parts[1:])
+    lifted = read_structure(alone, np.concatenate([np.full(len(p), i) for i, p in
+                                                   enumerate(parts[1:])]), 0.02)  # fmt: skip
+    assert lifted.floor_z == pytest.approx(0.45, abs=0.02)
