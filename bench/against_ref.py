@@ -34,6 +34,7 @@ from structure import ious, miou
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.io import read_scan
+from jointseg.metrics import confusion_matrix
 
 ROOT = Path(__file__).resolve().parents[1]
 #: ScanNet's judging scans: every scan of bench/helpers/scans.py's judging rooms.
@@ -42,14 +43,6 @@ JUDGING = sorted(p.stem for p in SCANNET.glob("*.ply") if p.stem[:9] in SCANNET_
 CLI = "import sys; from jointseg.cli import main; sys.argv[0] = 'jointseg'; sys.exit(main())"
 
 log = logging.getLogger("against_ref")
-
-
-def confusion(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
-    """(C, C + 1) counts of labelled points; the last column counts labels outside 0..C-1."""
-    keep = gt >= 0
-    p = np.where((pred >= 0) & (pred < NUM_CLASSES), pred, NUM_CLASSES)[keep]
-    flat = np.bincount(gt[keep] * (NUM_CLASSES + 1) + p, minlength=NUM_CLASSES * (NUM_CLASSES + 1))
-    return flat.reshape(NUM_CLASSES, NUM_CLASSES + 1)
 
 
 def segment(tree: Path, scan: Path, out: Path, up: str) -> dict[str, np.ndarray]:
@@ -75,7 +68,7 @@ def measure(tree: Path, scans: list[Path], folder: Path, up: str) -> dict[str, l
         assert labels is not None
         got = segment(tree, path, folder / f"{path.stem}.ply", up)
         for k in out:
-            out[k].append(confusion(labels.astype(np.int64), got[k]))
+            out[k].append(confusion_matrix(labels.astype(np.int64), got[k]))
         log.info("%s: %s done", tree.name, path.stem)
     return out
 
