@@ -34,7 +34,7 @@ from helpers.report import LOSS_BAR, header, metric_iou_value
 from jointseg.fitting import outputs
 from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
 from jointseg.fusion.fit_trees import features, fit_trees
-from jointseg.fusion.learned import FEATURES, best_offers, offer_thresholds
+from jointseg.fusion.learned import FEATURES, best_offers, offer_thresholds, seen_fixtures
 from jointseg.fusion.params import FusionParams
 from jointseg.metrics import evaluate
 from jointseg.network.training.data import stable_order
@@ -49,13 +49,16 @@ def gains(
     plan: VotePlan,
     thresholds: list[float],
     metric_iou: float | str = 1.0,
+    seen_fixture_share: float = 1.0,
 ) -> np.ndarray:
     """mIoU gain (points) of the rule on each room (rows) at each threshold (columns), each
-    offer's threshold weighed by the classes' sizes as ``fusion.metric_iou`` weighs it."""
+    offer's threshold weighed by the classes' sizes as ``fusion.metric_iou`` weighs it, and the
+    offers ``fusion.seen_fixture_share`` refuses left out."""
     out = np.zeros((len(rooms), len(thresholds)))
     for i, r in enumerate(rooms):
         x = features(r, plan.fit.drop_features)
         p = clf.predict_proba(x)[:, 1] if len(r.truth) else np.zeros(0)
+        p = np.where(seen_fixtures(r.offers.features, r.offers.label, seen_fixture_share), 0.0, p)
         net = evaluate(r.gt, r.labels).miou or 0.0
         own = r.labels[r.offers.point]
         for j, t in enumerate(thresholds):
@@ -80,6 +83,7 @@ def cross_validate(
     thresholds: list[float],
     fit_rooms: list[Room] | None = None,
     metric_iou: float | str = 1.0,
+    seen_fixture_share: float = 1.0,
 ) -> dict[tuple[str, str], list[tuple[str, np.ndarray]]]:
     """Held-out gains per (dataset, labeller) and scan, every fold fitted without its rooms
     (on ``fit_rooms``, the same scans and labellers in the same order, where given)."""
@@ -89,7 +93,8 @@ def cross_validate(
     for k in sorted(set(fold_of.values())):
         test = [r for r in rooms if fold_of[r.room] == k]
         clf = fit_trees([r for r in fit_rooms if fold_of[r.room] != k], plan.fit, weights)
-        for r, g in zip(test, gains(clf, test, plan, thresholds, metric_iou), strict=True):
+        held_out = gains(clf, test, plan, thresholds, metric_iou, seen_fixture_share)
+        for r, g in zip(test, held_out, strict=True):
             kind = f"{r.dataset} slices" if r.name.endswith(" slice") else r.dataset
             found.setdefault((kind, r.labeller), []).append((r.name, g))
     return found
@@ -172,6 +177,12 @@ def arguments() -> argparse.Namespace:
         default=FusionParams().metric_iou,
         help="fusion.metric_iou: auto, or one IoU for every class (1: one threshold)",
     )
+    parser.add_argument(
+        "--seen-fixture-share",
+        type=float,
+        default=FusionParams().seen_fixture_share,
+        help="fusion.seen_fixture_share (1: the rule off)",
+    )
     parser.add_argument("--monotonic", action=argparse.BooleanOptionalAction, default=None)
     parser.add_argument("--structure", action=argparse.BooleanOptionalAction, default=None)
     parser.add_argument("--drop-feature", action="append", choices=FEATURES)
@@ -212,9 +223,10 @@ def main() -> None:
         if [(r.dataset, r.name, r.labeller) for r in fit_rooms] != same:
             raise SystemExit("the older geometry's rooms are not the same scans and labellers")
     fold_of = folds(rooms, args.cv, args.cv_datasets)
-    found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms, args.metric_iou)
+    found = cross_validate(rooms, plan, fold_of, args.thresholds, fit_rooms, args.metric_iou,
+                           args.seen_fixture_share)  # fmt: skip
     how = "leave one dataset out" if args.cv_datasets else f"{args.cv} folds by room"
-    how += f", metric_iou {args.metric_iou}"
+    how += f", metric_iou {args.metric_iou}, seen_fixture_share {args.seen_fixture_share}"
     if fit_rooms is not None:
         how += f", fitted on geometry version {args.fit_geometry_version}"
     print(f"\n### {how}: {plan.fit.model_dump()} (mean / worst gain, points)\n")
