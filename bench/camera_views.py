@@ -24,15 +24,13 @@ import argparse
 import logging
 import zlib
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from helpers.inputs import AREA6, SCANNET
 from helpers.report import LOSS_BAR, header
-from helpers.scans import dataset_of, judging_rooms, room_of
+from helpers.scans import Item, load_items
 
 from jointseg.classes import CLASS_INDEX
-from jointseg.io import read_scan
 from jointseg.network import load
 from jointseg.pipeline import run
 from jointseg.pipeline.config import PipelineConfig
@@ -61,19 +59,6 @@ class View:
         return 100 * (self.fused - self.network)
 
 
-def rooms() -> list[tuple[Path, str, str]]:
-    """Every real room file with its dataset and split."""
-    files = sorted(AREA6.glob("*.ply")) + sorted(SCANNET.glob("*.ply"))
-    by_dataset: dict[str, list[str]] = {}
-    for f in files:
-        by_dataset.setdefault(dataset_of(f), []).append(room_of(f.stem))
-    judges = {d: judging_rooms(d, sorted(set(r)), 10) for d, r in by_dataset.items()}
-    return [
-        (f, dataset_of(f), "judge" if room_of(f.stem) in judges[dataset_of(f)] else "tune")
-        for f in files
-    ]
-
-
 def room_up(room: Scan) -> np.ndarray:
     """The room's true up: its labelled floor's normal (a ScanNet scan may lean a few degrees
     off its file's z), else +z."""
@@ -84,11 +69,11 @@ def room_up(room: Scan) -> np.ndarray:
     return vt[2] * np.sign(vt[2, 2])
 
 
-def views_of(path: Path, dataset: str, split: str, n: int, predictor: object) -> list[View]:
+def views_of(item: Item, n: int, predictor: object) -> list[View]:
     """``n`` views of one room (its own generator: adding a room changes no other's views)."""
-    room = read_scan(path)
+    room = item.scan
     true_up = room_up(room)
-    rng = np.random.default_rng([7, zlib.crc32(path.stem.encode())])
+    rng = np.random.default_rng([7, zlib.crc32(item.name.encode())])
     out = []
     for i in range(n):
         view = camera_view(room, rng)
@@ -102,9 +87,9 @@ def views_of(path: Path, dataset: str, split: str, n: int, predictor: object) ->
         cos = float(np.clip(up @ (view.rotation @ true_up), -1, 1))
         out.append(
             View(
-                path.stem,
-                dataset,
-                split,
+                item.name,
+                item.dataset,
+                item.split,
                 i,
                 len(view.points),
                 m["network"].miou,
@@ -152,9 +137,9 @@ def main() -> None:
     predictor = load("randlanet")
     splits = args.splits.split(",")
     views: list[View] = []
-    for path, dataset, split in rooms():
-        if split in splits:
-            views += views_of(path, dataset, split, args.views, predictor)
+    for item in load_items([str(AREA6), str(SCANNET)], 10, (0, 0, 0)):
+        if item.split in splits:
+            views += views_of(item, args.views, predictor)
     if args.per_view:
         print("| room | view | points | network | fused | gain | up off, deg | floor |")
         print("|---" * 8 + "|")
