@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import subprocess
 import sys
 import tempfile
@@ -30,6 +29,7 @@ import numpy as np
 from helpers.inputs import SCANNET
 from helpers.report import header
 from helpers.scans import SCANNET_JUDGES
+from real_world import child_env
 from structure import ious, miou
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
@@ -50,8 +50,7 @@ def segment(tree: Path, scan: Path, out: Path, up: str) -> dict[str, np.ndarray]
     cmd = [sys.executable, "-c", CLI, "segment", str(scan), "-o", str(out)]
     if up != "auto":
         cmd += ["--up", up]
-    env = {k: v for k, v in os.environ.items() if not k.startswith("JOINTSEG_")}
-    env["PYTHONPATH"] = str(tree)
+    env = child_env(1) | {"PYTHONPATH": str(tree)}
     proc = subprocess.run(cmd, env=env, cwd=out.parent, capture_output=True, text=True)
     if proc.returncode != 0:
         raise SystemExit(f"{tree}: segment {scan.name} failed:\n{proc.stderr[-2000:]}")
