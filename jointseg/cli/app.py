@@ -20,6 +20,7 @@ from jointseg.cli import (
     network_commands,
     objects_command,
     pipeline_commands,
+    relabel_command,
     scan_commands,
 )
 from jointseg.cli.progress_bar import stderr_console
@@ -37,6 +38,7 @@ geometry_command.register(app)
 network_commands.register(app)
 objects_command.register(app)
 pipeline_commands.register(app)
+relabel_command.register(app)
 client_commands.register(app)
 fit_commands.register(app)
 
