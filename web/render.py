@@ -53,7 +53,8 @@ class Cloud:
 
 @dataclass(frozen=True)
 class Lines:
-    """Segments to draw: (E, 2, 3) world coordinates, an RGB colour each, screen thickness."""
+    """Segments to draw: (E, 2, 3) world coordinates, their colours ((E, 2, 3) or one (3,) for
+    all), screen thickness."""
 
     ends: np.ndarray
     colours: np.ndarray
@@ -165,7 +166,8 @@ def _draw_over(
         ends = segment.ends.reshape(-1, 3)
         column, row, z, _ = project(ends)
         width = max(1, int(round(segment.thickness * factor)))
-        colours = segment.colours.reshape(-1, 3)
+        # one colour per end, or one (3,) for the whole set (as viser takes a selected box's)
+        colours = np.broadcast_to(segment.colours, segment.ends.shape).reshape(-1, 3)
         for i in range(0, ends.shape[0], 2):
             if z[i] > NEAR and z[i + 1] > NEAR:
                 rgb = tuple(int(c) for c in colours[i])

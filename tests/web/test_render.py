@@ -49,3 +49,13 @@ def test_lines_and_titles_are_drawn_over_the_points() -> None:
     image = draw_scene(looking_down(True), 200, 200, BACK, [wall], [line], [title])
     assert (image == GREEN).all(axis=2).sum() > 50
     assert (image == (255, 255, 255)).all(axis=2).sum() > 20  # the title's white box
+
+
+def test_a_box_in_one_colour_for_all_its_edges_is_drawn() -> None:
+    """A selected object's box is sent with one colour for every edge ((3,), as viser takes
+    it); the screenshot drew it with an IndexError (issue 63)."""
+    edges = np.array([[[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0]], [[1.0, -1.0, 0.0], [1.0, 1.0, 0.0]]])
+    box = Lines(edges, np.array(GREEN, np.uint8), 3.0)
+    image = draw_scene(looking_down(True), 200, 200, BACK, [], [box])
+    green = (image == GREEN).all(axis=2)
+    assert green[:, :100].sum() > 50 and green[:, 100:].sum() > 50  # both edges

@@ -367,3 +367,25 @@ def test_a_click_in_the_object_list_flies_to_the_object_and_selects_it_in_every_
         image = settled(page)
         (artifacts / "viewer_object_selected.png").write_bytes(page.screenshot())
         assert all(selected_pixels(image, s) > 10 for s in panel_spans(image, 4))
+
+
+def test_the_screenshot_with_a_selection_downloads_a_png_with_the_box_drawn(
+    browser: Any, views: Viewer, artifacts: Path
+) -> None:
+    """Issue 63: with an object selected in the object list, *Screenshot* sent nothing (the
+    selected box's one colour broke the drawing of its edges)."""
+    with opened(browser, views, "room") as (page, view):
+        target = max(view.objects.objects, key=lambda o: o.radius)
+        page.get_by_role("button", name=target.label, exact=True).click()
+        page.get_by_text(f"Selected: {target.name}").wait_for(timeout=10_000)
+        page.get_by_role("button", name="Fit all").click()
+        wait_for(view.camera.applied, what="the overview")
+        with page.expect_download(timeout=60_000) as info:
+            page.get_by_role("button", name="Screenshot (PNG)").click()
+        blob = Path(info.value.path()).read_bytes()
+        (artifacts / "viewer_screenshot_selected.png").write_bytes(blob)
+        image = np.asarray(Image.open(io.BytesIO(blob)).convert("RGB"))
+        width, height = view.camera.canvas()
+        assert image.shape[:2] == (2 * height, 2 * width)  # the default size: 2x the canvas
+        orange = np.abs(image.astype(np.int16) - np.array(SELECTED_COLOUR)).max(axis=2) == 0
+        assert orange.sum() > 40  # the selected box, drawn in
