@@ -67,10 +67,9 @@ class ClipFrame:
         the height range (low, high); both optional, (N,) bool."""
         keep = np.ones(xyz.shape[0], dtype=bool)
         low = np.array([self.corner[0], self.corner[1], self.floor])
-        if box is not None:
-            for axis in range(3):
-                v = xyz[:, axis] - low[axis]
-                keep &= (v >= box[2 * axis]) & (v <= box[2 * axis + 1])
+        for axis, start, end in self._box_ranges(box):
+            v = xyz[:, axis] - low[axis]
+            keep &= (v >= start) & (v <= end)
         if heights is not None:
             z = xyz[:, 2] - self.floor
             keep &= (z >= heights[0]) & (z <= heights[1])
@@ -80,12 +79,26 @@ class ClipFrame:
         """Whether a box (its corners, scene coordinates) reaches into the kept region."""
         low = np.array([self.corner[0], self.corner[1], self.floor])
         lo, hi = corners.min(axis=0) - low, corners.max(axis=0) - low
-        ranges = (
-            [] if box is None else [(axis, box[2 * axis], box[2 * axis + 1]) for axis in range(3)]
-        )
+        ranges = self._box_ranges(box)
         if heights is not None:
             ranges.append((2, heights[0], heights[1]))
         return all(hi[axis] >= start and lo[axis] <= end for axis, start, end in ranges)
+
+    def _box_ranges(self, box: Ranges | None) -> list[tuple[int, float, float]]:
+        """The box's (axis, start, end), a slider at its end open on that side: the box at
+        full range keeps every point, the noise under the floor's median height and stray
+        points beyond the room's robust box too (issue 63)."""
+        if box is None:
+            return []
+        out = []
+        for axis in range(3):
+            start, end = float(box[2 * axis]), float(box[2 * axis + 1])
+            out.append((
+                axis,
+                -np.inf if start <= STEP / 2 else start,
+                np.inf if end >= float(self.reach[axis]) - STEP / 2 else end,
+            ))  # fmt: skip
+        return out
 
 
 class ClipControls:
