@@ -56,6 +56,14 @@ class QueueUnavailable(JointsegError):
     """The job queue (SQLite, PostgreSQL or Redis) cannot be reached."""
 
 
+class PreconditionRequired(JointsegError):
+    """A change that must name the version it builds on (``If-Match``) did not name one."""
+
+
+class PreconditionFailed(JointsegError):
+    """A change named a version that is no longer the current one (another change came first)."""
+
+
 class ServiceError(JointsegError):
     """The job service answered a request with an error (client side).
 

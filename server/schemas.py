@@ -9,6 +9,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from jointseg.frame.params import FrameParams
 from server.state.models import FINAL_STATUSES
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
@@ -51,6 +52,14 @@ class JobView(BaseModel):
     created_at: datetime
     started_at: datetime | None = None
     finished_at: datetime | None = None
+    labels_version: int = Field(
+        0,
+        description="The current labels version: 0 is the run's own labels, each correction "
+        "(`PATCH /v1/jobs/{id}/labels`) adds one.",
+    )
+    rerun_of: str | None = Field(
+        None, description="The job this one re-runs with another frame (`POST .../rerun`)."
+    )
 
     @property
     def finished(self) -> bool:
@@ -77,6 +86,42 @@ class JobResponse(JobView):
         base = f"/v1/jobs/{view.id}"
         links = JobLinks(self=base, result=f"{base}/result", report=f"{base}/report")
         return cls(**view.model_dump(), links=links)
+
+
+class LabelsVersion(BaseModel):
+    """One labels version of a job, as its history lists it."""
+
+    version: int = Field(description="0 is the run's own labels; each correction adds one.")
+    created_at: datetime | None = Field(
+        description="When the version was made (version 0: when the job finished)."
+    )
+    owner: str | None = Field(
+        None, description="Hash of the API key that made it (the job's owner for version 0)."
+    )
+    points_changed: int = Field(0, description="Points whose label this version's edits changed.")
+    points_corrected: int = Field(0, description="Points whose label differs from version 0's.")
+    edits: int = Field(0, description="Edits in the request that made it.")
+
+
+class LabelsState(BaseModel):
+    """A job's current labels version and every version before it (oldest first)."""
+
+    job_id: str
+    version: int = Field(description="The current version (what downloads give by default).")
+    etag: str = Field(description='The current version\'s ETag (`"v3"`): send it as `If-Match`.')
+    history: list[LabelsVersion]
+
+
+class RerunRequest(BaseModel):
+    """``POST /v1/jobs/{id}/rerun``: the frame settings to change; the rest of the job's
+    config stays."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    frame: FrameParams = Field(
+        description='Frame settings over the job\'s own, e.g. `{"up": "+y", "units": "mm", '
+        '"level": true}`: only the fields given change.'
+    )
 
 
 class JobList(BaseModel):

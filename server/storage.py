@@ -5,6 +5,10 @@ Layout of the data directory::
     jobs/<job id>/input.<ext>     the upload, under a fixed name (the user's name is in the job row)
     jobs/<job id>/result.ply      what `jointseg segment` writes (result.las / .laz on request)
     jobs/<job id>/report.json     the report of `jointseg segment --report`
+    jobs/<job id>/labels/v<n>.npy
+                                  labels version n's user classes (int16, -1 none; n >= 1)
+    jobs/<job id>/labels/v<n>/    its files (result.ply/.las/.laz, objects.json, report.json,
+                                  result.ifc), made on the first request and kept
     jobs/<job id>/tiles/<n>/      a tiled job's work folder while it runs, per attempt of its
                                   plan (spilled scan, tile results: jointseg.pipeline.tile_store);
                                   removed when the job ends
@@ -105,6 +109,18 @@ class Storage:
     def report_path(self, job_id: str) -> Path:
         """The job's report.json; it may not exist yet."""
         return self.job_dir(job_id) / "report.json"
+
+    def labels_dir(self, job_id: str) -> Path:
+        """The folder of a job's labels versions (not created)."""
+        return self.job_dir(job_id) / "labels"
+
+    def labels_path(self, job_id: str, version: int) -> Path:
+        """Labels version ``version``'s user classes per point (``v<n>.npy``; may not exist)."""
+        return self.labels_dir(job_id) / f"v{int(version)}.npy"
+
+    def version_dir(self, job_id: str, version: int) -> Path:
+        """The files of labels version ``version`` (``v<n>/``; not created)."""
+        return self.labels_dir(job_id) / f"v{int(version)}"
 
     def tiles_dir(self, job_id: str, attempt: int | None = None) -> Path:
         """The tile folders of a job, or the work folder of its plan's attempt ``attempt``

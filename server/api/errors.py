@@ -27,6 +27,8 @@ from jointseg.exceptions import (
     JobNotFound,
     JobStateError,
     JointsegError,
+    PreconditionFailed,
+    PreconditionRequired,
     QueueUnavailable,
     ScanFormatError,
     UnsupportedFormatError,
@@ -42,6 +44,8 @@ ERROR_STATUS: tuple[tuple[type[JointsegError], int], ...] = (
     (AuthenticationError, 401),
     (JobNotFound, 404),
     (JobStateError, 409),
+    (PreconditionFailed, 412),
+    (PreconditionRequired, 428),
     (UploadTooLarge, 413),
     (UnsupportedFormatError, 415),
     (ScanFormatError, 422),
@@ -61,9 +65,13 @@ ERROR_MEANINGS: dict[int, str] = {
     "or no such route",
     405: "Method not allowed on this path; `Allow` lists those that are",
     409: "The job is not in a state for this (not finished, not succeeded, nothing found)",
+    412: "`If-Match` names a labels version that is no longer the current one: read the "
+    "labels again (their `ETag`) and repeat the change on top of them",
     413: "Upload larger than the service takes",
     415: "Not a scan format jointseg reads",
     422: "Invalid request, config or scan; `detail` names the field or the problem",
+    428: "`If-Match` is missing: a change to the labels names the version it builds on (the "
+    "`ETag` of `GET /v1/jobs/{id}/labels`)",
     500: "Unexpected error (its details are only in the service log)",
     503: "The queue is unavailable",
 }

@@ -16,9 +16,11 @@ functions rather than through an address.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal
 from urllib.parse import quote
@@ -45,17 +47,28 @@ def _lock_for(path: Path) -> threading.Lock:
         return _locks.setdefault(path, threading.Lock())
 
 
-def download_name(filename: str, kind: Download) -> str:
+@contextlib.contextmanager
+def lock_for(path: Path) -> Iterator[None]:
+    """Hold this process's lock of ``path`` (one file made once however many ask at once)."""
+    with _lock_for(path):
+        yield
+    with _locks_guard:
+        _locks.pop(path, None)
+
+
+def download_name(filename: str, kind: Download, version: int = 0) -> str:
     """The name a download of ``kind`` is saved under, from the uploaded file's name
-    (``office.e57`` gives ``office_segmented.laz``, ``office_report.json``, ``office.ifc``)."""
+    (``office.e57`` gives ``office_segmented.laz``, ``office_report.json``, ``office.ifc``);
+    a corrected labels version says which (``office_segmented_v2.laz``, ``office_v2.ifc``)."""
     stem = filename.rsplit(".", 1)[0] or "result"
+    tag = f"_v{int(version)}" if version else ""
     if kind == "report":
-        return f"{stem}_report.json"
+        return f"{stem}_report{tag}.json"
     if kind == "objects":
-        return f"{stem}_objects.json"
+        return f"{stem}_objects{tag}.json"
     if kind == "ifc":
-        return f"{stem}.ifc"
-    return f"{stem}_segmented.{kind}"
+        return f"{stem}{tag}.ifc"
+    return f"{stem}_segmented{tag}.{kind}"
 
 
 def content_disposition(name: str, disposition: str = "attachment") -> str:

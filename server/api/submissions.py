@@ -8,11 +8,15 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
 import uuid
+from typing import Any
 
 from pydantic import ValidationError
 
-from jointseg.exceptions import ConfigError, QueueUnavailable
+from jointseg.exceptions import ConfigError, JobNotFound, QueueUnavailable
+from jointseg.frame.params import FrameParams
 from jointseg.network.registry import BACKENDS, backend, has_weights
 from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
@@ -124,11 +128,98 @@ def submit(services: Services, upload: ReceivedUpload, owner: str | None = None)
             network=config.network.name,
             owner=owner,
         )
+    _enqueue(services, job_id)
+    log.info("job %s queued: %s, %d points", job_id, upload.filename, info.n_points)
+    return view
+
+
+def _enqueue(services: Services, job_id: str) -> None:
+    """Put a new job's id on the queue; a queue that cannot take it fails the job.
+
+    Raises
+    ------
+    QueueUnavailable
+    """
     try:
         services.queue.enqueue(job_id)
     except QueueUnavailable as exc:
         with services.sessions() as session:
             fail_queued(session, job_id, str(exc))
         raise
-    log.info("job %s queued: %s, %d points", job_id, upload.filename, info.n_points)
+
+
+def rerun_config(
+    config: dict[str, Any], frame: dict[str, Any], settings: Settings
+) -> PipelineConfig:
+    """A job's stored config with ``frame``'s fields over its frame section, checked as a new
+    job's config is.
+
+    Raises
+    ------
+    ConfigError
+        For ``frame`` that is not frame settings (``frame.up: ...``), or a config this service
+        no longer runs.
+    """
+    try:
+        FrameParams.model_validate(frame)
+    except ValidationError as exc:
+        problem = exc.errors()[0]
+        raise ConfigError(f"frame.{_location(problem['loc'])}: {problem['msg']}") from None
+    merged = {**config, "frame": {**(config.get("frame") or {}), **frame}}
+    return parse_config(json.dumps(merged), settings)
+
+
+def rerun(
+    services: Services,
+    job_id: str,
+    frame: dict[str, Any],
+    *,
+    owner: str | None,
+    owned_by: str | None,
+) -> jobs.JobView:
+    """A new job from job ``job_id``'s stored upload, with its config and ``frame`` over its
+    frame settings (blocking); it belongs to ``owner`` and its ``rerun_of`` names the old job,
+    which stays as it is (its labels versions too).
+
+    Why: a scan put the wrong way up (or in the wrong units) is fixed by telling the frame
+    stage, without uploading it again.
+
+    Raises
+    ------
+    JobNotFound
+        For an unknown job, another owner's (``owned_by``), or one whose upload is gone.
+    ConfigError
+        For bad frame settings, naming the field.
+    QueueUnavailable
+        When the id cannot be enqueued (the new job is then marked failed).
+    """
+    with services.sessions() as session:
+        old = jobs.get_job(session, job_id, owned_by=owned_by)
+        stored = jobs.job_config(session, job_id, owned_by=owned_by)
+    config = rerun_config(stored, frame, services.settings)
+    source = services.storage.upload_path(job_id, f".{old.format}")
+    if not source.is_file():
+        raise JobNotFound(f"job {job_id}: its upload is gone; upload the scan again")
+    new_id = uuid.uuid4().hex
+    target = services.storage.upload_path(new_id, source.suffix)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(source, target)  # the upload is never written again: one copy on disk
+    except OSError:
+        shutil.copyfile(source, target)
+    with services.sessions() as session:
+        view = jobs.create_job(
+            session,
+            job_id=new_id,
+            filename=old.filename,
+            fmt=old.format,
+            size_bytes=target.stat().st_size,
+            points=old.points,
+            config=json.loads(config.model_dump_json()),
+            network=config.network.name,
+            owner=owner,
+            rerun_of=job_id,
+        )
+    _enqueue(services, new_id)
+    log.info("job %s queued: a rerun of %s with frame %s", new_id, job_id, frame)
     return view

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
 from server.schemas import JobStatus, JobView, TileCounts
-from server.state import parts
+from server.state import labels, parts
 from server.state.models import FINAL_STATUSES, Job, utcnow
 from server.storage import check_job_id
 
@@ -31,21 +31,27 @@ __all__ = [
     "create_job",
     "delete_job_row",
     "get_job",
+    "job_config",
     "list_jobs",
 ]
 
 
-def _view(job: Job, counts: TileCounts | None = None) -> JobView:
+def _view(job: Job, counts: TileCounts | None = None, labels_version: int = 0) -> JobView:
     view = JobView.model_validate(job)
-    update: dict[str, object] = {"quality": (job.config or {}).get("quality", "standard")}
+    update: dict[str, object] = {
+        "quality": (job.config or {}).get("quality", "standard"),
+        "labels_version": labels_version,
+    }
     if counts is not None:
         update["tiles"] = counts
     return view.model_copy(update=update)
 
 
 def _views(session: Session, rows: list[Job]) -> list[JobView]:
-    counts = parts.tile_counts(session, [job.id for job in rows])
-    return [_view(job, counts.get(job.id)) for job in rows]
+    ids = [job.id for job in rows]
+    counts = parts.tile_counts(session, ids)
+    versions = labels.current_versions(session, ids)
+    return [_view(job, counts.get(job.id), versions.get(job.id, 0)) for job in rows]
 
 
 def _row(session: Session, job_id: str, owned_by: str | None = None) -> Job:
@@ -66,9 +72,10 @@ def create_job(
     config: dict[str, Any],
     network: str,
     owner: str | None = None,
+    rerun_of: str | None = None,
 ) -> JobView:
     """Insert a queued job (its upload already stored) and commit; ``owner`` is the submitting
-    key's hash (None in open mode)."""
+    key's hash (None in open mode), ``rerun_of`` the job it re-runs."""
     job = Job(
         id=check_job_id(job_id),
         filename=filename,
@@ -83,6 +90,7 @@ def create_job(
         attempts=0,
         cancel_requested=False,
         owner=owner,
+        rerun_of=rerun_of,
     )
     session.add(job)
     session.commit()
@@ -102,7 +110,18 @@ def get_job(session: Session, job_id: str, *, owned_by: str | None = None) -> Jo
     # tile counts under READ COMMITTED)
     counts = parts.tile_counts(session, [check_job_id(job_id)])
     job = _row(session, job_id, owned_by)
-    return _view(job, counts.get(job.id))
+    return _view(job, counts.get(job.id), labels.current_version(session, job.id))
+
+
+def job_config(session: Session, job_id: str, *, owned_by: str | None = None) -> dict[str, Any]:
+    """The config a job was submitted with (as stored: every field, presets applied).
+
+    Raises
+    ------
+    JobNotFound
+        For an unknown id or another owner's job.
+    """
+    return dict(_row(session, job_id, owned_by).config or {})
 
 
 def list_jobs(
@@ -187,5 +206,6 @@ def delete_job_row(session: Session, job_id: str, *, owned_by: str | None = None
     view = _views(session, [job])[0]
     session.delete(job)
     parts.delete_parts(session, job.id)
+    labels.delete_versions(session, job.id)
     session.commit()
     return view

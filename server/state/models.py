@@ -12,7 +12,17 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import JSON, BigInteger, Boolean, DateTime, Float, Integer, String, Text
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    DateTime,
+    Float,
+    Integer,
+    String,
+    Text,
+    UniqueConstraint,
+)
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
@@ -77,6 +87,35 @@ class Job(Base):
     #: a job of an open service or from before tenants (only admin keys and open mode see it).
     #: Added to older tables by :func:`server.state.db.add_missing_columns`.
     owner: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
+    #: The job this one re-runs with another frame (``POST /v1/jobs/{id}/rerun``), else None.
+    rerun_of: Mapped[str | None] = mapped_column(String(32), nullable=True)
+
+
+class LabelVersion(Base):
+    """One correction of a succeeded job's labels: version ``version`` (1, 2, ...) of job
+    ``job_id``.
+
+    Version 0 is the job's own result and has no row. The per-point classes the user gave
+    live in ``jobs/<id>/labels/v<version>.npy``, written before the row is committed; the
+    unique (job, version) pair is what makes two concurrent corrections on the same version
+    end with one winner.
+    """
+
+    __tablename__ = "label_versions"
+    __table_args__ = (UniqueConstraint("job_id", "version", name="uq_label_versions_job_version"),)
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    job_id: Mapped[str] = mapped_column(String(32), index=True)
+    version: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
+    #: :func:`server.api.auth.owner_of` the correcting key; None in open mode.
+    owner: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    #: Points whose label this version's edits changed (against the version before).
+    points_changed: Mapped[int] = mapped_column(BigInteger, default=0)
+    #: Points whose label differs from version 0's.
+    points_corrected: Mapped[int] = mapped_column(BigInteger, default=0)
+    #: Edits in the request that made this version.
+    edits: Mapped[int] = mapped_column(Integer, default=0)
 
 
 class Worker(Base):

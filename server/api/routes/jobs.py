@@ -15,14 +15,14 @@ from fastapi import APIRouter, Depends, Path, Query, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse
 
-from jointseg.exceptions import JobStateError
 from jointseg.objects.records import LayoutReport
 from server.api.auth import Tenant, TenantDep, require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
 from server.api.errors import ERROR_RESPONSES, error_responses
-from server.api.results import content_disposition, download_name, layout_of, result_file
+from server.api.results import content_disposition, download_name, layout_from
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
+from server.corrections import resolve_version, version_file
 from server.messages import public_report_bytes
 from server.schemas import JobList, JobResponse, JobStatus, JobView
 from server.state import jobs
@@ -35,6 +35,16 @@ JobId = Annotated[
         pattern=r"^[0-9a-f]{32}$",
         description="Job id: 32 hex digits. Another API key's job answers 404, as an unknown id "
         "does (admin keys see every job).",
+    ),
+]
+
+Version = Annotated[
+    int | None,
+    Query(
+        ge=0,
+        le=1 << 30,
+        description="Labels version: 0 is the run's own labels, 1, 2, ... the corrections "
+        "(`PATCH .../labels`); default the current one. A version the job lacks is 404.",
     ),
 ]
 
@@ -112,31 +122,36 @@ async def get_result(
     format: Annotated[
         ResultFormat, Query(description="ply, las or laz (the scan), or ifc (an IFC4 model).")
     ] = "ply",
+    version: Version = None,
 ) -> FileResponse:
     """The segmented scan with every field of ``jointseg segment``, or its IFC4 model of rooms,
     walls, doors, windows and furniture (409 until it succeeded, or when the run found no
-    objects or rooms)."""
-    view = await run_in_threadpool(_current_view, services, job_id, tenant)
-    if view.status != "succeeded":
-        raise JobStateError(f"job {job_id} is {view.status}; no result")
-    path = await run_in_threadpool(result_file, services.storage, job_id, format)
+    objects or rooms). A corrected labels version's scan has ``fused_label`` corrected and a
+    ``user_label`` field (LAS: classification 64 + the class where corrected)."""
+    view, number = await run_in_threadpool(_version, services, job_id, tenant, version)
+    path = await run_in_threadpool(version_file, services.storage, job_id, number, format)
     media = IFC_MEDIA_TYPE if format == "ifc" else "application/octet-stream"
-    return FileResponse(path, media_type=media, filename=download_name(view.filename, format))
+    name = download_name(view.filename, format, number)
+    return FileResponse(path, media_type=media, filename=name)
 
 
 @jobs_router.get(
     "/jobs/{job_id}/objects", response_model=LayoutReport, responses=error_responses(409)
 )
 async def get_objects(
-    job_id: JobId, services: ServicesDep, tenant: TenantDep, response: Response
+    job_id: JobId,
+    services: ServicesDep,
+    tenant: TenantDep,
+    response: Response,
+    version: Version = None,
 ) -> LayoutReport:
     """The objects, rooms and walls (with their doors and windows) the run found, as
-    ``jointseg segment --objects`` writes them (409 until it succeeded, or without them)."""
-    view = await run_in_threadpool(_current_view, services, job_id, tenant)
-    if view.status != "succeeded":
-        raise JobStateError(f"job {job_id} is {view.status}; no objects")
-    layout = await run_in_threadpool(layout_of, services.storage, job_id)
-    name = download_name(view.filename, "objects")
+    ``jointseg segment --objects`` writes them (409 until it succeeded, or without them); of
+    a corrected labels version, found from its labels."""
+    view, number = await run_in_threadpool(_version, services, job_id, tenant, version)
+    report = await run_in_threadpool(version_file, services.storage, job_id, number, "report")
+    layout = await run_in_threadpool(layout_from, report)
+    name = download_name(view.filename, "objects", number)
     response.headers["Content-Disposition"] = content_disposition(name, "inline")
     return layout
 
@@ -145,24 +160,26 @@ async def get_objects(
     "/jobs/{job_id}/report",
     responses={200: {"content": {"application/json": {}}}, **error_responses(409)},
 )
-async def get_report(job_id: JobId, services: ServicesDep, tenant: TenantDep) -> Response:
+async def get_report(
+    job_id: JobId, services: ServicesDep, tenant: TenantDep, version: Version = None
+) -> Response:
     """The job's report.json (as ``jointseg segment --report`` writes it), with paths on the
-    server reduced to file names (:func:`server.messages.public_report`)."""
-    view = await run_in_threadpool(_current_view, services, job_id, tenant)
-    path = services.storage.report_path(job_id)
-    if view.status != "succeeded" or not path.is_file():
-        raise JobStateError(f"job {job_id} is {view.status}; no report")
+    server reduced to file names (:func:`server.messages.public_report`); a corrected labels
+    version's has a ``labels`` section and that version's objects and rooms."""
+    view, number = await run_in_threadpool(_version, services, job_id, tenant, version)
+    path = await run_in_threadpool(version_file, services.storage, job_id, number, "report")
     body = await run_in_threadpool(public_report_bytes, path)
-    name = download_name(view.filename, "report")
+    name = download_name(view.filename, "report", number)
     headers = {"Content-Disposition": content_disposition(name, "inline")}
     return Response(body, media_type="application/json", headers=headers)
 
 
-def _current_view(services: Services, job_id: str, tenant: Tenant) -> JobView:
-    """The job as ``tenant`` may see it now, read in its own session (the async routes run
-    this in a thread)."""
-    with services.sessions() as session:
-        return jobs.get_job(session, job_id, owned_by=tenant.scope)
+def _version(
+    services: Services, job_id: str, tenant: Tenant, version: int | None
+) -> tuple[JobView, int]:
+    """The succeeded job as ``tenant`` may see it and the labels version asked for (the async
+    routes run this in a thread; 409 before it succeeded, 404 for a version it lacks)."""
+    return resolve_version(services.sessions, job_id, version, owned_by=tenant.scope)
 
 
 @jobs_router.delete(
