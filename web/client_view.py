@@ -38,6 +38,7 @@ from web.camera import FIT_ALL, CameraFollow
 from web.controls import GONE, Controls
 from web.downloads import send_download
 from web.job_list import JobList
+from web.label_editing import LabelEditing
 from web.layout import panel_offsets, row_axis
 from web.memory import release_soon
 from web.object_list import ListedObject, ObjectList
@@ -110,6 +111,7 @@ class ClientView:
         )
         self.tools = ClickTools(client.scene, self.panels.root_path)
         self.objects = ObjectList(client.gui, self.ui.object_list, self.select_object)
+        self.editing = LabelEditing(self)  # the Edit labels folder (web.label_editing)
         self._wire()
         self.refresh_jobs()
         client.scene.on_click()(self._clicked)
@@ -222,6 +224,7 @@ class ClientView:
                 self.objects.show_job(data)
                 kept = self.ui.clip.kept(data)
                 self.tools.root = self.panels.start(data, int(self.ui.budget.value), kept)
+                self.editing.show_job(job_id)
                 self.camera.active = True
                 self.redraw(camera=camera is None)
                 if camera is not None:  # a link's: a plan's or elevation's has its narrow field
@@ -245,6 +248,7 @@ class ClientView:
             self.job_id = None
             self.ui.clear()
             self.objects.clear()
+            self.editing.clear()
             self.overlay.sync()
 
     def _status_line(self) -> None:
@@ -292,6 +296,7 @@ class ClientView:
     def _clip_changed(self) -> None:
         """The clip box or the slice settled after a change (a timer's thread)."""
         self._resend()
+        self.editing.reselect()  # a region selection follows the box and the slice
         self.address.sync()
 
     def _resend(self) -> None:
@@ -362,6 +367,8 @@ class ClientView:
             if data is None:
                 return
             origin = np.asarray(event.ray_origin, dtype=np.float64)
+            if self.editing.clicked(origin, np.asarray(event.ray_direction, dtype=np.float64)):
+                return  # a selection for Edit labels
             hit = self.pick(origin, np.asarray(event.ray_direction, dtype=np.float64))
             if hit is None:
                 self.ui.answer.content = "No point under the click."

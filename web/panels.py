@@ -98,6 +98,11 @@ class PanelScene:
             rows = np.arange(n) if self.shown is None else self.shown
             self.shown = rows[kept[rows]]
 
+        self._regroup(data)
+
+    def _regroup(self, data: SceneData) -> None:
+        """The (class, changed) groups of the rows sent, by label set."""
+
         def sel(a: np.ndarray) -> np.ndarray:
             return a if self.shown is None else a[self.shown]
 
@@ -164,20 +169,60 @@ class PanelScene:
             anchor="bottom-center",
             font_screen_scale=1.4,
         )
+        self._send_groups(panel, data, set(self.groups[LABEL_KEY.get(panel.key, "fused")]))
+
+    def _send_groups(self, panel: Panel, data: SceneData, keys: set[tuple[int, bool]]) -> None:
+        """(Re)send a panel's nodes of the (class, changed) groups ``keys``; a group now empty
+        loses its node."""
         rows = slice(None) if self.shown is None else self.shown
         xyz, colours = data.xyz[rows], data.colours_of(panel)[rows]
-        size = self.point_size()
-        for (cls, changed), index in self.groups[LABEL_KEY.get(panel.key, "fused")].items():
+        groups = self.groups[LABEL_KEY.get(panel.key, "fused")]
+        for cls, changed in keys:
+            old = self.nodes.pop((panel.key, cls, changed), None)
+            if old is not None:
+                old.remove()
+            index = groups.get((cls, changed))
+            if index is None:
+                continue
+            name = f"{class_title(cls)}_{'changed' if changed else 'kept'}"
             self.nodes[(panel.key, cls, changed)] = self.scene.add_point_cloud(
-                f"{path}/{class_title(cls)}_{'changed' if changed else 'kept'}",
+                f"{self.root_path}/{panel.key}/{name}",
                 xyz[index],
                 colours[index],
-                point_size=size,
+                point_size=self.point_size(),
                 point_shape="square",
                 point_shading="flat",
                 precision="float32",
                 visible=self.node_visible(cls, changed),
             )
+
+    def relabel(self, panels: tuple[Panel, ...]) -> None:
+        """The fused labels of some shown points changed (a correction): regroup, and send
+        again only the groups whose points changed, in the panels sent; redraw the boxes
+        (objects may have changed class) and the selection."""
+        data = self.data
+        if data is None:
+            return
+        before = self.groups
+        self._regroup(data)
+        by_panel = {p.key: p for p in data.panels}
+        for key in list(self.frames):
+            label = LABEL_KEY.get(key, "fused")
+            old, new = before.get(label, {}), self.groups.get(label, {})
+            stale = {
+                g for g in set(old) | set(new)
+                if g not in old or g not in new or not np.array_equal(old[g], new[g])
+            }  # fmt: skip
+            if key == "errors":  # its colours follow the fused labels in every group
+                stale = set(old) | set(new)
+            if stale and key in by_panel:
+                self._send_groups(by_panel[key], data, stale)
+        for box in (self.boxes or {}).values():
+            box.remove()
+        self.boxes = None
+        if "fused" in self.frames:
+            self._send_boxes(data)
+        self.apply_visibility()
 
     def _send_boxes(self, data: SceneData) -> None:
         """The objects' boxes, drawn once in the fused panel (the report's objects), a node

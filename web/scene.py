@@ -102,6 +102,9 @@ class SceneData:
         The network's confidence in its label, when the result has it.
     instance : ndarray of shape (M,), int32, optional
         The object of each shown point (-1: none), when the result has it.
+    rows : ndarray of shape (M,), int64, optional
+        The file's row of each shown point, ascending (label edits map the file's points to
+        the shown ones through it); None: every row, in order.
     to_work : ndarray of shape (4, 4), optional
         The frame stage's transform from the file's coordinates to the levelled metric frame
         the points are shown in (None: shown as stored); picking maps back through it.
@@ -124,6 +127,7 @@ class SceneData:
     confidence: np.ndarray | None = None
     to_work: np.ndarray | None = None
     instance: np.ndarray | None = None
+    rows: np.ndarray | None = None
 
     def shown_xyz(self, user: np.ndarray) -> np.ndarray:
         """Points in the file's own coordinates ((..., 3)) as shown: levelled, centred."""
@@ -364,6 +368,7 @@ def load_scene(
         confidence=None if sample.confidence is None else pick(sample.confidence),
         to_work=to_work,
         instance=None if sample.instance is None else pick(sample.instance),
+        rows=pick(sample.rows).astype(np.int64),
     )
     log.info(
         "loaded %s: %d of %d points shown (voxel %s)",

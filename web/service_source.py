@@ -8,16 +8,23 @@ tenant: :meth:`ServiceSource.for_tenant` is what one signed-in key may see.
 from __future__ import annotations
 
 import copy
+import logging
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from jointseg.exceptions import JobNotFound
+from jointseg.exceptions import JobNotFound, JobStateError
 from server.api.auth import Tenant
 from server.api.results import result_file
 from server.settings import Settings
 from server.state.db import make_engine, make_sessions
 from server.state.jobs import get_job, list_jobs
 from server.storage import ResultFormat, Storage
-from web.sources import JobEntry
+from web.sources import JobEntry, LabelsInfo
+
+if TYPE_CHECKING:
+    from jointseg.labels.edits import EditList
+
+log = logging.getLogger(__name__)
 
 #: Most jobs the picker lists.
 PICKER_LIMIT = 200
@@ -39,12 +46,14 @@ class ServiceSource:
         self.sessions = make_sessions(self.engine)
         self.storage = Storage(settings.data_dir)
         self.owned_by = owned_by
+        self.owner: str | None = None  # who saves label versions (the signed-in tenant)
 
     def for_tenant(self, tenant: Tenant) -> ServiceSource:
         """The jobs ``tenant`` may see, through this source's database connections (close
         only the source they came from)."""
         scoped = copy.copy(self)
         scoped.owned_by = tenant.scope
+        scoped.owner = tenant.owner
         return scoped
 
     def finished_jobs(self) -> list[JobEntry]:
@@ -71,7 +80,12 @@ class ServiceSource:
             view = get_job(session, job_id, owned_by=self.owned_by)
         if view.status != "succeeded":
             raise JobNotFound(f"job {job_id} is {view.status}: it has no result to show")
-        path = self.storage.result_path(job_id, "ply")
+        version = self.labels(job_id).version
+        corrections = _corrections()
+        if version > 0 and corrections is not None:  # the saved version's labels are shown
+            path = corrections.version_file(self.storage, job_id, version, "ply")
+        else:
+            path = self.storage.result_path(job_id, "ply")
         if not path.is_file():
             raise JobNotFound(f"job {job_id}: its result file is gone")
         return path
@@ -98,6 +112,48 @@ class ServiceSource:
         self.result_path(job_id)  # this tenant's, succeeded, and its files still there
         return result_file(self.storage, job_id, fmt)
 
+    def labels(self, job_id: str) -> LabelsInfo:
+        """The job's current labels version and its ETag (:mod:`server.corrections`)."""
+        corrections = _corrections()
+        if corrections is None:
+            return LabelsInfo(refusal="This service keeps no label versions yet.")
+        state = corrections.labels_state(
+            self.sessions, self.storage, job_id, owned_by=self.owned_by
+        )
+        history = list(getattr(state, "history", None) or [])
+        last = history[-1] if history else None
+        corrected = getattr(last, "points_corrected", None)
+        if corrected is None and isinstance(last, dict):
+            corrected = last.get("points_corrected")
+        return LabelsInfo(version=state.version, etag=state.etag, corrected=int(corrected or 0))
+
+    def save_edits(self, job_id: str, edits: EditList, *, if_match: str | None) -> LabelsInfo:
+        """``edits`` as the next labels version, as ``PATCH /v1/jobs/{id}/labels`` saves it.
+
+        Raises
+        ------
+        PreconditionFailed
+            Another save came after the version ``if_match`` names.
+        """
+        corrections = _corrections()
+        if corrections is None:
+            raise JobStateError("This service keeps no label versions yet.")
+        corrections.correct(
+            self.sessions, self.storage, job_id, edits,
+            if_match=if_match, owner=self.owner, owned_by=self.owned_by,
+        )  # fmt: skip
+        log.info("labels of job %s saved from the viewer", job_id)
+        return self.labels(job_id)
+
     def close(self) -> None:
         """Release the database connections."""
         self.engine.dispose()
+
+
+def _corrections() -> Any:
+    """:mod:`server.corrections`, None on a service without label versions."""
+    try:
+        from server import corrections
+    except ImportError:
+        return None
+    return corrections

@@ -10,15 +10,19 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Sequence
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from pydantic import BaseModel, ConfigDict
 
-from jointseg.exceptions import JobNotFound
+from jointseg.exceptions import JobNotFound, JobStateError
 from server.api.results import convert_result
 from server.storage import ResultFormat
+
+if TYPE_CHECKING:
+    from jointseg.labels.edits import EditList
 
 #: File types a folder source lists as results.
 RESULT_SUFFIXES = (".ply", ".las", ".laz")
@@ -41,6 +45,27 @@ class JobEntry(BaseModel):
         return f"{self.filename} [{self.id[:8]}]{when}"
 
 
+@dataclass(frozen=True)
+class LabelsInfo:
+    """Which labels version of a job the viewer shows, and whether it can save a new one.
+
+    ``etag`` is what a save sends as ``If-Match``; ``refusal`` says why this source cannot
+    save (None: it can).
+    """
+
+    version: int = 0
+    etag: str | None = None
+    corrected: int = 0
+    refusal: str | None = None
+
+
+#: Why a folder of results keeps no versions (the viewer shows it instead of saving).
+FOLDER_REFUSAL = (
+    "A folder of results keeps no label versions: open the job through `jointseg serve` to "
+    "save, or correct the file with `jointseg relabel --edits`."
+)
+
+
 class JobSource(Protocol):
     """What the viewer reads finished jobs from."""
 
@@ -60,6 +85,16 @@ class JobSource(Protocol):
         """The job's result as ``fmt`` (ply, las, laz) or its IFC model (ifc), made on the
         first request; raises :class:`JobNotFound` as :meth:`result_path` does and
         :class:`jointseg.exceptions.JobStateError` when the run found no objects or rooms."""
+        ...
+
+    def labels(self, job_id: str) -> LabelsInfo:
+        """The labels version :meth:`result_path` holds, and its ETag."""
+        ...
+
+    def save_edits(self, job_id: str, edits: EditList, *, if_match: str | None) -> LabelsInfo:
+        """Save ``edits`` as a new labels version over the one ``if_match`` names; raises
+        :class:`jointseg.exceptions.PreconditionFailed` when another save came first and
+        :class:`jointseg.exceptions.JobStateError` when the source cannot save."""
         ...
 
 
@@ -120,3 +155,12 @@ class DirectorySource:
             self._exports = tempfile.TemporaryDirectory(prefix="jointseg-view-")
         target = Path(self._exports.name) / f"{job_id}.{fmt}"
         return convert_result(result, self.report_path(job_id), target, fmt, name=job_id)
+
+    def labels(self, job_id: str) -> LabelsInfo:
+        """A file of a folder is always its own version 0, and cannot be saved over."""
+        self.result_path(job_id)
+        return LabelsInfo(refusal=FOLDER_REFUSAL)
+
+    def save_edits(self, job_id: str, edits: EditList, *, if_match: str | None) -> LabelsInfo:
+        """Refused: results in a folder are other programs' files (:data:`FOLDER_REFUSAL`)."""
+        raise JobStateError(FOLDER_REFUSAL)
