@@ -156,3 +156,93 @@ def test_the_job_page_shows_tiles_done_of_total_when_the_api_gives_them(browser:
         assert errors == []
     finally:
         page.close()
+
+
+def test_the_frame_box_shows_the_decision_flags_a_warning_and_posts_a_flip_with_the_key(
+    browser: Any,
+) -> None:
+    """Issue 63, on the page's own files with the API's answers made up: a finished job's
+    *frame* button shows the frame stage's decision (up axis, tilt, units, each with its
+    confidence) with its warning highlighted; *flip* and a unit chosen, *Re-run with this
+    frame* posts them to ``/v1/jobs/{id}/rerun`` with the saved key and links the new job."""
+    static = Path(web.__file__).parent / "static"
+    base, old, new = "http://jobpage.test", "e" * 32, "f" * 32
+    job = {"id": old, "filename": "office.ply", "format": "ply", "points": 30_000,
+           "network": "randlanet", "created_at": "2026-12-06T06:00:00Z", "progress": 1.0,
+           "status": "succeeded"}  # fmt: skip
+    frame = {
+        "up": {"axis": "+y", "tilt_degrees": 1.234, "levelled": True, "confidence": 0.41,
+               "how": "weighed: the geometry"},
+        "units": {"unit": "mm", "metres_per_unit": 0.001, "how": "scale", "confidence": 0.93},
+        "warnings": ["up axis unsure (+y, confidence 0.41): check the labels, or set it with --up"],
+    }  # fmt: skip
+    posted: list[tuple[str, str | None, Any]] = []
+    rerun = {**job, "id": new, "status": "queued", "progress": 0.0, "rerun_of": old}
+
+    def answer(route: Any) -> None:
+        request = route.request
+        path = request.url[len(base) :].split("?")[0]
+        files = {"/": "index.html", "/web/jobs.js": "jobs.js", "/web/style.css": "style.css"}
+        if path in files:
+            kind = {"html": "text/html", "js": "text/javascript", "css": "text/css"}
+            body = (static / files[path]).read_bytes()
+            route.fulfill(status=200, content_type=kind[files[path].split(".")[1]], body=body)
+            return
+        answers = {
+            "/web/config.json": {"viewer_port": 8080, "networks": ["randlanet"]},
+            "/v1/jobs": {"items": [rerun, job] if posted else [job], "total": 1 + len(posted)},
+            f"/v1/jobs/{old}": job,
+            f"/v1/jobs/{old}/report": {"frame": frame},
+        }
+        if request.method == "POST" and path == f"/v1/jobs/{old}/rerun":
+            posted.append((path, request.headers.get("authorization"), request.post_data_json))
+            route.fulfill(status=201, content_type="application/json", body=json.dumps(rerun))
+            return
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(answers[path]))
+
+    page = browser.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda error: errors.append(str(error)))
+    try:
+        page.route(f"{base}/**", answer)
+        page.goto(f"{base}/")
+        page.fill("#api-key", "frame-key")
+        page.click("#save-key")
+        page.locator(f'tr[data-job-id="{old}"]').get_by_role("button", name="frame").click()
+        box = page.locator("#frame-box")
+        box.get_by_text("confidence 0.41").first.wait_for(timeout=15_000)
+
+        def row(field: str) -> Any:
+            return box.locator(f'#frame-decision tr[data-field="{field}"]')
+
+        assert "+y" in row("up").inner_text() and "confidence 0.41" in row("up").inner_text()
+        assert "1.2°" in row("tilt").inner_text() and "levelled" in row("tilt").inner_text()
+        assert "mm" in row("units").inner_text() and "confidence 0.93" in row("units").inner_text()
+        # the warning shown, highlighted: the box and the up axis's row say "unsure"
+        assert "up axis unsure" in box.locator("#frame-warnings").inner_text()
+        assert box.locator("#frame-unsure").is_visible()
+        assert "unsure" in (row("up").get_attribute("class") or "")
+        assert "unsure" not in (row("units").get_attribute("class") or "")
+        # the controls start at the decision; flip, a unit, one action
+        assert page.input_value("#frame-up") == "+y" and page.input_value("#frame-units") == "mm"
+        page.click("#frame-flip")
+        assert page.input_value("#frame-up") == "-y"
+        page.select_option("#frame-units", "cm")
+        page.click("#frame-rerun")
+        link = page.locator("#frame-new-job")
+        link.wait_for(timeout=15_000)
+        assert posted == [
+            (f"/v1/jobs/{old}/rerun", "Bearer frame-key", {"frame": {"up": "-y", "units": "cm"}})
+        ]
+        assert link.get_attribute("data-job-id") == new
+        page.locator(f'tr[data-job-id="{new}"]').wait_for(timeout=15_000)
+        assert "re-run" in page.locator(f'tr[data-job-id="{new}"] [data-col=file]').inner_text()
+        # the viewer's link opens the box with its choices preset
+        page.goto(f"{base}/#frame={old}&up=-z&units=ft")
+        box.get_by_text("confidence 0.41").first.wait_for(timeout=15_000)
+        wait = page.wait_for_function
+        wait("document.getElementById('frame-up').value === '-z'", timeout=15_000)
+        assert page.input_value("#frame-units") == "ft"
+        assert errors == []
+    finally:
+        page.close()

@@ -69,6 +69,7 @@ function setupKey() {
     note("key-status", key ? "saved in this browser" : "no key");
     for (const row of rows.values()) delete row.dataset.actionsFor; // redraw the links
     poll();
+    frameFromAddress();
   });
 }
 
@@ -281,7 +282,7 @@ function renderActions(row, job) {
     view.rel = "noopener";
     view.textContent = "view";
     view.className = "view-link";
-    td.append(view, downloadMenu(job));
+    td.append(view, downloadMenu(job), actionButton("frame", () => openFrame(job.id)));
   }
   const finished = ["succeeded", "failed", "cancelled"].includes(job.status);
   td.append(actionButton(finished ? "delete" : "cancel", () => removeJob(job)));
@@ -295,7 +296,8 @@ function renderJob(job) {
   }
   row.dataset.status = job.status;
   cell(row, "created").textContent = new Date(job.created_at).toLocaleString();
-  cell(row, "file").textContent = job.filename;
+  cell(row, "file").textContent = job.rerun_of ? `${job.filename} (re-run)` : job.filename;
+  cell(row, "file").title = job.rerun_of ? `re-run of job ${job.rerun_of} with another frame` : "";
   cell(row, "points").textContent = job.points == null ? "" : job.points.toLocaleString();
   cell(row, "network").textContent =
     job.quality && job.quality !== "standard" ? `${job.network}, ${job.quality}` : job.network;
@@ -321,6 +323,148 @@ function renderJob(job) {
   tilesNote.hidden = tiles === null;
   renderActions(row, job);
   return row;
+}
+
+// ---------------------------------------------------------------- frame box
+// A finished job's frame (report.json's `frame` section: up axis, tilt, units, each with its
+// confidence; a warning means the stage was unsure) and the one action that corrects it: re-run
+// the job from its stored upload with another up axis or unit (POST /v1/jobs/{id}/rerun gives a
+// NEW job; this one stays as it is). Opened by a row's "frame" button or by the address
+// `#frame=<job id>&up=<axis>&units=<unit>`: the viewer's Frame folder links there, since the
+// viewer holds no API key and the page does.
+let frameJob = null; // the job the box shows, once its report is read
+
+function flipped(axis) {
+  return (axis[0] === "-" ? "+" : "-") + axis.slice(1);
+}
+
+// Set a <select> to `value` when it offers it, else to `fallback`.
+function choose(select, value, fallback) {
+  select.value = value || "";
+  if (!value || select.value !== value) select.value = fallback;
+}
+
+function frameRow(field, value, confidence, how, unsure) {
+  const row = document.querySelector(`#frame-decision tr[data-field="${field}"]`);
+  const part = (name) => row.querySelector(`[data-part="${name}"]`);
+  part("value").textContent = value;
+  part("confidence").textContent = Number.isFinite(confidence)
+    ? `confidence ${confidence.toFixed(2)}`
+    : "";
+  part("how").textContent = how || "";
+  row.classList.toggle("unsure", unsure);
+}
+
+function showFrame(frame) {
+  const warnings = frame.warnings || [];
+  const up = frame.up || {};
+  const units = frame.units || {};
+  const upUnsure = warnings.some((w) => /^up axis/.test(w));
+  const unitsUnsure = warnings.some((w) => /units|tall/.test(w));
+  frameRow("up", up.axis || "?", up.confidence, up.how, upUnsure);
+  const tilt = Number.isFinite(up.tilt_degrees) ? `${up.tilt_degrees.toFixed(1)}°` : "?";
+  const levelled = up.levelled ? "levelled" : "not levelled (under the real-tilt rule)";
+  frameRow("tilt", `${tilt}, ${levelled}`, up.confidence, "with the up axis", upUnsure);
+  frameRow("units", units.unit || "?", units.confidence, units.how, unitsUnsure);
+  $("frame-warnings").replaceChildren(
+    ...warnings.map((text) => {
+      const item = document.createElement("li");
+      item.textContent = text;
+      return item;
+    }),
+  );
+  $("frame-unsure").hidden = warnings.length === 0;
+  $("frame-box").dataset.unsure = String(warnings.length > 0);
+}
+
+async function openFrame(jobId, wanted = {}) {
+  frameJob = null;
+  $("frame-box").hidden = false;
+  $("frame-rerun").disabled = true;
+  note("frame-status", "reading the job's report...");
+  const path = `/v1/jobs/${encodeURIComponent(jobId)}`;
+  const [job, report] = await Promise.all([api(path), api(`${path}/report`)]);
+  if (!job.ok || !report.ok) {
+    note("frame-status", `no frame to show: ${await errorText(job.ok ? report : job)}`, true);
+    return;
+  }
+  const [record, frame] = [await job.json(), (await report.json()).frame];
+  $("frame-job").textContent = `${record.filename} [${record.id.slice(0, 8)}]`;
+  if (!frame) {
+    note("frame-status", "this job's report has no frame decision", true);
+    return;
+  }
+  showFrame(frame);
+  choose($("frame-up"), wanted.up, (frame.up || {}).axis || "+z");
+  choose($("frame-units"), wanted.units, (frame.units || {}).unit || "m");
+  frameJob = record.id;
+  $("frame-rerun").disabled = false;
+  note("frame-status", "");
+  $("frame-box").scrollIntoView({ block: "nearest" });
+}
+
+async function rerunFrame(event) {
+  event.preventDefault();
+  if (!frameJob) return;
+  const frame = { up: $("frame-up").value, units: $("frame-units").value };
+  $("frame-rerun").disabled = true;
+  note("frame-status", "starting the re-run...");
+  try {
+    const response = await api(`/v1/jobs/${frameJob}/rerun`, {
+      method: "POST",
+      headers: { "Content-Type": "application/json" },
+      body: JSON.stringify({ frame }),
+    });
+    if (response.status !== 201) {
+      note("frame-status", `re-run refused: ${await errorText(response)}`, true);
+      return;
+    }
+    rerunStarted(await response.json(), frame);
+  } catch (error) {
+    note("frame-status", `service unreachable: ${error}`, true);
+  } finally {
+    $("frame-rerun").disabled = false;
+  }
+}
+
+// The new job in the status line, linked to its row in the job list (where "view" follows).
+function rerunStarted(job, frame) {
+  const link = document.createElement("a");
+  link.id = "frame-new-job";
+  link.href = `#job-${job.id}`;
+  link.dataset.jobId = job.id;
+  link.textContent = `job ${job.id.slice(0, 8)}`;
+  link.addEventListener("click", (event) => {
+    event.preventDefault();
+    const row = rows.get(job.id);
+    if (row) row.scrollIntoView({ block: "center" });
+  });
+  const status = $("frame-status");
+  status.className = "note";
+  status.replaceChildren(
+    `re-run with up ${frame.up} and units ${frame.units} as `,
+    link,
+    ` (${job.status}): it is in the job list`,
+  );
+  poll();
+}
+
+function frameFromAddress() {
+  const params = new URLSearchParams(location.hash.slice(1));
+  const jobId = params.get("frame");
+  if (jobId) openFrame(jobId, { up: params.get("up"), units: params.get("units") });
+}
+
+function setupFrame() {
+  $("frame-flip").addEventListener("click", () => {
+    $("frame-up").value = flipped($("frame-up").value);
+  });
+  $("frame-form").addEventListener("submit", rerunFrame);
+  $("frame-close").addEventListener("click", () => {
+    $("frame-box").hidden = true;
+    frameJob = null;
+  });
+  window.addEventListener("hashchange", frameFromAddress);
 }
 
 let polling = null;
@@ -385,6 +529,8 @@ async function loadConfig() {
 document.addEventListener("DOMContentLoaded", async () => {
   setupKey();
   setupUpload();
+  setupFrame();
   await loadConfig();
   poll();
+  frameFromAddress();
 });
