@@ -85,14 +85,10 @@ def test_a_clicked_segment_takes_a_class_by_key_and_undo_redo_follow(
         moved = int(np.count_nonzero(labels != target))
         assert moved > 0
         before, drawn_before = fused_count(page, target), drawn_in_class(view, target)
-        shown = (
-            view.panels.rows(np.arange(view.panels.shown.size))
-            if view.panels.shown is not None
-            else np.arange(data.xyz.shape[0])
-        )
-        drawn_moved = int(
-            np.count_nonzero((data.segments[shown] == seg) & (data.fused[shown] != target))
-        )
+        sent = view.panels.shown  # the rows sent to the browser (None: all)
+        shown = np.arange(data.xyz.shape[0]) if sent is None else sent
+        in_seg = (data.segments[shown] == seg) & (data.fused[shown] != target)
+        drawn_moved = int(np.count_nonzero(in_seg))
         assert before >= 0, "no class legend in the control panel"
 
         page.keyboard.press(key_of(target))
