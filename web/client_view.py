@@ -37,6 +37,7 @@ from web.address import AddressBar, PageElement
 from web.camera import FIT_ALL, CameraFollow
 from web.controls import GONE, Controls
 from web.downloads import send_download
+from web.frame_panel import FramePanel
 from web.job_list import JobList
 from web.label_editing import LabelEditing
 from web.layout import panel_offsets, row_axis
@@ -112,6 +113,8 @@ class ClientView:
         self.tools = ClickTools(client.scene, self.panels.root_path)
         self.objects = ObjectList(client.gui, self.ui.object_list, self.select_object)
         self.editing = LabelEditing(self)  # the Edit labels folder (web.label_editing)
+        # the Frame folder (web.frame_panel): re-runs go through the job page, which has the key
+        self.frame = FramePanel(client.gui, getattr(source, "job_page_port", None))
         self._wire()
         self.refresh_jobs()
         client.scene.on_click()(self._clicked)
@@ -225,6 +228,7 @@ class ClientView:
                 kept = self.ui.clip.kept(data)
                 self.tools.root = self.panels.start(data, int(self.ui.budget.value), kept)
                 self.editing.show_job(job_id)
+                self.frame.show_job(job_id, data.report)
                 self.camera.active = True
                 self.redraw(camera=camera is None)
                 if camera is not None:  # a link's: a plan's or elevation's has its narrow field
@@ -249,6 +253,7 @@ class ClientView:
             self.ui.clear()
             self.objects.clear()
             self.editing.clear()
+            self.frame.clear()
             self.overlay.sync()
 
     def _status_line(self) -> None:

@@ -46,6 +46,9 @@ class ServiceSource:
         self.sessions = make_sessions(self.engine)
         self.storage = Storage(settings.data_dir)
         self.owned_by = owned_by
+        #: The job page's port (the API's), where a job is re-run with another frame
+        #: (:mod:`web.frame_panel`): the viewer holds no key to start one itself.
+        self.job_page_port: int | None = settings.port
         self.owner: str | None = None  # who saves label versions (the signed-in tenant)
 
     def for_tenant(self, tenant: Tenant) -> ServiceSource:
