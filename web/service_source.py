@@ -94,12 +94,18 @@ class ServiceSource:
         return path
 
     def report_path(self, job_id: str) -> Path | None:
-        """The job's report.json, None when missing or another owner's."""
+        """The job's report.json (the shown labels version's: its objects), None when missing
+        or another owner's."""
         try:
             with self.sessions() as session:
-                get_job(session, job_id, owned_by=self.owned_by)
+                view = get_job(session, job_id, owned_by=self.owned_by)
             path = self.storage.report_path(job_id)
-        except JobNotFound:
+            corrections = _corrections()
+            if view.status == "succeeded" and corrections is not None:
+                version = self.labels(job_id).version
+                if version > 0:
+                    path = corrections.version_file(self.storage, job_id, version, "report")
+        except (JobNotFound, JobStateError):
             return None
         return path if path.is_file() else None
 
