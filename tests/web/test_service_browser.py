@@ -33,6 +33,7 @@ from jointseg.synth import make_room
 from tests.support.download_checks import PAGE_BUTTONS, SUFFIXES, VIEWER_BUTTONS, parsed
 from tests.support.shots import HIDE_OVERLAYS, VIEWPORT, palette_pixels, panel_spans, settled
 from tests.support.viewer_pages import free_port, key_in, sign_in
+from web.frame_panel import flipped
 
 JOINTSEG = str(Path(sys.executable).parent / "jointseg")
 API_KEY = "viewer-test-key"
@@ -558,3 +559,52 @@ def test_a_deleted_job_leaves_the_viewer_without_a_reload(
             viewer.close()
     assert took < 10
     assert len(sockets) == 1, sockets  # one connection all along: nothing was reloaded
+
+
+def test_a_flip_in_the_frame_box_reruns_the_job_with_that_up_axis_and_leaves_it_alone(
+    service: Running, browser: Any, artifacts: Path, tmp_path: Path, random_weights: Path
+) -> None:
+    """Issue 63: the job page shows what the frame stage decided; *flip* and *Re-run with this
+    frame* make a new job from the stored upload whose frame is the flipped axis, set by the
+    user (read back through the API), and the old job stays as it was."""
+    with service.client() as http:
+        scan = write_scan(make_room(7, points=3000), tmp_path / "flip me.ply")
+        config = {"network": {"weights": str(random_weights), "device": "cpu"}, "seed": 0}
+        old = _finished(http, _submit(http, scan, config).json()["id"])
+        assert old["status"] == "succeeded"
+        report = http.get(f"/v1/jobs/{old['id']}/report").json()
+    decided = report["frame"]["up"]["axis"]
+    page = _open_page(browser, service)
+    try:
+        row = page.locator(f'tr[data-job-id="{old["id"]}"]')
+        row.get_by_role("button", name="frame").click()
+        box = page.locator("#frame-box")
+        box.locator('tr[data-field="up"] [data-part="confidence"]').get_by_text(
+            "confidence"
+        ).wait_for(timeout=15_000)
+        up_row = box.locator('tr[data-field="up"]').inner_text()
+        assert decided in up_row and f"{report['frame']['up']['confidence']:.2f}" in up_row
+        units_row = box.locator('tr[data-field="units"]').inner_text()
+        assert report["frame"]["units"]["unit"] in units_row
+        page.click("#frame-flip")
+        page.click("#frame-rerun")
+        link = page.locator("#frame-new-job")
+        link.wait_for(timeout=30_000)
+        (artifacts / "service_job_page_frame.png").write_bytes(page.screenshot())
+        new_id = link.get_attribute("data-job-id")
+        page.locator(f'tr[data-job-id="{new_id}"]').wait_for(timeout=15_000)
+    finally:
+        page.close()
+    with service.client() as http:
+        new = _finished(http, str(new_id))
+        assert new["status"] == "succeeded", new
+        assert new["rerun_of"] == old["id"] and new["filename"] == old["filename"]
+        frame = http.get(f"/v1/jobs/{new_id}/report").json()["frame"]
+        assert frame["up"]["axis"] == flipped(decided), frame["up"]
+        assert frame["up"]["how"] == "set by the user"
+        # the old job: the same record and the same report as before
+        again = http.get(f"/v1/jobs/{old['id']}").json()
+        assert {k: again[k] for k in old if k != "links"} == {
+            k: old[k] for k in old if k != "links"
+        }
+        assert http.get(f"/v1/jobs/{old['id']}/report").json() == report
