@@ -81,3 +81,31 @@ def test_a_folder_refuses_to_save_saying_why(results: Path) -> None:
         source.save_edits(
             "labelled", parse_edits({"edits": [{"segments": [0], "label": 1}]}), if_match=None
         )
+
+
+def test_an_object_and_a_lasso_cover_every_row_of_the_result(jobs: Path) -> None:
+    from web.selection import of_lasso, of_object
+
+    path = jobs / "room.ply"
+    data = editable(load_scene(path, max_points=5000))
+    columns = read_columns(path)
+    assert data.instance is not None and columns.instance is not None
+    row = int(np.flatnonzero(data.instance >= 0)[0])
+    chosen = of_object(data, columns, row)
+    assert chosen is not None
+    wanted = np.flatnonzero(columns.instance == data.instance[row])
+    assert chosen.part["points"] == wanted.tolist() and wanted.size > np.sum(
+        data.instance == data.instance[row]
+    )  # more than the points drawn
+    # from high above the room, a square wider than it: every row, in the panel at x = 10
+    eye = np.array([10.0, 0.0, 100.0])
+    rays = np.array([[-1.0, -1, -10], [1, -1, -10], [1, 1, -10], [-1, 1, -10]])
+    offsets = {"raw": np.zeros(3), "fused": np.array([10.0, 0.0, 0.0])}
+    lasso = of_lasso(data, columns, eye, rays, offsets)
+    assert lasso is not None and len(lasso.part["points"]) == columns.xyz.shape[0]
+    # half of it (x < 10 in the fused panel's copy): exactly the rows on that side
+    half = np.array([[-1.0, -1, -10], [0, -1, -10], [0, 1, -10], [-1, 1, -10]])
+    left = of_lasso(data, columns, eye, half, offsets)
+    shown = data.shown_xyz(columns.xyz)
+    assert left is not None
+    assert left.part["points"] == np.flatnonzero(shown[:, 0] < 0).tolist()
