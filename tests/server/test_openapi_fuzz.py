@@ -32,6 +32,9 @@ OPERATIONS = [
     "GET /v1/jobs/{job_id}/report",
     "GET /v1/jobs/{job_id}/objects",
     "DELETE /v1/jobs/{job_id}",
+    "GET /v1/jobs/{job_id}/labels",
+    "PATCH /v1/jobs/{job_id}/labels",
+    "POST /v1/jobs/{job_id}/rerun",
     "GET /healthz",
 ]
 
