@@ -63,6 +63,14 @@ class Frame:
     identity: bool
     warnings: list[str] = field(default_factory=list)
     evidence: dict[str, Any] = field(default_factory=dict)
+    #: The up the file itself says (its format's, writer's or camera's; a plain file's z);
+    #: None when the user set up.
+    file_axis: str | None = None
+
+    @property
+    def turned(self) -> bool:
+        """Whether the stage turned the scan away from its file's own up."""
+        return self.file_axis is not None and self.up.axis != self.file_axis
 
     def to_work(self, xyz: np.ndarray) -> np.ndarray:
         """File coordinates to the working frame (z up, metres)."""
@@ -86,6 +94,8 @@ class Frame:
                 "levelled": self.levelled,
                 "how": self.up_how,
                 "confidence": round(self.up.confidence, 3),
+                "file_axis": self.file_axis,
+                "turned": self.turned,
                 "evidence": self.evidence,
             },
             "units": {
@@ -143,6 +153,25 @@ def rotation_to_z(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k * (1.0 / (1.0 + c))
 
 
+def up_warnings(up: gravity.UpEstimate, file_axis: str | None) -> list[str]:
+    """The warnings on a decided up: always one when it turns the scan away from the axis its
+    file says (``file_axis``), naming both, the confidence and how to undo it, since a scan
+    turned wrongly is labelled upside down or on its side; else one when it is unsure."""
+    if file_axis is not None and up.axis != file_axis:
+        unsure = "unsure, " if up.confidence < UP_UNSURE else ""
+        return [
+            f"up turned from the file's {file_axis} to {up.axis} ({unsure}confidence "
+            f"{up.confidence:.2f}): if the file was right, set it back with --up {file_axis} "
+            f'(in the service, rerun the job with the frame correction {{"up": "{file_axis}"}})'
+        ]
+    if up.confidence < UP_UNSURE:
+        return [
+            f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
+            "or set it with --up"
+        ]
+    return []
+
+
 def decide_frame(
     scan: Scan, params: FrameParams | None = None, judge: LabelFn | None = None
 ) -> Frame:
@@ -170,9 +199,12 @@ def decide_frame(
     colour = decide_colour(scan.rgb, params.colour)
     warnings: list[str] = []
     ahead = StraysAhead(scan, centre, params.strays)
+    file_axis: str | None = None
     if params.up == "auto":
         up, how, evidence = decide_up(scan, sample, centre, params, colour, judge, ahead)
         gravity_aligned = bool(evidence["file"]["gravity_aligned"])
+        file_axis = evidence["file_axis"]
+        warnings += up_warnings(up, file_axis)
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
         how, evidence, gravity_aligned = "set by the user", {}, False
@@ -182,11 +214,6 @@ def decide_frame(
     levelled, rotation = placement(up, params.level, gravity_aligned)
     stray = ahead.result(rotation, units.metres)
     identity = bool(up.axis == "+z" and not levelled and units.metres == 1.0)
-    if up.confidence < UP_UNSURE:
-        warnings.append(
-            f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
-            "or set it with --up"
-        )
     if not MIN_PLAUSIBLE_M <= height <= MAX_PLAUSIBLE_M:
         warnings.append(
             f"the scan is {height:.3g} m tall in {units.unit}: no indoor scan is; check --units"
@@ -208,6 +235,7 @@ def decide_frame(
         identity=identity,
         warnings=warnings,
         evidence=evidence,
+        file_axis=file_axis,
     )
     for w in warnings:
         log.warning("%s", w)
@@ -351,7 +379,7 @@ def decide_up(
         judged = judge_candidates(g, scan, centre, colour, judge, weigh.candidates(g.evidence))
     result = weigh.weigh(g.evidence, judged)
     name = result.best
-    estimate = _estimate(g, name, result.p, result.confidence)
+    estimate = _estimate(g, name, result.p, result.confidence)  # calibrated
     used = ["the file", "the geometry"] + (["the network"] if judged else [])
     if judge is not None and not asked:
         used.append("agreeing: the network not asked")
@@ -361,6 +389,8 @@ def decide_up(
         "capture": g.capture.report(),
         "room_like": g.evidence.room_like,
         "network_asked": bool(judged),
+        "file_axis": result.file_axis,
+        "turned": result.turned,
         "geometry": dict(zip(SIGNED_AXES, np.round(g.evidence.geometry, 4).tolist(), strict=True)),
         **result.report(),
     }

@@ -45,8 +45,11 @@ JUDGED = 2
 SURE_WITHOUT_NETWORK = 0.98
 #: A file's own axis (its format's, its writer's, or a plain file's z up) is kept unless another
 #: axis is at least this probable; an upside-down reading of it needs :data:`KEEP_UPSIDE_DOWN`.
-#: Turning a scan that arrived right is worse than not turning one that arrived wrong.
-KEEP, KEEP_UPSIDE_DOWN = 0.6, 0.95
+#: Turning a scan that arrived right is worse than not turning one that arrived wrong, and is
+#: never silent (``decide.up_warnings``). On the calibration bench's tuning deliveries
+#: (``bench/frame_calibration.py``) no other axis of a file whose own axis was right reached
+#: 0.27, and every right turn was at least 0.99: 0.9 asks for overwhelming evidence.
+KEEP, KEEP_UPSIDE_DOWN = 0.9, 0.95
 #: ... while the file's own axis is itself at least this probable (not when all else rules it out).
 KEEP_FLOOR = 0.2
 #: The geometry's probabilities are floored here: a fitted model sure of a wrong axis (a narrow,
@@ -158,6 +161,8 @@ class Weighed:
     judged: dict[str, np.ndarray]
 
     file_axis: str | None = None
+    #: (6,) the geometry's own probability of each signed axis
+    geometry: np.ndarray | None = None
 
     @property
     def best(self) -> str:
@@ -165,8 +170,19 @@ class Weighed:
         return choose(self.p, self.file_axis)
 
     @property
-    def confidence(self) -> float:
+    def turned(self) -> bool:
+        """Whether the decision turns the scan away from the axis its file says."""
+        return self.file_axis is not None and self.best != self.file_axis
+
+    @property
+    def probability(self) -> float:
+        """The logit's probability of the decision (before calibration)."""
         return float(self.p[SIGNED_AXES.index(self.best)])
+
+    @property
+    def confidence(self) -> float:
+        """The decision's calibrated confidence (:func:`calibrated`)."""
+        return calibrated(self)
 
     def report(self) -> dict[str, Any]:
         """The ``frame.up.evidence`` probabilities for report.json."""
@@ -194,6 +210,28 @@ def choose(p: np.ndarray, file_axis: str | None) -> str:
     opposite = best[1] == file_axis[1]
     needed = KEEP_UPSIDE_DOWN if opposite else KEEP
     return best if p.max() >= needed else file_axis
+
+
+#: A decision the network did not check is stated unsure (at most :data:`UNCHECKED_CAP`)
+#: unless the geometry alone gives its axis at least this probability. On the calibration
+#: bench's rooms (``bench/frame_calibration.py``) the logit was surest of its wrong calls when
+#: an upside-down S3DIS room agreed with the file's plain z on a geometry only 0.59-0.88 sure
+#: of it, the network not asked; every decision left unchecked on a sure geometry was right.
+SURE_GEOMETRY = 0.95
+#: ... below the frame stage's warning threshold (``decide.UP_UNSURE``).
+UNCHECKED_CAP = 0.5
+
+
+def calibrated(w: Weighed) -> float:
+    """The confidence stated for ``w``'s decision: its probability, but no more than
+    :data:`UNCHECKED_CAP` when neither the network nor a sure geometry backs it (a simple
+    rule, not a fit: too few wrong calls to fit one on)."""
+    p = w.probability
+    if w.judged or w.geometry is None:
+        return p
+    if float(w.geometry[SIGNED_AXES.index(w.best)]) >= SURE_GEOMETRY:
+        return p
+    return min(p, UNCHECKED_CAP)
 
 
 def _base_p(evidence: Evidence, base_weights: np.ndarray | None) -> np.ndarray:
@@ -231,10 +269,10 @@ def weigh(
     base_p = _base_p(evidence, base_weights)
     file_axis = evidence.file_axis
     if not judged:
-        return Weighed(base_p, base_p, {}, file_axis)
+        return Weighed(base_p, base_p, {}, file_axis, evidence.geometry)
     weights = fitted_weights()[1] if full_weights is None else full_weights
     z = np.full(6, -np.inf)
     for name, feats in judged.items():
         i = SIGNED_AXES.index(name)
         z[i] = np.concatenate([base[i], feats]) @ weights
-    return Weighed(softmax(z), base_p, dict(judged), file_axis)
+    return Weighed(softmax(z), base_p, dict(judged), file_axis, evidence.geometry)
