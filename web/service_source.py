@@ -10,11 +10,12 @@ from __future__ import annotations
 import copy
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from jointseg.exceptions import JobNotFound, JobStateError
 from server.api.auth import Tenant
-from server.api.results import result_file
+from server.corrections import VersionKind, correct, labels_state, version_file
+from server.schemas import JobView
 from server.settings import Settings
 from server.state.db import make_engine, make_sessions
 from server.state.jobs import get_job, list_jobs
@@ -70,8 +71,35 @@ class ServiceSource:
             for v in views
         ]
 
+    def _succeeded(self, job_id: str) -> JobView:
+        """The job as this tenant sees it, when it succeeded.
+
+        Raises
+        ------
+        JobNotFound
+            For an unknown or malformed id, another owner's job, or a job that has not
+            succeeded.
+        """
+        with self.sessions() as session:
+            view = get_job(session, job_id, owned_by=self.owned_by)
+        if view.status != "succeeded":
+            raise JobNotFound(f"job {job_id} is {view.status}: it has no result to show")
+        return view
+
+    def _version_file(self, job_id: str, kind: VersionKind) -> Path:
+        """The current labels version's ``kind`` file (version 0: the run's own), as the API's
+        downloads give it by default."""
+        view = self._succeeded(job_id)
+        try:
+            path = version_file(self.storage, job_id, view.labels_version, kind)
+        except JobStateError as exc:
+            raise JobNotFound(f"job {job_id}: its files are gone ({exc})") from None
+        if not path.is_file():
+            raise JobNotFound(f"job {job_id}: its result file is gone")
+        return path
+
     def result_path(self, job_id: str) -> Path:
-        """The job's result PLY.
+        """The job's result PLY, of its current labels version.
 
         Raises
         ------
@@ -79,62 +107,34 @@ class ServiceSource:
             For an unknown or malformed id, another owner's job, a job that has not succeeded,
             or deleted files.
         """
-        with self.sessions() as session:
-            view = get_job(session, job_id, owned_by=self.owned_by)
-        if view.status != "succeeded":
-            raise JobNotFound(f"job {job_id} is {view.status}: it has no result to show")
-        version = self.labels(job_id).version
-        corrections = _corrections()
-        if version > 0 and corrections is not None:  # the saved version's labels are shown
-            path = corrections.version_file(self.storage, job_id, version, "ply")
-        else:
-            path = self.storage.result_path(job_id, "ply")
-        if not path.is_file():
-            raise JobNotFound(f"job {job_id}: its result file is gone")
-        return path
+        return self._version_file(job_id, "ply")
 
     def report_path(self, job_id: str) -> Path | None:
-        """The job's report.json (the shown labels version's: its objects), None when missing
-        or another owner's."""
+        """The job's report.json (the current labels version's: its objects), None when
+        missing or another owner's."""
         try:
-            with self.sessions() as session:
-                view = get_job(session, job_id, owned_by=self.owned_by)
-            path = self.storage.report_path(job_id)
-            corrections = _corrections()
-            if view.status == "succeeded" and corrections is not None:
-                version = self.labels(job_id).version
-                if version > 0:
-                    path = corrections.version_file(self.storage, job_id, version, "report")
+            return self._version_file(job_id, "report")
         except (JobNotFound, JobStateError):
             return None
-        return path if path.is_file() else None
 
     def export_path(self, job_id: str, fmt: ResultFormat) -> Path:
-        """The job's result as ``fmt`` or its IFC model: the API's own conversion, kept in the
-        job's folder, so the viewer and ``GET /v1/jobs/{id}/result`` hand out the same file.
+        """The job's result as ``fmt`` or its IFC model, of its current labels version: the
+        API's own files, kept in the job's folder, so the viewer and ``GET
+        /v1/jobs/{id}/result`` hand out the same file.
 
         Raises
         ------
         JobNotFound
             As :meth:`result_path`.
         """
-        self.result_path(job_id)  # this tenant's, succeeded, and its files still there
-        return result_file(self.storage, job_id, fmt)
+        view = self._succeeded(job_id)
+        return version_file(self.storage, job_id, view.labels_version, fmt)
 
     def labels(self, job_id: str) -> LabelsInfo:
-        """The job's current labels version and its ETag (:mod:`server.corrections`)."""
-        corrections = _corrections()
-        if corrections is None:
-            return LabelsInfo(refusal="This service keeps no label versions yet.")
-        state = corrections.labels_state(
-            self.sessions, self.storage, job_id, owned_by=self.owned_by
-        )
-        history = list(getattr(state, "history", None) or [])
-        last = history[-1] if history else None
-        corrected = getattr(last, "points_corrected", None)
-        if corrected is None and isinstance(last, dict):
-            corrected = last.get("points_corrected")
-        return LabelsInfo(version=state.version, etag=state.etag, corrected=int(corrected or 0))
+        """The job's current labels version, its ETag and the points it corrects."""
+        state = labels_state(self.sessions, self.storage, job_id, owned_by=self.owned_by)
+        corrected = state.history[-1].points_corrected if state.version else 0
+        return LabelsInfo(version=state.version, etag=state.etag, corrected=corrected)
 
     def save_edits(self, job_id: str, edits: EditList, *, if_match: str | None) -> LabelsInfo:
         """``edits`` as the next labels version, as ``PATCH /v1/jobs/{id}/labels`` saves it.
@@ -144,10 +144,7 @@ class ServiceSource:
         PreconditionFailed
             Another save came after the version ``if_match`` names.
         """
-        corrections = _corrections()
-        if corrections is None:
-            raise JobStateError("This service keeps no label versions yet.")
-        corrections.correct(
+        correct(
             self.sessions, self.storage, job_id, edits,
             if_match=if_match, owner=self.owner, owned_by=self.owned_by,
         )  # fmt: skip
@@ -157,12 +154,3 @@ class ServiceSource:
     def close(self) -> None:
         """Release the database connections."""
         self.engine.dispose()
-
-
-def _corrections() -> Any:
-    """:mod:`server.corrections`, None on a service without label versions."""
-    try:
-        from server import corrections
-    except ImportError:
-        return None
-    return corrections
