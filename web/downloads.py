@@ -56,9 +56,10 @@ def download_body(source: JobSource, job_id: str, kind: Download) -> bytes:
     return source.export_path(job_id, kind).read_bytes()
 
 
-def file_name(filename: str | None, job_id: str, kind: Download) -> str:
-    """The download's name: the API's for the job's file, else from its id."""
-    return download_name(filename or f"{job_id}.ply", kind)
+def file_name(filename: str | None, job_id: str, kind: Download, version: int = 0) -> str:
+    """The download's name: the API's for the job's file (naming a corrected labels
+    version), else from its id."""
+    return download_name(filename or f"{job_id}.ply", kind, version)
 
 
 def has_layout(report: dict[str, object] | None) -> bool:
@@ -75,7 +76,11 @@ def send_download(
 ) -> None:
     """One of a job's downloads, sent over the tab's websocket as ``filename``'s download name;
     a download that cannot be made is told in a notification, never with a server path."""
-    name = file_name(filename, job_id, kind)
+    try:
+        version = source.labels(job_id).version
+    except JointsegError:
+        version = 0  # the download itself then says why it cannot be made
+    name = file_name(filename, job_id, kind, version)
     busy = client.add_notification(f"Preparing {name}", "", loading=True, with_close_button=False)
     try:
         body = download_body(source, job_id, kind)

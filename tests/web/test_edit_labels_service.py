@@ -106,6 +106,14 @@ def test_a_saved_edit_is_the_apis_version_1_and_a_reload_shows_it(
             saved.fields["fused_label"][~members], scan.fields["fused_label"][~members]
         )
 
+        # the viewer's downloads are the saved version's, named for it
+        from web.downloads import download_body, file_name
+
+        (tmp_path / "viewer.ply").write_bytes(download_body(viewer.source, job_id, "ply"))
+        shown = read_scan(tmp_path / "viewer.ply")
+        assert np.all(shown.fields["user_label"][members] == target)
+        assert file_name("office.e57", job_id, "laz", 1) == "office_segmented_v1.laz"
+
         # a reload of the page shows the saved version, from the service
         page.reload()
         page.get_by_text("points shown").wait_for(timeout=30_000)
