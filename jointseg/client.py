@@ -161,8 +161,16 @@ class JobClient:
                 raise ServiceError(f"job {job_id} still {job.status} after {timeout_s} s")
             time.sleep(poll_s)
 
-    def download(self, job_id: str, out: str | os.PathLike[str], *, fmt: str | None = None) -> Path:
-        """Save the result as ``out`` (format from its suffix: .ply, .las or .laz), atomically."""
+    def download(
+        self,
+        job_id: str,
+        out: str | os.PathLike[str],
+        *,
+        fmt: str | None = None,
+        version: int | None = None,
+    ) -> Path:
+        """Save the result as ``out`` (format from its suffix: .ply, .las or .laz), atomically;
+        of labels ``version`` (0: the machine's own; default: the current one)."""
         out = Path(out)
         fmt = fmt or out.suffix.lower().lstrip(".")
         if f".{fmt}" not in RESULT_SUFFIXES:
@@ -171,7 +179,10 @@ class JobClient:
             raise ConfigError(f"{out}: folder {out.parent} does not exist")
         url = f"/v1/jobs/{job_id}/result"
         try:
-            with self.http.stream("GET", url, params={"format": fmt}) as response:
+            params: dict[str, Any] = {"format": fmt}
+            if version is not None:
+                params["version"] = version
+            with self.http.stream("GET", url, params=params) as response:
                 if response.status_code >= 400:
                     response.read()
                     raise ServiceError(
@@ -189,6 +200,29 @@ class JobClient:
         """The job's report.json."""
         body: dict[str, Any] = self._request("GET", f"/v1/jobs/{job_id}/report").json()
         return body
+
+    def labels(self, job_id: str) -> tuple[dict[str, Any], str]:
+        """The job's labels versions (current version and history) and the current ETag."""
+        response = self._request("GET", f"/v1/jobs/{job_id}/labels")
+        return response.json(), response.headers["ETag"]
+
+    def correct(
+        self, job_id: str, edits: list[dict[str, Any]], *, etag: str | None = None
+    ) -> tuple[dict[str, Any], str]:
+        """Save ``edits`` (``[{"segments": [...], "label": "wall"}, ...]``) as a new labels
+        version over the one ``etag`` names (default: the current one, read first).
+
+        Raises
+        ------
+        ServiceError
+            412 when another correction came after ``etag``; 422 naming a bad edit's field.
+        """
+        if etag is None:
+            etag = self.labels(job_id)[1]
+        response = self._request(
+            "PATCH", f"/v1/jobs/{job_id}/labels", json={"edits": edits}, headers={"If-Match": etag}
+        )
+        return response.json(), response.headers["ETag"]
 
     def cancel(self, job_id: str) -> RemoteJob | None:
         """Cancel a queued or running job (its new state), or delete a finished one (None)."""

@@ -132,6 +132,30 @@ def test_a_correction_is_a_new_version_with_its_own_downloads(
         missing = http.get(f"/v1/jobs/{job_id}/result", params={"version": 2})
         assert missing.status_code == 404 and "versions are 0 to 1" in missing.json()["detail"]
         _refused(http, url, good, 412, "not the current")  # "v0" is stale now
+    _client_builds_on_the_current_version(service, job_id, segment, tmp_path)
+
+
+def _client_builds_on_the_current_version(
+    service: Service, job_id: str, segment: np.ndarray, folder: Path
+) -> None:
+    """``JobClient.correct`` reads the current ETag and saves over it; a stale one is 412;
+    ``download(version=0)`` is still the machine's own labels."""
+    from jointseg.client import JobClient
+    from jointseg.exceptions import ServiceError
+
+    with JobClient(service.url, api_key=service.api_key) as client:
+        edits = [{"segments": [int(segment[0])], "label": "wall"}]
+        state, tag = client.correct(job_id, edits)
+        assert state["version"] == 2 and tag == '"v2"'
+        with pytest.raises(ServiceError) as stale:
+            client.correct(job_id, edits, etag='"v1"')
+        assert stale.value.status_code == 412
+        assert client.labels(job_id)[0]["version"] == 2
+        latest = read_scan(client.download(job_id, folder / "v2.laz"))
+        first = read_scan(client.download(job_id, folder / "v0.laz", version=0))
+    inside = segment == segment[0]
+    assert (np.asarray(latest.fields["fused_label"])[inside] == CLASS_INDEX["wall"]).all()
+    assert "user_label" not in first.fields
 
 
 def _check_las(
