@@ -228,7 +228,7 @@ def pooled_table(runs: list[Run], cap: int) -> None:
     for (dataset, split), group in sorted(groups.items()):
         cells = []
         for t in THRESHOLDS:
-            clicks = [cap if r.noc(t) is None else r.noc(t) for r in group]
+            clicks = [cap if (n := r.noc(t)) is None else n for r in group]
             reached = sum(r.noc(t) is not None for r in group)
             cells.append(f"{np.mean(clicks):.1f} | {reached}/{len(group)}")
         afters = " | ".join(f"{np.mean([r.after(c) for r in group]):.3f}" for c in AFTER)
