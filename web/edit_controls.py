@@ -73,7 +73,7 @@ class EditControls:
             self.save = gui.add_button(
                 SAVE, icon=viser.Icon.DEVICE_FLOPPY, hint="save the edits as a new labels version"
             )
-            self.version = gui.add_markdown("No job shown.")
+            self.version = gui.add_markdown("No job to edit.")
             self.reload = gui.add_button(RELOAD, icon=viser.Icon.RELOAD, visible=False)
             self.keys = gui.add_html(script_html(key_script(), 1, "keys"))
 

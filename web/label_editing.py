@@ -123,10 +123,10 @@ class LabelEditing:
         self.reselect()
 
     def clear(self) -> None:
-        """No job shown."""
+        """No job to edit."""
         self.edits, self.info, self.selection = None, None, None
         self._forget_lasso()
-        self.ui.version.content = "No job shown."
+        self.ui.version.content = "No job to edit."
         self.ui.selection.content = HINTS[str(self.ui.mode.value)]
 
     def _editor(self) -> LabelEdits:
@@ -237,7 +237,7 @@ class LabelEditing:
         line = status_line(info, self.edits.unsaved if self.edits else 0)
         if info.refusal:
             line += f"  \n{info.refusal}"
-        self.ui.version.content = line if self.view.data is not None else "No job shown."
+        self.ui.version.content = line if self.view.data is not None else "No job to edit."
 
     # -------------------------------------------------------------- editing
     def give(self, cls: int) -> None:

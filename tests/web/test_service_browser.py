@@ -354,7 +354,7 @@ def test_a_long_job_error_keeps_every_rows_links_on_one_line(
         page.wait_for_selector(f'tr[data-job-id="{jobs["failed"]["id"]}"][data-status=failed]')
         done.locator("a.view-link").wait_for(timeout=15_000)
         (artifacts / "service_job_page_failed.png").write_bytes(page.screenshot())
-        for row, count in ((done, 3), (failed, 1)):  # view, download, delete / delete
+        for row, count in ((done, 4), (failed, 1)):  # view, download, frame, delete / delete
             boxes = _boxes(row)
             assert len(boxes) == count
             assert max(b["y"] for b in boxes) - min(b["y"] for b in boxes) < 2, boxes
