@@ -47,7 +47,13 @@ from jointseg.frame import gravity, weigh
 from jointseg.frame.colour import decide_colour
 from jointseg.frame.decide import decide_frame, gather, judge_candidates, up_warnings
 from jointseg.frame.fit import read_plan
-from jointseg.frame.fit_cases import DELIVERIES, Case, room_cases
+from jointseg.frame.fit_cases import (
+    DELIVERIES,
+    Case,
+    evidence_record,
+    room_cases,
+    verdict_record,
+)
 from jointseg.frame.judge import LabelFn
 from jointseg.frame.model import MODEL_FILE
 from jointseg.frame.params import FrameParams
@@ -160,15 +166,7 @@ def _gather_now(case: Case, judge_for: Callable[[bool], LabelFn | None]) -> dict
     if judge is not None and weigh.needs_judge(g.evidence):
         names = weigh.candidates(g.evidence)
         judged = judge_candidates(g, scan, centre, colour, judge, names)
-    e = g.evidence
-    return {
-        "file": e.file.tolist(),
-        "axis_p": e.axis_p.tolist(),
-        "sign_p": e.sign_p.tolist(),
-        "room_like": e.room_like,
-        "camera_up": e.camera_up,
-        "judged": {a: np.asarray(v, dtype=np.float64).tolist() for a, v in judged.items()},
-    }
+    return {**evidence_record(g.evidence), "judged": verdict_record(judged)}
 
 
 def pipeline_judge() -> Callable[[bool], LabelFn | None]:

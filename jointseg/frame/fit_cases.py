@@ -171,15 +171,23 @@ def _gather_now(
     if label is not None:
         colour = decide_colour(case.scan.rgb, True)
         net = judge_candidates(g, case.scan, centre, colour, label, list(SIGNED_AXES))
-    e = g.evidence
+    return {**evidence_record(g.evidence), "net": verdict_record(net)}
+
+
+def evidence_record(e: weigh.Evidence) -> dict[str, Any]:
+    """The evidence before the network as plain JSON types (what a cache of cases holds)."""
     return {
         "file": e.file.tolist(),
         "axis_p": e.axis_p.tolist(),
         "sign_p": e.sign_p.tolist(),
         "room_like": e.room_like,
         "camera_up": e.camera_up,
-        "net": {a: np.asarray(v, dtype=np.float64).tolist() for a, v in net.items()},
     }
+
+
+def verdict_record(verdicts: dict[str, np.ndarray]) -> dict[str, list[float]]:
+    """The network's verdict per candidate axis as plain lists."""
+    return {a: np.asarray(v, dtype=np.float64).tolist() for a, v in verdicts.items()}
 
 
 def _from_stored(case: Case, body: dict[str, Any], seconds: float) -> Gathered:
