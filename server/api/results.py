@@ -118,7 +118,7 @@ def convert_result(
     """
     if target.is_file():
         return target
-    with _lock_for(target):
+    with lock_for(target):
         if not target.is_file() and fmt == "ifc":
             if report is None or not report.is_file():
                 raise JobStateError(f"job {name} has no report")
@@ -127,8 +127,6 @@ def convert_result(
         elif not target.is_file():
             write_scan(read_scan(result, max_points=1 << 40), target)
             log.info("job %s: result converted to %s", name, fmt)
-    with _locks_guard:
-        _locks.pop(target, None)
     return target
 
 
