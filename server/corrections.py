@@ -28,7 +28,6 @@ from typing import Literal
 import numpy as np
 
 from jointseg.exceptions import (
-    ConfigError,
     JobNotFound,
     JobStateError,
     PreconditionFailed,
@@ -126,19 +125,19 @@ def resolve_version(
     return view, version
 
 
-def check_edit_limits(edits: EditList, *, max_ids: int) -> None:
-    """Refuse a correction naming more ids (segments and points) than ``max_ids``.
+def require_if_match(job_id: str, if_match: str | None) -> str:
+    """``if_match``; a correction that does not say which version it builds on is refused.
 
     Raises
     ------
-    ConfigError
-        Naming the edit where the count passed the limit.
+    PreconditionRequired
+        Without ``if_match``.
     """
-    total = 0
-    for i, edit in enumerate(edits.edits):
-        total += len(edit.segments or ()) + len(edit.points or ())
-        if total > max_ids:
-            raise ConfigError(f"edits[{i}]: more than {max_ids:,} ids in one request")
+    if if_match is None:
+        raise PreconditionRequired(
+            f"job {job_id}: send If-Match with the labels' ETag (GET /v1/jobs/{job_id}/labels)"
+        )
+    return if_match
 
 
 @contextlib.contextmanager
@@ -211,10 +210,7 @@ def correct(
     from jointseg.labels.version import check_result, corrected_points, machine_labels
 
     succeeded_job(sessions, job_id, owned_by=owned_by)
-    if if_match is None:
-        raise PreconditionRequired(
-            f"job {job_id}: send If-Match with the labels' ETag (GET /v1/jobs/{job_id}/labels)"
-        )
+    if_match = require_if_match(job_id, if_match)
     with _job_lock(storage, job_id):
         with sessions() as session:
             current = labels.current_version(session, job_id)
@@ -317,12 +313,7 @@ def _make_version(storage: Storage, job_id: str, version: int, folder: Path) -> 
     """Write version ``version``'s ``result.ply``, ``objects.json`` (when the run found objects)
     and, last, ``report.json``."""
     from jointseg.io import read_scan, write_scan
-    from jointseg.labels.version import (
-        corrected_points,
-        version_layout,
-        version_report,
-        version_scan,
-    )
+    from jointseg.labels.version import version_outputs
 
     user = user_labels(storage, job_id, version)
     if user is None:
@@ -333,17 +324,13 @@ def _make_version(storage: Storage, job_id: str, version: int, folder: Path) -> 
     scan = read_scan(ply, max_points=_READ_ANY)
     report_path = storage.report_path(job_id)
     report = json.loads(report_path.read_text("utf-8")) if report_path.is_file() else None
-    labelled = version_scan(scan, user)
-    layout = None
-    if report is not None and report.get("rooms") is not None:  # the run found objects
-        layout = version_layout(scan, labelled.fields["fused_label"], report)
-        labelled = labelled.with_fields(instance=layout.instances)
+    found = report is not None and report.get("rooms") is not None  # the run found objects
+    labelled, layout, body = version_outputs(scan, user, report, version=version, objects=found)
     folder.mkdir(parents=True, exist_ok=True)
     write_scan(labelled, folder / "result.ply")
     if layout is not None:
         with atomic_open(folder / "objects.json") as fh:
             fh.write(json.dumps(layout.report.model_dump(mode="json"), indent=1).encode())
-    body = version_report(report, layout, version=version, corrected=corrected_points(scan, user))
     with atomic_open(folder / "report.json") as fh:
         fh.write(json.dumps(body, indent=1).encode())
     log.info("job %s: labels version %d's files written", job_id, version)

@@ -49,12 +49,9 @@ def relabel(
     from jointseg.labels.edits import apply_edits, parse_edits
     from jointseg.labels.version import (
         check_result,
-        corrected_points,
         machine_labels,
         user_labels_of,
-        version_layout,
-        version_report,
-        version_scan,
+        version_outputs,
     )
 
     if out.suffix.lower() not in FIELD_EXTENSIONS:
@@ -72,18 +69,17 @@ def relabel(
         segment=scan.fields["segment"],
         xyz=scan.xyz,
     )
-    labelled = version_scan(scan, outcome.user_label)
-    layout = None
-    if objects_out is not None or ifc is not None or report_out is not None:
-        layout = version_layout(scan, labelled.fields["fused_label"], run_report)
-        labelled = labelled.with_fields(instance=layout.instances)
+    before = (run_report or {}).get("labels") or {}
+    labelled, layout, body = version_outputs(
+        scan,
+        outcome.user_label,
+        run_report,
+        version=int(before.get("version", 0)) + 1,
+        objects=objects_out is not None or ifc is not None or report_out is not None,
+    )
     write_scan(labelled, out)
-    corrected = corrected_points(scan, outcome.user_label)
     summary = f"{outcome.changed:,} labels changed by {len(edit_list.edits)} edits; {out}"
     if report_out is not None:
-        before = (run_report or {}).get("labels") or {}
-        version = int(before.get("version", 0)) + 1
-        body = version_report(run_report, layout, version=version, corrected=corrected)
         with atomic_open(report_out) as fh:
             fh.write(json.dumps(body, indent=1).encode())
     if layout is not None and (objects_out is not None or ifc is not None):

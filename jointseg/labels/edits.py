@@ -82,8 +82,16 @@ class EditList(BaseModel):
     edits: list[Edit] = Field(min_length=1, max_length=MAX_EDITS)
 
 
-def parse_edits(body: Any) -> EditList:
-    """An edit list checked for shape and classes.
+def parse_edits(body: Any, *, max_ids: int = MAX_IDS) -> EditList:
+    """An edit list checked for shape, classes and size.
+
+    Parameters
+    ----------
+    body : object
+        The decoded JSON.
+    max_ids : int
+        Most segment and point ids all edits may name together (a service passes its own
+        point limit when lower than :data:`MAX_IDS`).
 
     Raises
     ------
@@ -106,8 +114,8 @@ def parse_edits(body: Any) -> EditList:
         if isinstance(label, int) and not 0 <= label < NUM_CLASSES:
             raise ConfigError(f"edits[{i}].label: class {label} out of range 0..{NUM_CLASSES - 1}")
         total += len(edit.segments or ()) + len(edit.points or ())
-        if total > MAX_IDS:
-            raise ConfigError(f"edits[{i}]: more than {MAX_IDS:,} ids in one request")
+        if total > max_ids:
+            raise ConfigError(f"edits[{i}]: more than {max_ids:,} ids in one request")
     return parsed
 
 

@@ -130,6 +130,27 @@ def version_report(
     return body
 
 
+def version_outputs(
+    scan: Scan,
+    user_label: np.ndarray | None,
+    report: dict[str, Any] | None,
+    *,
+    version: int,
+    objects: bool,
+) -> tuple[Scan, Any, dict[str, Any]]:
+    """Everything a version delivers, made once: its scan (:func:`version_scan`, with the
+    version's ``instance`` when ``objects``), its layout (None unless ``objects``) and its
+    report (:func:`version_report`)."""
+    labelled = version_scan(scan, user_label)
+    layout = None
+    if objects:
+        layout = version_layout(scan, labelled.fields["fused_label"], report)
+        labelled = labelled.with_fields(instance=layout.instances)
+    corrected = corrected_points(scan, user_label)
+    body = version_report(report, layout, version=version, corrected=corrected)
+    return labelled, layout, body
+
+
 def corrected_points(scan: Scan, user_label: np.ndarray | None) -> int:
     """Points whose version label differs from the machine's."""
     if user_label is None:

@@ -171,10 +171,12 @@ def test_deleting_a_job_deletes_its_versions(setup) -> None:
         assert session.query(LabelVersion).count() == 0
 
 
-def test_a_correction_naming_more_ids_than_the_limit_is_refused_naming_the_edit() -> None:
-    edits = parse_edits(
-        {"edits": [{"segments": [0, 1, 2], "label": 1}, {"points": [4, 5, 6], "label": 2}]}
-    )
-    corrections.check_edit_limits(edits, max_ids=6)  # at the limit: taken
+def test_a_correction_naming_more_ids_than_the_limit_is_refused_naming_the_edit(
+    tmp_path: Path,
+) -> None:
+    from server.api.routes.labels import parse_edit_body
+
+    raw = b'{"edits": [{"segments": [0, 1, 2], "label": 1}, {"points": [4, 5, 6], "label": 2}]}'
+    parse_edit_body(raw, Settings(data_dir=tmp_path, max_points=6))  # at the limit: taken
     with pytest.raises(ConfigError, match=r"edits\[1\]: more than 5 ids in one request"):
-        corrections.check_edit_limits(edits, max_ids=5)
+        parse_edit_body(raw, Settings(data_dir=tmp_path, max_points=5))

@@ -15,14 +15,14 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Depends, Header, Request, Response
 from fastapi.concurrency import run_in_threadpool
 
-from jointseg.exceptions import ConfigError, PreconditionRequired, UploadTooLarge
-from jointseg.labels.edits import EditList, parse_edits
+from jointseg.exceptions import ConfigError, UploadTooLarge
+from jointseg.labels.edits import MAX_IDS, EditList, parse_edits
 from server.api.auth import TenantDep, require_api_key
 from server.api.deps import ServicesDep
 from server.api.errors import ERROR_RESPONSES, error_responses
 from server.api.routes.jobs import JobId
 from server.api.submissions import rerun
-from server.corrections import check_edit_limits, correct, labels_state, succeeded_job
+from server.corrections import correct, labels_state, require_if_match, succeeded_job
 from server.schemas import JobResponse, LabelsState, RerunRequest
 from server.settings import Settings
 
@@ -110,9 +110,7 @@ def parse_edit_body(raw: bytes, settings: Settings) -> EditList:
         body = json.loads(raw)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"body: not valid JSON ({exc})") from None
-    edits = parse_edits(body)
-    check_edit_limits(edits, max_ids=settings.max_points)
-    return edits
+    return parse_edits(body, max_ids=min(MAX_IDS, settings.max_points))
 
 
 @labels_router.patch(
@@ -135,10 +133,7 @@ async def patch_labels(
     where two cover a point): a new labels version, whose ``ETag`` the answer carries.
     Nothing is written when anything is refused."""
     await run_in_threadpool(succeeded_job, services.sessions, job_id, owned_by=tenant.scope)
-    if if_match is None:
-        raise PreconditionRequired(
-            f"job {job_id}: send If-Match with the labels' ETag (GET /v1/jobs/{job_id}/labels)"
-        )
+    require_if_match(job_id, if_match)  # before the body is read
     raw = await _read_body(request, services.settings.max_upload_bytes)
     edits = await run_in_threadpool(parse_edit_body, raw, services.settings)
     state = await run_in_threadpool(
