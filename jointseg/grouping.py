@@ -9,11 +9,15 @@ what a voxel, a renumbering or a majority is. Numpy only: no torch, no scipy.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import numpy as np
 
 #: Ids spanning at most this many times their count are renumbered through a lookup table
-#: (linear); sparser ids are sorted (``np.unique``), which needs no table the size of the span.
-DENSE_SPAN_FACTOR = 16
+#: (linear); sparser ids are sorted, which needs no table the size of the span. Past about four
+#: the table's prefix sum costs more than the one sort of :func:`_sorted_ranks`.
+DENSE_SPAN_FACTOR = 4
 
 
 def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -44,13 +48,62 @@ def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ids = ids.astype(np.int64, copy=False)
     lo, hi = int(ids.min()), int(ids.max())
     if hi - lo >= DENSE_SPAN_FACTOR * len(ids):
-        distinct, inverse = np.unique(ids, return_inverse=True)
-        return distinct.astype(np.int64), inverse.reshape(-1).astype(np.int64)
+        return _sorted_ranks(ids, lo, hi)
     offset = ids - lo if lo else ids
     present = np.zeros(hi - lo + 1, dtype=bool)
     present[offset] = True
-    rank = np.cumsum(present, dtype=np.int64) - 1
-    return np.flatnonzero(present).astype(np.int64) + lo, rank[offset]
+    # ranks below 2**31 fit int32: half the memory traffic over a table that may be 4 N long
+    rank_type = np.int32 if len(present) < 2**31 else np.int64
+    rank: np.ndarray = np.cumsum(present, dtype=rank_type)
+    rank -= 1
+    return np.flatnonzero(present).astype(np.int64) + lo, rank[offset].astype(np.int64)
+
+
+def _sorted_ranks(ids: np.ndarray, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`compact_ids` of sparse ids by one sort of the ids packed with their positions.
+
+    Sorting the packed values (id above, position below) gives the order ``np.unique`` finds
+    with an argsort at a fraction of its cost, and the same distinct ids and ranks.
+    """
+    n = len(ids)
+    bits = max(1, (n - 1).bit_length())
+    if (hi - lo) >> (62 - bits):  # the packed value would not fit an int64
+        distinct, inverse = np.unique(ids, return_inverse=True)
+        return distinct.astype(np.int64), inverse.reshape(-1).astype(np.int64)
+    packed = ids - lo
+    packed <<= bits
+    packed |= np.arange(n, dtype=np.int64)
+    packed.sort()
+    order = packed & ((1 << bits) - 1)
+    packed >>= bits  # the sorted ids, less lo
+    first = np.empty(n, dtype=bool)
+    first[0] = True
+    np.not_equal(packed[1:], packed[:-1], out=first[1:])
+    rank = np.cumsum(first, dtype=np.int64)
+    rank -= 1
+    inverse = np.empty(n, dtype=np.int64)
+    inverse[order] = rank
+    distinct = packed[first]
+    distinct += lo
+    return distinct, inverse
+
+
+def sorted_distinct(ids: np.ndarray) -> np.ndarray:
+    """``np.unique(ids)`` of integer ids (the distinct ids, sorted, in their dtype) by one sort.
+
+    numpy 2.3 and later find plain distinct values with a hash table, which on a million ids
+    costs some thirty times the sort.
+    """
+    ids = np.asarray(ids)
+    if not np.issubdtype(ids.dtype, np.integer):
+        raise TypeError(f"ids must be integers, got dtype {ids.dtype}")
+    ordered = np.sort(ids, axis=None)
+    if len(ordered) < 2:
+        return ordered
+    first = np.empty(len(ordered), dtype=bool)
+    first[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    return ordered[first]
 
 
 def cell_keys(
@@ -90,19 +143,37 @@ def cell_keys(
         raise ValueError(f"xyz must have shape (N, D), got {xyz.shape}")
     if len(xyz) == 0:
         return np.zeros(0, dtype=np.int64), 0
+    # floor((xyz - lo) / size) with the temporaries reused: the same dtypes and values
     if aligned:
-        cells = np.floor(xyz / size).astype(np.int64)
-        cells -= cells.min(axis=0)
+        cells = _floor_cells(xyz / size)
+        cells -= _column_extremes(cells, np.min)
     else:
-        lo = xyz.min(axis=0) if origin is None else origin
-        cells = np.floor((xyz - lo) / size).astype(np.int64)
+        lo = _column_extremes(xyz, np.min) if origin is None else origin
+        shifted = xyz - lo
+        same = shifted.dtype.kind == "f" and np.result_type(shifted, size) == shifted.dtype
+        cells = _floor_cells(np.divide(shifted, size, out=shifted if same else None))
         if origin is not None and cells.min() < 0:
             raise ValueError("origin must not lie above any point")
-    dims = cells.max(axis=0) + 1
-    keys = cells[:, 0]
+    dims = _column_extremes(cells, np.max) + 1
+    keys = cells[:, 0].copy()
     for axis in range(1, cells.shape[1]):
-        keys = keys * dims[axis] + cells[:, axis]
+        keys *= dims[axis]
+        keys += cells[:, axis]
     return keys, int(dims.prod())
+
+
+def _column_extremes(values: np.ndarray, extreme: Callable[..., Any]) -> np.ndarray:
+    """``extreme(values, axis=0)`` (np.min or np.max) column by column: numpy reduces an
+    (N, 3) array along its long axis a dozen times slower than three strided columns."""
+    return np.array([extreme(values[:, c]) for c in range(values.shape[1])], dtype=values.dtype)
+
+
+def _floor_cells(scaled: np.ndarray) -> np.ndarray:
+    """``np.floor(scaled).astype(np.int64)``, flooring in place (``scaled`` is a temporary)."""
+    if np.issubdtype(scaled.dtype, np.floating):
+        np.floor(scaled, out=scaled)
+        return scaled.astype(np.int64)
+    return np.floor(scaled).astype(np.int64)
 
 
 def rows_by_id(ids: np.ndarray) -> list[np.ndarray]:

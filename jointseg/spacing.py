@@ -35,7 +35,11 @@ def estimate_spacing(
     gen = np.random.default_rng(rng)
     pts = _cell_sample(xyz, sample, gen)
     query = pts[gen.choice(len(pts), size=min(sample, len(pts)), replace=False)]
-    dist, _ = cKDTree(pts).query(query, k=min(4, len(pts)), workers=-1)
+    # only the distances are read, and the k nearest distances do not depend on the tree's
+    # shape: a sliding-midpoint tree, its nodes left as split and on the sample itself (a
+    # copy already, or the caller's array, which the tree only reads), builds in half the time
+    tree = cKDTree(pts, balanced_tree=False, compact_nodes=False, copy_data=False)
+    dist, _ = tree.query(query, k=min(4, len(pts)), workers=-1)
     dist = np.asarray(dist).reshape(len(query), -1)[:, 1:]
     # the nearest non-zero neighbour per query point, so duplicates do not pull the median to 0
     nearest = np.where(dist > 0, dist, np.inf).min(axis=1)
@@ -53,8 +57,13 @@ def _cell_sample(xyz: np.ndarray, sample: int, rng: np.random.Generator) -> np.n
     share = min(1.0, 20 * sample / n)
     if share >= 1.0:
         return xyz
-    keys = np.floor(xyz / 0.25).astype(np.int64)
-    hashed = (keys[:, 0] * 73856093) ^ (keys[:, 1] * 19349663) ^ (keys[:, 2] * 83492791)
+    scaled = xyz / 0.25
+    keys = np.floor(scaled, out=scaled).astype(np.int64)
+    del scaled
+    hashed = keys[:, 0] * 73856093
+    hashed ^= keys[:, 1] * 19349663
+    hashed ^= keys[:, 2] * 83492791
     buckets = max(1, int(round(1 / share)))
-    chosen = hashed % buckets == rng.integers(buckets)
+    hashed %= buckets
+    chosen = hashed == rng.integers(buckets)
     return xyz[chosen] if chosen.sum() >= 100 else xyz

@@ -240,3 +240,80 @@ def test_group_quantiles_are_each_groups_lower_quantile_and_nan_when_empty() -> 
             want = np.quantile(mine, [0.02, 0.5, 0.98], method="lower")
             assert np.allclose(got, want)
     assert all(np.isnan(q).all() for q in group_quantiles(group[:0], 2, values[:0], (0.5,)))
+
+
+def _reference_cell_keys(
+    xyz: np.ndarray, size: float, origin: np.ndarray | None = None, aligned: bool = False
+) -> tuple[np.ndarray, int]:
+    """cell_keys as first written: the arithmetic (and its dtypes) the faster one must keep."""
+    if aligned:
+        cells = np.floor(xyz / size).astype(np.int64)
+        cells -= cells.min(axis=0)
+    else:
+        lo = xyz.min(axis=0) if origin is None else origin
+        cells = np.floor((xyz - lo) / size).astype(np.int64)
+    dims = cells.max(axis=0) + 1
+    keys = cells[:, 0]
+    for axis in range(1, cells.shape[1]):
+        keys = keys * dims[axis] + cells[:, axis]
+    return keys, int(dims.prod())
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32])
+@pytest.mark.parametrize("size", [0.013, np.float64(0.013), np.float32(0.013), 2])
+def test_cell_keys_keep_the_plain_arithmetic_to_the_bit(dtype: type, size: float) -> None:
+    rng = np.random.default_rng(11)
+    xyz: np.ndarray = (rng.normal(0.0, 1.0, (5000, 3)) * (1 if dtype != np.int32 else 100)).astype(
+        dtype
+    )
+    for kwargs in ({}, {"aligned": True}, {"origin": xyz.min(axis=0) - 1}):
+        keys, n_keys = cell_keys(xyz, size, **kwargs)
+        want, n_want = _reference_cell_keys(xyz, size, **kwargs)
+        assert keys.dtype == want.dtype == np.int64
+        np.testing.assert_array_equal(keys, want)
+        assert n_keys == n_want
+    flat = xyz[:, :2]
+    np.testing.assert_array_equal(cell_keys(flat, size)[0], _reference_cell_keys(flat, size)[0])
+
+
+@pytest.mark.parametrize(
+    ("n", "low", "high"),
+    [(5000, 0, 10**9), (20_000, -(10**15), 10**15), (3000, 0, 4 * 3000), (1, 7, 8), (2, 0, 2**62)],
+)
+def test_compact_ids_sorting_paths_match_numpy_unique(n: int, low: int, high: int) -> None:
+    ids = np.random.default_rng(n).integers(low, high, n, dtype=np.int64)
+    want_distinct, want_inverse = np.unique(ids, return_inverse=True)
+    for factor in (0, grouping.DENSE_SPAN_FACTOR, 10**9):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(grouping, "DENSE_SPAN_FACTOR", factor)
+            if factor == 10**9 and high - low > 10**8:
+                continue  # the lookup table would be the span's size
+            distinct, inverse = compact_ids(ids)
+        assert distinct.dtype == inverse.dtype == np.int64
+        np.testing.assert_array_equal(distinct, want_distinct)
+        np.testing.assert_array_equal(inverse, want_inverse)
+
+
+@pytest.mark.parametrize("dtype", [np.int64, np.int32, np.uint8, np.int16])
+@pytest.mark.parametrize("n", [0, 1, 2, 1000])
+def test_sorted_distinct_is_numpy_unique(dtype: type, n: int) -> None:
+    ids: np.ndarray = np.random.default_rng(n).integers(0, 100, n).astype(dtype)
+    got = grouping.sorted_distinct(ids)
+    want = np.unique(ids)
+    assert got.dtype == want.dtype
+    np.testing.assert_array_equal(got, want)
+    with pytest.raises(TypeError, match="integers"):
+        grouping.sorted_distinct(np.array([0.5]))
+
+
+def test_voxel_count_and_cell_centroids_are_voxel_index() -> None:
+    from jointseg.voxels import cell_centroids, voxel_count
+
+    xyz = np.random.default_rng(12).normal(0.0, 1.0, (4000, 3))
+    for voxel in (0.05, 0.3, 5.0):
+        inverse, centroids = voxel_index(xyz, voxel)
+        count, keys = voxel_count(xyz, voxel)
+        assert count == len(centroids)
+        got_inverse, got_centroids = cell_centroids(xyz, keys)
+        np.testing.assert_array_equal(got_inverse, inverse)
+        np.testing.assert_array_equal(got_centroids, centroids)

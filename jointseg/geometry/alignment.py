@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 
-from jointseg.voxels import voxel_index
+from jointseg.voxels import cell_centroids, voxel_count
 
 
 def estimate_normals(xyz: np.ndarray, *, k: int = 16) -> np.ndarray:
@@ -26,14 +26,16 @@ def point_normals(xyz: np.ndarray, spacing: float, *, max_voxels: int = 150_000)
     magnitude cheaper than per-point normals on a dense scan.
     """
     voxel = max(2.0 * spacing, 1e-3)
-    inverse, centroids = voxel_index(xyz, voxel)
-    while len(centroids) > max_voxels:
+    # count the cells of each size first: only the size kept is renumbered and averaged
+    count, keys = voxel_count(xyz, voxel)
+    while count > max_voxels:
         voxel *= 1.5
-        inverse, centroids = voxel_index(xyz, voxel)
+        count, keys = voxel_count(xyz, voxel)
+    inverse, centroids = cell_centroids(xyz, keys)
     if len(centroids) < 4:
         return np.tile([0.0, 0.0, 1.0], (len(xyz), 1))
     normals = estimate_normals(centroids, k=min(16, len(centroids) - 1))
-    return normals[inverse]
+    return np.take(normals, inverse, axis=0)
 
 
 def dominant_yaw(normals: np.ndarray, *, max_vertical_component: float = 0.3) -> float:

@@ -71,7 +71,9 @@ def ransac_plane(
         return None
     offsets = -np.einsum("ij,ij->i", normals, p0)
     subset = points[rng.choice(m, size=min(sample, m), replace=False)]
-    scores = (np.abs(subset @ normals.T + offsets) < threshold).sum(axis=0)
+    distance = subset @ normals.T
+    distance += offsets
+    scores = np.count_nonzero(np.abs(distance, out=distance) < threshold, axis=0)
     best = int(np.argmax(scores))
     normal, offset = normals[best], offsets[best]
     for _ in range(2):  # refine: refit on inliers, recompute inliers
@@ -85,8 +87,7 @@ def ransac_plane(
 
 def robust_bounds(xyz: np.ndarray, quantile: float = 0.001) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box from low and high quantiles, so a few stray points do not move the faces."""
-    lo = np.quantile(xyz, quantile, axis=0)
-    hi = np.quantile(xyz, 1.0 - quantile, axis=0)
+    lo, hi = np.quantile(xyz, [quantile, 1.0 - quantile], axis=0)  # one partition for both
     return lo, hi
 
 
@@ -119,15 +120,18 @@ def box_face_planes(
     max_tilt_deg: float,
     min_points: int,
     rng: np.random.Generator,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[tuple[Plane, np.ndarray]]:
     """Coarse then fine extraction: each bounding-box face's point set (eq. 3-4), RANSAC on it.
+
+    ``bounds`` is :func:`robust_bounds` of ``xyz`` when the caller has it already.
 
     Returns
     -------
     list of (Plane, indices)
         The main plane of every face that has one, with the indices of its inliers.
     """
-    lo, hi = robust_bounds(xyz)
+    lo, hi = robust_bounds(xyz) if bounds is None else bounds
     found: list[tuple[Plane, np.ndarray]] = []
     for f, name in enumerate(FACE_NAMES):
         axis_i = f // 2
@@ -227,15 +231,14 @@ def further_planes(
         vertical = axis_i < 2
         min_area = min_wall_area if vertical else min_floor_area
         aligned = candidates[np.abs(normals[candidates, axis_i]) > cos20]
+        coord = xyz[aligned, axis_i]  # gathered once for all of the axis's peaks
         min_count = int(min_area * min_fill / max(spacing, 1e-3) ** 2 * 0.25)
         other = [a for a in range(3) if a != axis_i]
         kind = "wall" if vertical else "horizontal"
-        for c in _peaks(xyz[aligned, axis_i], bin_width=plane_distance, min_count=min_count):
+        for c in _peaks(coord, bin_width=plane_distance, min_count=min_count):
             # A long wall under a small residual yaw spans more than one bin, and the two faces
             # of a thin wall can share a peak: fit planes in a wider band, a few in turn.
-            wide = aligned[
-                (np.abs(xyz[aligned, axis_i] - c) < 3 * plane_distance) & ~taken[aligned]
-            ]
+            wide = aligned[(np.abs(coord - c) < 3 * plane_distance) & ~taken[aligned]]
             for _ in range(3):
                 if len(wide) < min_count:
                     break

@@ -90,7 +90,7 @@ def colour_noise(graph: clustering.NeighbourGraph, rgb: np.ndarray, sample: int 
     if len(nearest) > sample:
         nearest = nearest[:: len(nearest) // sample]
     a, b = graph.src[nearest], graph.dst[nearest]
-    diff = np.linalg.norm(rgb[a] - rgb[b], axis=1)
+    diff = clustering.colour_distance(rgb, a, b)
     return float(np.median(diff)) if len(diff) else 0.0
 
 
@@ -153,9 +153,12 @@ def segment(
     if resolved is not None:
         p = resolved
     laps.lap("neighbours", 0.4)
-    found, plane_id = _box_planes(frame.xyz, p, rng)
+    bounds = planes.robust_bounds(frame.xyz)  # the box faces' and the further planes' own
+    found, plane_id = _box_planes(frame.xyz, p, rng, bounds)
     laps.lap("box_planes", 0.5)
-    found, plane_id = _further_planes(frame, plane_id, found, p, max(spacing, work.voxel), rng)
+    found, plane_id = _further_planes(
+        frame, plane_id, found, p, max(spacing, work.voxel), rng, bounds
+    )
     laps.lap("further_planes", 0.6)
     groups = _groups(graph, plane_id, len(found), p)
     laps.lap("clustering", 0.7)
@@ -267,10 +270,10 @@ def _voxelise(xyz: np.ndarray, rgb: np.ndarray | None, voxel: float) -> _WorkSet
     if voxel > 0:
         inverse, work = voxel_index(xyz, voxel)
         weights = np.bincount(inverse).astype(np.float64)
+        # 8-bit colour sums as its float32 copy would (bincount adds in float64 either way)
+        values = None if rgb is None else rgb if rgb.dtype == np.uint8 else rgb.astype(np.float32)
         work_rgb = (
-            None
-            if rgb is None
-            else cell_means(rgb.astype(np.float32), inverse, len(work)).astype(np.float32)
+            None if values is None else cell_means(values, inverse, len(work)).astype(np.float32)
         )
     else:
         inverse, work, weights = np.arange(n), xyz, np.ones(n)
@@ -318,10 +321,13 @@ def _neighbours(
 
 
 def _box_planes(
-    aligned: np.ndarray, p: ResolvedGeometryParams, rng: np.random.Generator
+    aligned: np.ndarray,
+    p: ResolvedGeometryParams,
+    rng: np.random.Generator,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[list[tuple[planes.Plane, np.ndarray]], np.ndarray]:
     """The bounding-box face planes (floor, ceiling, four walls) of the aligned work points,
-    and the plane id of every work point (-1 off them)."""
+    and the plane id of every work point (-1 off them); ``bounds``: their robust bounds."""
     found = planes.box_face_planes(
         aligned,
         face_distance=p.face_distance,
@@ -331,6 +337,7 @@ def _box_planes(
         max_tilt_deg=p.max_plane_tilt_deg,
         min_points=p.min_face_points,
         rng=rng,
+        bounds=bounds,
     )
     return found, _assign_planes(aligned, found, len(aligned))
 
@@ -342,12 +349,14 @@ def _further_planes(
     p: ResolvedGeometryParams,
     spacing: float,
     rng: np.random.Generator,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[list[tuple[planes.Plane, np.ndarray]], np.ndarray]:
     """Walls and floors beyond the box faces, then points leaning off their plane released:
-    all main planes and the plane id of every work point."""
+    all main planes and the plane id of every work point (``bounds``: the work points'
+    robust bounds, when known)."""
     found, plane_id = list(found), plane_id.copy()
     if p.extra_planes:
-        lo, hi = planes.robust_bounds(frame.xyz)
+        lo, hi = planes.robust_bounds(frame.xyz) if bounds is None else bounds
         extra = planes.further_planes(
             frame.xyz,
             frame.normals,

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from jointseg.classes import CLASS_INDEX
-from jointseg.grouping import group_quantiles
+from jointseg.grouping import group_quantiles, sorted_distinct
 
 FLOOR, CEILING, WALL = CLASS_INDEX["floor"], CLASS_INDEX["ceiling"], CLASS_INDEX["wall"]
 #: A surface is horizontal (vertical) when its normal is within this of vertical (horizontal).
@@ -203,7 +203,7 @@ def _footprints(xyz: np.ndarray, seg: np.ndarray, n_seg: int, chosen: np.ndarray
     cells -= cells.min(axis=0)
     span = cells.max(axis=0) + 1
     key = (seg[on].astype(np.int64) * span[0] + cells[:, 0]) * span[1] + cells[:, 1]
-    unique = np.unique(key)
+    unique = sorted_distinct(key)
     owner = unique // (span[0] * span[1])
     return np.bincount(owner, minlength=n_seg) * AREA_CELL**2
 
