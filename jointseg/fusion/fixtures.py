@@ -17,7 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from jointseg.classes import CLASS_INDEX
-from jointseg.grouping import group_quantiles
+from jointseg.grouping import compact_ids
 
 DOOR, COLUMN = CLASS_INDEX["door"], CLASS_INDEX["column"]
 #: Side (m) of the cells that join door points into one door.
@@ -82,18 +82,35 @@ def _measured(
     idx = np.flatnonzero(np.asarray(labels) == cls)
     if len(idx) < MIN_POINTS:
         return None
-    piece, n = _pieces(xyz[idx])
-    return idx, piece, _extents(xyz[idx], piece, n)
+    points = np.take(np.asarray(xyz, dtype=np.float64), idx, axis=0)
+    piece, n = _pieces(points)
+    return idx, piece, _extents(points, piece, n)
 
 
 def _pieces(xyz: np.ndarray) -> tuple[np.ndarray, int]:
     """Connected pieces of points: their occupied CELL cells, joined where they touch."""
-    cells = np.floor(np.asarray(xyz, dtype=np.float64) / CELL).astype(np.int64)
-    keys, cell_of = np.unique(cells, axis=0, return_inverse=True)
+    flat, dims = _cell_keys(np.asarray(xyz, dtype=np.float64))
+    # the cells in their lexicographic order (np.unique(cells, axis=0)'s)
+    flat, cell_of = compact_ids(flat)
+    keys = np.column_stack(np.unravel_index(flat, dims))
     pairs = cKDTree(keys).query_pairs(np.sqrt(3) + 1e-6, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(keys),) * 2)
     n, piece_of_cell = connected_components(graph, directed=False)
-    return piece_of_cell[cell_of.reshape(-1)], int(n)
+    return piece_of_cell[cell_of], int(n)
+
+
+def _cell_keys(xyz: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Each point's CELL cell as one row-major integer over the points' bounding box of cells,
+    and that box's size in cells; one coordinate at a time."""
+    keys = np.zeros(len(xyz), dtype=np.int64)
+    dims = []
+    for axis in range(xyz.shape[1]):
+        cells = np.floor(xyz[:, axis] / CELL).astype(np.int64)
+        cells -= cells.min()
+        dims.append(int(cells.max()) + 1)
+        keys *= dims[-1]
+        keys += cells
+    return keys, tuple(dims)
 
 
 def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ...]:
@@ -102,15 +119,34 @@ def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ..
     count = np.bincount(group, minlength=n).astype(np.float64)
     safe = np.maximum(count, 1)
     mean = np.column_stack([np.bincount(group, xyz[:, i], n) / safe for i in range(2)])
-    d = xyz[:, :2] - mean[group]
+    d = xyz[:, :2] - np.take(mean, group, axis=0)
     cov = np.empty((n, 2, 2))
     for i in range(2):
         for j in range(i, 2):
             cov[:, i, j] = cov[:, j, i] = np.bincount(group, d[:, i] * d[:, j], n) / safe
     _, vectors = np.linalg.eigh(cov)
-    along = np.einsum("ni,ni->n", d, vectors[group, :, 1])
+    along = np.einsum("ni,ni->n", d, np.take(vectors[:, :, 1], group, axis=0))
     lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
     np.minimum.at(lo, group, along)
     np.maximum.at(hi, group, along)
-    zlo, zhi = group_quantiles(group, n, xyz[:, 2], (0.02, 0.98))
+    zlo, zhi = _quantiles(group, n, xyz[:, 2], (0.02, 0.98))
     return hi - lo, zhi - zlo, zlo, count
+
+
+def _quantiles(
+    group: np.ndarray, n: int, values: np.ndarray, qs: tuple[float, ...]
+) -> list[np.ndarray]:
+    """:func:`jointseg.grouping.group_quantiles` to the bit, sorted faster: by value, then
+    stably by group (a radix sort where the group ids fit 16 bits), not by ``np.lexsort``."""
+    counts = np.bincount(group, minlength=n)
+    if len(values) == 0:
+        return [np.full(n, np.nan) for _ in qs]
+    by_value = np.argsort(values)
+    small = group.astype(np.uint16) if n <= np.iinfo(np.uint16).max else group
+    ordered = values[by_value[np.argsort(small[by_value], kind="stable")]]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = []
+    for q in qs:
+        pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
+        out.append(np.where(counts > 0, ordered[np.minimum(pos, len(values) - 1)], np.nan))
+    return out

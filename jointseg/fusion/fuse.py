@@ -337,7 +337,7 @@ def _learned_vote(
         seen_fixture_share=params.seen_fixture_share,
     )
     shares = seg_votes / np.maximum(seg_votes.sum(axis=1, keepdims=True), 1e-12)
-    confidence = _confidence(fused, labels, probs, shares[seg, fused])
+    confidence = _confidence(fused, labels, probs, _pick(shares, seg, fused))
     none = np.zeros(n_seg, dtype=bool)
     return _Vote(fused, confidence, seg_votes, none, none, fused != labels)
 
@@ -403,8 +403,15 @@ def _confidence(
     if probs is None:
         own = (fused == labels).astype(np.float64)
     else:
-        own = np.take_along_axis(probs, fused[:, None], axis=1)[:, 0]
+        own = _pick(probs, np.arange(len(fused)), fused)
     return (0.5 * (own + unit_share)).astype(np.float32)
+
+
+def _pick(table: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``table[rows, cols]``, gathered from the flat array (faster for a C-contiguous one)."""
+    if not table.flags.c_contiguous:
+        return table[rows, cols]
+    return np.take(table.reshape(-1), rows * table.shape[1] + cols)
 
 
 def _validated(
@@ -450,6 +457,8 @@ def _validated(
             raise ConfigError(
                 f"network_probs must have shape ({m}, {NUM_CLASSES}), got {network_probs.shape}"
             )
-        if m and not (np.isfinite(network_probs).all() and network_probs.min() >= 0):
+        # min >= 0 fails on NaN and -inf, max < inf on +inf: finite and non-negative, without
+        # a boolean array the size of the probabilities
+        if m and not (network_probs.min() >= 0 and network_probs.max() < np.inf):
             raise ConfigError("network_probs must be finite and non-negative")
     return xyz, segments, network_labels, network_probs, network_xyz

@@ -96,7 +96,7 @@ def split_into_cells(
     members = np.flatnonzero(split[seg])
     if len(members) == 0:
         return unit, n_seg
-    cells, n_cells = cell_keys(xyz[members], cell_size, aligned=True)
+    cells, n_cells = aligned_cell_keys(xyz[members], cell_size)
     # renumbering only the split points: one (segment, cell) pair per part
     _, part = compact_ids(seg[members].astype(np.int64) * n_cells + cells)
     unit[members] = n_seg + part
@@ -112,6 +112,24 @@ def segment_cells(xyz: np.ndarray, seg: np.ndarray, cell_size: float) -> tuple[n
         Unit 0..U-1 of every point.
     n_units : int
     """
-    cells, n_cells = cell_keys(xyz, cell_size, aligned=True)
+    cells, n_cells = aligned_cell_keys(xyz, cell_size)
     ids, unit = compact_ids(seg.astype(np.int64) * n_cells + cells)
     return unit, len(ids)
+
+
+def aligned_cell_keys(xyz: np.ndarray, size: float) -> tuple[np.ndarray, int]:
+    """``cell_keys(xyz, size, aligned=True)`` to the bit, one coordinate at a time: the
+    reductions over an (N, 3) array's first axis it would take are slow."""
+    xyz = np.asarray(xyz)
+    if xyz.ndim != 2 or len(xyz) == 0 or xyz.shape[1] == 0:
+        return cell_keys(xyz, size, aligned=True)
+    keys = np.zeros(len(xyz), dtype=np.int64)
+    n_keys = 1
+    for axis in range(xyz.shape[1]):
+        cells = np.floor(np.ascontiguousarray(xyz[:, axis]) / size).astype(np.int64)
+        cells -= cells.min()
+        dim = int(cells.max()) + 1
+        keys *= dim
+        keys += cells
+        n_keys *= dim
+    return keys, n_keys

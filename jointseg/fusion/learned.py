@@ -28,6 +28,7 @@ with numpy: no learning library is needed at run time.
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import dataclass
 from functools import cache, cached_property
 from pathlib import Path
@@ -37,8 +38,19 @@ import numpy as np
 
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
 from jointseg.exceptions import ConfigError
+from jointseg.fusion.columns import ClassColumns, rows_entropy
 from jointseg.fusion.fixtures import implausible_columns, implausible_doors
 from jointseg.fusion.guard import segment_cells
+from jointseg.fusion.trees import (
+    PLANS_KEPT,
+    Rows,
+    TreePlan,
+    constant_features,
+    plan_tree,
+    raw_scores,
+    split_thresholds,
+    varying_cuts,
+)
 from jointseg.geometry.structure import floor_level
 from jointseg.grouping import group_sums, label_histogram, majority_label
 
@@ -69,6 +81,17 @@ FEATURES = (
     "own label is a wall fixture",
     "scan has colour",
 )
+#: The features that vary from point to point among offers of one :attr:`Offers.context`.
+POINT_FEATURES = tuple(
+    FEATURES.index(name)
+    for name in (
+        "logit p(own)",
+        "logit p(offer)",
+        "point entropy",
+        "structure reads the offer",
+        "structure reads own",
+    )
+)
 #: The features of a model fitted before the structure reading (issue 43): such a model is
 #: still read, evaluated on these columns only, and is never offered the structure's labels.
 FEATURES_BEFORE_STRUCTURE = FEATURES[:17]
@@ -86,8 +109,6 @@ STRUCTURAL[[CLASS_INDEX["ceiling"], CLASS_INDEX["floor"], CLASS_INDEX["wall"]]] 
 #: the network keeps them where it sees them.
 FIXTURE = np.zeros(NUM_CLASSES, dtype=bool)
 FIXTURE[[CLASS_INDEX[c] for c in ("window", "door", "board", "column", "beam")]] = True
-#: Trees with at most this many split nodes are evaluated through a lookup table.
-MAX_TABLE_BITS = 12
 #: :func:`offer_thresholds` counts every class as at least this share of the scan (a class
 #: of a few points would otherwise ask for certainty, or be joined on no evidence).
 MIN_CLASS_SHARE = 0.001
@@ -143,6 +164,10 @@ class Offers:
         The segment's soft-majority label at every point.
     segment_votes : ndarray of shape (S, C), float64
         Summed probabilities per segment and class (the soft vote of eq. 6).
+    context : ndarray of shape (M,), int64, optional
+        Offers with equal context (the cell, own and offered class, whether the own label is
+        a believable fixture, where the offer comes from) have equal features except
+        :data:`POINT_FEATURES`: :meth:`TreeEnsemble.probability` takes their other splits once.
     """
 
     point: np.ndarray
@@ -150,6 +175,7 @@ class Offers:
     features: np.ndarray
     segment_label: np.ndarray
     segment_votes: np.ndarray
+    context: np.ndarray | None = None
 
 
 def normalised_entropy(probs: np.ndarray) -> np.ndarray:
@@ -158,21 +184,16 @@ def normalised_entropy(probs: np.ndarray) -> np.ndarray:
     Taken in float64, a block of rows at a time: numpy's float32 logarithm differs in the last
     bit between its SIMD paths (with AVX2 or without), and those bits moved the thresholds of
     a refitted vote from one machine to another."""
-    n, n_classes = probs.shape
-    out = np.empty(n)
-    for start in range(0, n, ENTROPY_BLOCK):
-        p = np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64)
-        out[start : start + ENTROPY_BLOCK] = -(p * np.log(p + 1e-6)).sum(axis=1)
-    return out / np.log(n_classes)
+    return rows_entropy(probs)
 
 
 def _shares(
-    unit: np.ndarray, n_units: int, probs: np.ndarray
+    unit: np.ndarray, n_units: int, columns: ClassColumns
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points per unit, summed probabilities and mean probabilities (soft shares):
     (U,), (U, C) and (U, C)."""
     size = np.bincount(unit, minlength=n_units).astype(np.float64)
-    sums = group_sums(unit, n_units, probs)
+    sums = columns.sums(unit, n_units)
     return size, sums, sums / np.maximum(size, 1)[:, None]
 
 
@@ -224,7 +245,7 @@ def _pick_offers(
     offer = np.concatenate([seg_label[by_segment], cell_label[by_cell]])
     from_segment = np.arange(len(point)) < len(by_segment)
     if min_support > 0:
-        supported = probs[point, offer] >= min_support
+        supported = _at(probs, point, offer) >= min_support
         point, offer, from_segment = point[supported], offer[supported], from_segment[supported]
     only_structure = np.zeros(len(point), dtype=bool)
     if structure is not None:
@@ -252,15 +273,15 @@ def _structure_columns(
     the point's own label, whether only it makes the offer, whether the own label is a wall
     fixture of a believable size (:func:`implausible_doors`)."""
     floor_z = None if structure is None else floor_level(xyz[:, 2], structure.kind)
-    fixture = FIXTURE[labels] & ~implausible_doors(xyz, labels, floor_z)
-    fixture &= ~implausible_columns(xyz, labels)
+    doors, columns = implausible_doors(xyz, labels, floor_z), implausible_columns(xyz, labels)
+    fixture = FIXTURE[own] & ~doors[point] & ~columns[point]
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)
         sure = np.asarray(structure.confidence, dtype=np.float64)[point]
         reads_offer = np.where(kind[point] == offer, sure, 0.0)
         reads_own = np.where(kind[point] == own, sure, 0.0)
-    return [reads_offer, reads_own, only_structure, fixture[point]]
+    return [reads_offer, reads_own, only_structure, fixture]
 
 
 def vote_offers(
@@ -304,13 +325,16 @@ def vote_offers(
     labels = np.asarray(labels, dtype=np.int64)
     if n == 0:
         return _no_offers(n_seg, n_classes)
-    seg_size, seg_votes, seg_soft = _shares(seg, n_seg, probs)
-    seg_hard = label_histogram(seg, n_seg, labels, n_classes) / np.maximum(seg_size, 1)[:, None]
+    columns = ClassColumns.of(probs)
+    seg_size, seg_votes, seg_soft = _shares(seg, n_seg, columns)
+    counts = label_histogram(seg, n_seg, labels, n_classes)
+    seg_hard = counts / np.maximum(seg_size, 1)[:, None]
     cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
-    cell_size_pts, _, cell_soft = _shares(cell, n_cells, probs)
-    entropy = normalised_entropy(probs)
+    cell_count, _, cell_soft = _shares(cell, n_cells, columns)
+    entropy = columns.entropy()
+    del columns
     if totals is None:
-        totals = (n, float(entropy.mean()), disagreement_share(seg, n_seg, labels))
+        totals = (n, float(entropy.mean()), _disagreement(seg, n_seg, labels, counts))
     scan_points, scan_entropy, scan_disagreement = totals
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = _plane_share(seg, n_seg, seg_size, main_plane)
@@ -319,30 +343,75 @@ def vote_offers(
         labels, seg_label, cell_label, probs, min_support, structure
     )
     s, c, own = seg[point], cell[point], labels[point]
-    features = np.column_stack(
-        [
-            _logit(probs[point, own]),
-            _logit(probs[point, offer]),
-            _logit(seg_soft[s, offer]),
-            _logit(seg_soft[s, own]),
-            _logit(seg_hard[s, offer]),
-            np.log10(seg_size[s] / max(scan_points, 1)),
-            seg_entropy[s],
-            entropy[point],
-            _logit(cell_soft[c, offer]),
-            _logit(cell_soft[c, own]),
-            np.log10(cell_size_pts[c] / np.maximum(seg_size[s], 1)),
-            plane_share[s],
-            STRUCTURAL[own],
-            STRUCTURAL[offer],
-            from_segment,
-            np.full(len(point), scan_entropy),
-            np.full(len(point), scan_disagreement),
-            *_structure_columns(structure, point, offer, own, only_structure, xyz, labels),
-            np.full(len(point), float(has_colour)),
-        ]
-    ).astype(np.float64)
-    return Offers(point, offer, features, seg_label.astype(np.int64), seg_votes)
+    seg_of_cell = np.zeros(n_cells, dtype=np.int64)
+    seg_of_cell[c] = s
+    structure_cols = _structure_columns(structure, point, offer, own, only_structure, xyz, labels)
+    cols = np.empty((len(FEATURES), len(point)))
+    cols[0] = _logit(_at(probs, point, own))
+    cols[1] = _logit(_at(probs, point, offer))
+    cols[2] = _logit_at(seg_soft, s, offer)
+    cols[3] = _logit_at(seg_soft, s, own)
+    cols[4] = _logit_at(seg_hard, s, offer)
+    cols[5] = np.log10(seg_size / max(scan_points, 1))[s]
+    cols[6] = seg_entropy[s]
+    cols[7] = entropy[point]
+    cols[8] = _logit_at(cell_soft, c, offer)
+    cols[9] = _logit_at(cell_soft, c, own)
+    cols[10] = _cell_share(cell_count, seg_size, seg_of_cell, c, s)
+    cols[11] = plane_share[s]
+    cols[12] = STRUCTURAL[own]
+    cols[13] = STRUCTURAL[offer]
+    cols[14] = from_segment
+    cols[15] = scan_entropy
+    cols[16] = scan_disagreement
+    for i, col in enumerate(structure_cols):
+        cols[17 + i] = col
+    cols[21] = float(has_colour)
+    fixture = structure_cols[3]
+    context = (((c * n_classes + own) * n_classes + offer) * 2 + fixture) * 4
+    context += from_segment * 2 + only_structure
+    return Offers(point, offer, cols.T, seg_label.astype(np.int64), seg_votes, context)
+
+
+def _at(probs: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``probs[rows, cols]``, gathered from the flat array (faster for a C-contiguous one)."""
+    if not probs.flags.c_contiguous:
+        return probs[rows, cols]
+    return np.take(probs.reshape(-1), rows * probs.shape[1] + cols)
+
+
+def _logit_at(table: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+    """``_logit(table[row, col])``, the logit taken over the table where it is the smaller."""
+    flat = row * table.shape[1] + col
+    if table.size <= len(row):
+        return np.take(_logit(table).reshape(-1), flat)
+    return _logit(np.take(table.reshape(-1), flat))
+
+
+def _cell_share(
+    cell_count: np.ndarray,
+    seg_size: np.ndarray,
+    seg_of_cell: np.ndarray,
+    c: np.ndarray,
+    s: np.ndarray,
+) -> np.ndarray:
+    """log10 of each offer's cell's share of its segment (``s``: the segment of cell ``c``),
+    taken per cell where there are fewer cells than offers."""
+    if len(cell_count) <= len(c):
+        return np.log10(cell_count / np.maximum(seg_size[seg_of_cell], 1))[c]
+    return np.log10(cell_count[c] / np.maximum(seg_size[s], 1))
+
+
+def _disagreement(seg: np.ndarray, n_seg: int, labels: np.ndarray, counts: np.ndarray) -> float:
+    """:func:`disagreement_share` from the segments' label counts (N, C) already taken."""
+    if counts.shape[1] != NUM_CLASSES:
+        return disagreement_share(seg, n_seg, labels)
+    majority = np.where(counts.sum(axis=1) > 0, counts.argmax(axis=1), -1)
+    return float(np.mean(majority[seg] != labels))
+
+
+#: Guards each model's cache of specialised trees (fusions may run in threads).
+_PLANS_LOCK = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -400,62 +469,56 @@ class TreeEnsemble:
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise ConfigError(f"vote model {path}: {exc}") from exc
 
-    def probability(self, x: np.ndarray) -> np.ndarray:
-        """P(the change is right) for every row of ``x`` (M, F)."""
-        columns = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:, : self.n_features].T)
-        raw = np.full(len(x), self.base)
-        for t in range(len(self.feature)):
-            raw += self._tree_values(t, columns)
-        return 1.0 / (1.0 + np.exp(-raw))
+    def probability(self, x: np.ndarray, context: np.ndarray | None = None) -> np.ndarray:
+        """P(the change is right) for every row of ``x`` (M, F): the sigmoid of
+        :meth:`decision`."""
+        return 1.0 / (1.0 + np.exp(-self.decision(x, context)))
 
-    def _tree_values(self, t: int, columns: np.ndarray) -> np.ndarray:
-        """Leaf value of tree ``t`` for every row. A shallow tree (the shipped ones) is read as
-        one integer per row whose bits are its split tests, looked up in a table of leaf values:
-        a few contiguous comparisons instead of a gather per level."""
-        inner, table = self._tables[t]
-        if table is None:
-            return self._walk(t, columns)
-        code = np.zeros(columns.shape[1], dtype=np.int64)
-        for bit, node in enumerate(inner):
-            goes_left = columns[self.feature[t][node]] <= self.threshold[t][node]
-            code |= goes_left.astype(np.int64) << bit
-        return table[code]
+    def decision(self, x: np.ndarray, context: np.ndarray | None = None) -> np.ndarray:
+        """The ensemble's raw score (log-odds) for every row of ``x`` (M, F): its base plus
+        each tree's leaf value, added in the trees' order (:mod:`jointseg.fusion.trees`).
+
+        ``context`` (M,), optional: rows with equal context have equal features except
+        :data:`POINT_FEATURES` (:attr:`Offers.context`); their other splits are then taken once
+        per context. The result is the same to the bit with it or without."""
+        x = np.asarray(x, dtype=np.float64)[:, : self.n_features]
+        if len(x) == 0:
+            return np.zeros(0)
+        varying = frozenset(POINT_FEATURES if context is not None else ())
+        plans, cuts = self._plans(constant_features(x, self._used_features), varying)
+        rows = Rows.each(len(x)) if context is None else Rows.grouped(x, context, cuts)
+        raw = raw_scores(self, x, plans, rows)
+        return raw if rows.inverse is None else raw[rows.inverse]
 
     @cached_property
-    def _tables(self) -> list[tuple[np.ndarray, np.ndarray | None]]:
-        """Per tree: its split nodes and, for a shallow tree, its leaf-value table."""
-        out: list[tuple[np.ndarray, np.ndarray | None]] = []
-        for t in range(len(self.feature)):
-            inner = np.flatnonzero(~self.leaf[t])
-            out.append((inner, self._table(t, inner) if len(inner) <= MAX_TABLE_BITS else None))
-        return out
+    def _thresholds(self) -> list[np.ndarray]:
+        """Per feature, the sorted distinct thresholds of its splits."""
+        return split_thresholds(self, self.n_features)
 
-    def _table(self, t: int, inner: np.ndarray) -> np.ndarray:
-        """Leaf value for every combination of the tree's split outcomes (bit i: node inner[i]
-        sends the row left)."""
-        bit_of = {int(node): i for i, node in enumerate(inner)}
-        table = np.empty(1 << len(inner))
-        for code in range(len(table)):
-            node = 0
-            while not self.leaf[t][node]:
-                left = (code >> bit_of[node]) & 1
-                node = int(self.left[t][node] if left else self.right[t][node])
-            table[code] = self.value[t][node]
-        return table
+    @cached_property
+    def _used_features(self) -> list[int]:
+        """The features some split tests."""
+        return [f for f, cuts in enumerate(self._thresholds) if len(cuts)]
 
-    def _walk(self, t: int, columns: np.ndarray) -> np.ndarray:
-        """Leaf value of a deep tree: index subsets sent down its nodes."""
-        out = np.empty(columns.shape[1])
-        stack = [(0, np.arange(columns.shape[1]))]
-        while stack:
-            node, idx = stack.pop()
-            if self.leaf[t][node]:
-                out[idx] = self.value[t][node]
-                continue
-            go_left = columns[self.feature[t][node]][idx] <= self.threshold[t][node]
-            stack.append((int(self.left[t][node]), idx[go_left]))
-            stack.append((int(self.right[t][node]), idx[~go_left]))
-        return out
+    @cached_property
+    def _plan_cache(self) -> dict[tuple, tuple[list[TreePlan], dict[int, np.ndarray]]]:
+        return {}
+
+    def _plans(
+        self, fixed: dict[int, float], varying: frozenset[int]
+    ) -> tuple[list[TreePlan], dict[int, np.ndarray]]:
+        """Every tree specialised to the constant features ``fixed``, and the thresholds of
+        the ``varying`` features' splits left (kept for the next call with the same constants:
+        the tiles of a scan share them)."""
+        key = (tuple(sorted(fixed.items())), varying)
+        with _PLANS_LOCK:
+            cache = self._plan_cache
+            if key not in cache:
+                if len(cache) >= PLANS_KEPT:
+                    cache.pop(next(iter(cache)))
+                plans = [plan_tree(self, t, fixed, varying) for t in range(len(self.feature))]
+                cache[key] = plans, varying_cuts(plans)
+            return cache[key]
 
 
 @cache
@@ -486,12 +549,12 @@ class ClassTally:
         labels = np.asarray(labels, dtype=np.int64)
         n_classes = probs.shape[1]
         expected = np.zeros(n_classes)
-        own = np.empty(len(labels))
         for start in range(0, len(labels), ENTROPY_BLOCK):
-            rows = np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64)
-            expected += rows.sum(axis=0)
-            block = labels[start : start + ENTROPY_BLOCK]
-            own[start : start + len(block)] = rows[np.arange(len(block)), block]
+            # a C-contiguous block's first axis is summed row after row, 13 sums side by side
+            expected += np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64).sum(
+                axis=0
+            )
+        own = _at(probs, np.arange(len(labels)), labels)
         return cls(
             counts=np.bincount(labels, minlength=n_classes).astype(np.float64),
             expected=expected,
@@ -597,12 +660,17 @@ def best_offers(
     offers."""
     fused = np.asarray(labels, dtype=np.int64).copy()
     take = np.flatnonzero(p > threshold)
-    # a point with two accepted offers takes the more probable one
-    order = take[np.lexsort((-p[take], point[take]))]
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = point[order][1:] != point[order][:-1]
-    best = order[first]
-    fused[point[best]] = label[best]
+    if len(take) == 0:
+        return fused
+    # a point with two accepted offers takes the more probable one (the first of equals)
+    at, p_take = point[take], p[take]
+    best = np.full(len(fused), -np.inf)
+    np.maximum.at(best, at, p_take)
+    won = p_take == best[at]
+    first = np.full(len(fused), len(take))
+    np.minimum.at(first, at[won], np.flatnonzero(won))
+    chosen = take[first[at[won]]]
+    fused[point[chosen]] = label[chosen]
     return fused
 
 
@@ -640,6 +708,7 @@ def learned_labels(
         Summed probabilities per segment and class.
     """
     model = model or shipped_model()
+    labels = np.asarray(labels, dtype=np.int64)
     offers = vote_offers(
         xyz,
         seg,
@@ -653,11 +722,10 @@ def learned_labels(
         structure=structure if model.weighs_structure else None,
         has_colour=has_colour,
     )
-    p = model.probability(offers.features) if len(offers.point) else np.zeros(0)
+    p = model.probability(offers.features, offers.context) if len(offers.point) else np.zeros(0)
     p = np.where(seen_fixtures(offers.features, offers.label, seen_fixture_share), 0.0, p)
     at: float | np.ndarray = threshold
     if metric_iou == "auto" or float(metric_iou) < 1:
-        labels = np.asarray(labels, dtype=np.int64)
         tally = ClassTally.of(labels, probs) if classes is None else classes
         own = labels[offers.point]
         at = offer_thresholds(tally, own, offers.label, threshold, metric_iou)
