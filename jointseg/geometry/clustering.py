@@ -212,6 +212,42 @@ def region_grow_rgb(
     return merged[regions]
 
 
+def nearest_among(
+    tree: cKDTree, xyz: np.ndarray, excluded: np.ndarray, k: int
+) -> np.ndarray | None:
+    """The ``k`` nearest points outside ``excluded`` (a mask over ``xyz``) of each excluded
+    point, nearest first, from ``tree`` over all of ``xyz``: what a tree over the others
+    alone would answer, without building it.
+
+    Neighbours are fetched in growing numbers until each point has ``k + 1`` others. Two
+    trees may order equally distant points differently, so where any of those ``k + 1``
+    distances repeats, None is returned and the caller builds the tree after all.
+    """
+    query = np.flatnonzero(excluded)
+    n, want = len(xyz), k + 1
+    if n - len(query) < want:
+        return None
+    out = np.empty((len(query), want), dtype=np.int64)
+    dist = np.empty((len(query), want))
+    todo = np.arange(len(query))
+    fetch = 2 * want
+    while len(todo):
+        fetch = min(fetch, n)
+        d, i = tree.query(xyz[query[todo]], k=fetch, workers=-1)
+        d, i = d.reshape(len(todo), fetch), i.reshape(len(todo), fetch)
+        other = ~excluded[i]
+        rank = np.cumsum(other, axis=1)
+        done = rank[:, -1] >= want
+        keep = other[done] & (rank[done] <= want)  # exactly ``want`` per row, in order
+        out[todo[done]] = i[done][keep].reshape(-1, want)
+        dist[todo[done]] = d[done][keep].reshape(-1, want)
+        todo = todo[~done]
+        fetch *= 4
+    if not np.all(dist[:, 1:] > dist[:, :-1]):
+        return None
+    return out[:, :k]
+
+
 def merge_small_regions(
     graph: NeighbourGraph,
     xyz: np.ndarray,
@@ -221,6 +257,7 @@ def merge_small_regions(
     *,
     min_points: int,
     rounds: int = 4,
+    tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Merge regions smaller than ``min_points`` into their nearest region.
 
@@ -228,7 +265,9 @@ def merge_small_regions(
     one of its own group (main plane or cluster) and a large one; chains of small regions are
     resolved over a few rounds. Small regions with no graph neighbour take the region of the
     nearest point of a large region, again preferring their own group. No point is dropped.
-    ``weights`` counts how many scan points each graph node stands for (voxel sizes).
+    ``weights`` counts how many scan points each graph node stands for (voxel sizes); ``tree``
+    indexes ``xyz`` (the graph's own), so the few points left in small regions need no tree
+    of the large regions' points.
     """
     regions = compact(regions)
     for _ in range(rounds):
@@ -260,8 +299,10 @@ def merge_small_regions(
     if small_pts.any() and (~small_pts).any():
         big_idx = np.flatnonzero(~small_pts)
         k = min(8, len(big_idx))
-        _, nearest = cKDTree(xyz[big_idx]).query(xyz[small_pts], k=k, workers=-1)
-        nearest = big_idx[np.asarray(nearest).reshape(-1, k)]
+        nearest = None if tree is None else nearest_among(tree, xyz, small_pts, k)
+        if nearest is None:
+            _, found = cKDTree(xyz[big_idx]).query(xyz[small_pts], k=k, workers=-1)
+            nearest = big_idx[np.asarray(found).reshape(-1, k)]
         same = groups[nearest] == groups[small_pts][:, None]
         pick = np.where(same.any(axis=1), same.argmax(axis=1), 0)
         regions = regions.copy()

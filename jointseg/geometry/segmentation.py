@@ -414,7 +414,13 @@ def _regions(
         max_normal_deg=p.region_normal_deg,
     )
     return clustering.merge_small_regions(
-        graph, work.xyz, regions, groups, work.weights, min_points=p.min_region_points
+        graph,
+        work.xyz,
+        regions,
+        groups,
+        work.weights,
+        min_points=p.min_region_points,
+        tree=work.tree,
     )
 
 

@@ -269,9 +269,33 @@ def test_region_growing_and_merging_match_the_reference(seed: int) -> None:
     assert len(np.unique(want)) > 5  # the case is not trivial
     weights = rng.integers(1, 4, len(xyz)).astype(np.float64)
     for w in (None, weights):
-        merged = clustering.merge_small_regions(graph, xyz, got, groups, w, min_points=40)
         want_merged = _reference_merge_small(graph, xyz, want, groups, w, min_points=40)
-        np.testing.assert_array_equal(merged, want_merged)
+        for tree in (None, cKDTree(xyz)):
+            merged = clustering.merge_small_regions(
+                graph, xyz, got, groups, w, min_points=40, tree=tree
+            )
+            np.testing.assert_array_equal(merged, want_merged)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_nearest_among_the_others_is_their_own_trees_answer(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    xyz = _cloud(seed, n=2000, duplicates=0)
+    excluded = rng.random(len(xyz)) < [0.01, 0.3, 0.9][seed]
+    others = np.flatnonzero(~excluded)
+    for k in (1, 8):
+        got = clustering.nearest_among(cKDTree(xyz), xyz, excluded, k)
+        _, want = cKDTree(xyz[others]).query(xyz[excluded], k=k)
+        assert got is not None
+        np.testing.assert_array_equal(got, others[np.asarray(want).reshape(-1, k)])
+    # equally distant neighbours: two trees may order them differently, so no answer
+    grid = np.stack(np.meshgrid(*[np.arange(6.0)] * 3), axis=-1).reshape(-1, 3)
+    middle = np.zeros(len(grid), dtype=bool)
+    middle[len(grid) // 2] = True
+    assert clustering.nearest_among(cKDTree(grid), grid, middle, 8) is None
+    few = np.zeros(len(xyz), dtype=bool)
+    few[5:] = True  # five others for k + 1 = 9 asked
+    assert clustering.nearest_among(cKDTree(xyz), xyz, few, 8) is None
 
 
 @pytest.mark.parametrize("max_voxels", [50, 400, 100_000])
