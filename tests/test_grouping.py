@@ -317,3 +317,24 @@ def test_voxel_count_and_cell_centroids_are_voxel_index() -> None:
         got_inverse, got_centroids = cell_centroids(xyz, keys)
         np.testing.assert_array_equal(got_inverse, inverse)
         np.testing.assert_array_equal(got_centroids, centroids)
+
+
+@pytest.mark.parametrize("case", ["plain", "ties", "signed_zeros", "nan", "ints", "one"])
+def test_group_quantiles_sort_is_lexsorts_to_the_bit(case: str) -> None:
+    rng = np.random.default_rng(13)
+    n = 1 if case == "one" else 5000
+    group = rng.integers(0, 300, n)
+    values = rng.normal(size=n)
+    if case == "ties":
+        values = np.round(values, 1)
+    elif case == "signed_zeros":
+        values[rng.random(n) < 0.3] = 0.0
+        values[rng.random(n) < 0.3] = -0.0
+    elif case == "nan":
+        values[rng.random(n) < 0.05] = np.nan
+    elif case == "ints":
+        values = rng.integers(-5, 5, n)
+    want = values[np.lexsort((values, group))]
+    got = grouping._sorted_within_groups(group, values)
+    assert got.dtype == want.dtype
+    assert got.tobytes() == want.tobytes()  # -0.0 and 0.0 told apart, NaNs in place
