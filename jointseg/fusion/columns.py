@@ -57,8 +57,10 @@ class ClassColumns:
         """Per unit, the sum of each class's probabilities (U, C), float64: the
         :func:`jointseg.grouping.group_sums` of the row-major array, to the bit."""
         out = np.zeros((n_units, len(self.values)))
+        weights = np.empty(self.values.shape[1])  # one float64 copy, reused class by class
         for c in np.flatnonzero(self.live):
-            out[:, c] = np.bincount(unit, weights=self.values[c], minlength=n_units)
+            np.copyto(weights, self.values[c])
+            out[:, c] = np.bincount(unit, weights=weights, minlength=n_units)
         return out
 
     def entropy(self) -> np.ndarray:
@@ -66,24 +68,31 @@ class ClassColumns:
         :func:`jointseg.fusion.learned.normalised_entropy` of the row-major array, to the
         bit."""
         n_classes, n = self.values.shape
-        live = np.flatnonzero(self.live)
+        runs = _runs(self.live)
         out = np.empty(n)
+        block_buf = np.empty((n_classes, min(n, BLOCK)))
+        terms_buf = np.empty_like(block_buf)
         for start in range(0, n, BLOCK):
-            block = self.values[:, start : start + BLOCK]
-            if len(live) < n_classes:
-                block = block[live]
-            block = np.asarray(block, dtype=np.float64)
-            terms = block + 1e-6
-            np.log(terms, out=terms)
-            terms *= block
-            rows: list[np.ndarray] = list(terms)
-            if len(live) < n_classes:
-                dead = np.full(block.shape[1], -0.0)  # 0 * log(0 + 1e-6)
-                rows = [dead] * n_classes
-                for i, c in enumerate(live):
-                    rows[c] = terms[i]
-            out[start : start + BLOCK] = -_row_sums(rows)
+            width = min(BLOCK, n - start)
+            block, terms = block_buf[:, :width], terms_buf[:, :width]
+            np.copyto(block, self.values[:, start : start + width])
+            for lo, hi, live in runs:
+                if not live:
+                    terms[lo:hi] = -0.0  # 0 * log(0 + 1e-6)
+                    continue
+                np.add(block[lo:hi], 1e-6, out=terms[lo:hi])
+                np.log(terms[lo:hi], out=terms[lo:hi])
+                terms[lo:hi] *= block[lo:hi]
+            np.negative(_row_sums(list(terms)), out=out[start : start + width])
         return out / np.log(n_classes)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int, bool]]:
+    """Runs of equal ``flags``: (start, stop, flag)."""
+    if len(flags) == 0:
+        return []
+    edges = [0, *(np.flatnonzero(np.diff(flags.astype(np.int8))) + 1).tolist(), len(flags)]
+    return [(lo, hi, bool(flags[lo])) for lo, hi in zip(edges[:-1], edges[1:], strict=True)]
 
 
 def rows_entropy(probs: np.ndarray) -> np.ndarray:

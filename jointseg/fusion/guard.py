@@ -113,7 +113,7 @@ def segment_cells(xyz: np.ndarray, seg: np.ndarray, cell_size: float) -> tuple[n
     n_units : int
     """
     cells, n_cells = aligned_cell_keys(xyz, cell_size)
-    ids, unit = compact_ids(seg.astype(np.int64) * n_cells + cells)
+    ids, unit = compact_ids(seg.astype(np.int64, copy=False) * n_cells + cells)
     return unit, len(ids)
 
 
@@ -121,15 +121,21 @@ def aligned_cell_keys(xyz: np.ndarray, size: float) -> tuple[np.ndarray, int]:
     """``cell_keys(xyz, size, aligned=True)`` to the bit, one coordinate at a time: the
     reductions over an (N, 3) array's first axis it would take are slow."""
     xyz = np.asarray(xyz)
-    if xyz.ndim != 2 or len(xyz) == 0 or xyz.shape[1] == 0:
+    if xyz.ndim != 2 or len(xyz) == 0 or xyz.shape[1] == 0 or xyz.dtype != np.float64:
         return cell_keys(xyz, size, aligned=True)
     keys = np.zeros(len(xyz), dtype=np.int64)
     n_keys = 1
     for axis in range(xyz.shape[1]):
-        cells = np.floor(np.ascontiguousarray(xyz[:, axis]) / size).astype(np.int64)
-        cells -= cells.min()
-        dim = int(cells.max()) + 1
+        cells = xyz[:, axis] / size
+        np.floor(cells, out=cells)
+        # whole numbers: their least is taken off exactly in float64, and float minima and
+        # maxima are far cheaper than int64 ones
+        lo, hi = cells.min(), cells.max()
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            return cell_keys(xyz, size, aligned=True)
+        cells -= lo
+        dim = int(hi - lo) + 1
         keys *= dim
-        keys += cells
+        keys += cells.astype(np.int64)
         n_keys *= dim
     return keys, n_keys

@@ -98,8 +98,11 @@ FEATURES_BEFORE_STRUCTURE = FEATURES[:17]
 #: Probabilities are clipped to [EPS, 1 - EPS] before the logit (taken in float64, as the
 #: entropy is: see :func:`normalised_entropy`).
 EPS = 1e-4
-#: Rows whose entropy is taken at once (float64 copies of at most this many rows).
+#: :class:`ClassTally` sums the probabilities in blocks of this many rows (their rounding is
+#: the model's thresholds'; the name is from when the entropy was taken in such blocks too).
 ENTROPY_BLOCK = 1 << 18
+#: Rows of a block :class:`ClassTally` converts to float64 at once.
+TALLY_ROWS = 1 << 13
 #: Classes that are the room's shell: a label moving between them and an object class is the
 #: vote's riskiest change (a board in its wall plane), so the model sees it.
 STRUCTURAL = np.zeros(NUM_CLASSES, dtype=bool)
@@ -548,16 +551,10 @@ class ClassTally:
         """The tally of points labelled ``labels`` (N,) with probabilities ``probs`` (N, C)."""
         labels = np.asarray(labels, dtype=np.int64)
         n_classes = probs.shape[1]
-        expected = np.zeros(n_classes)
-        for start in range(0, len(labels), ENTROPY_BLOCK):
-            # a C-contiguous block's first axis is summed row after row, 13 sums side by side
-            expected += np.asarray(probs[start : start + ENTROPY_BLOCK], dtype=np.float64).sum(
-                axis=0
-            )
         own = _at(probs, np.arange(len(labels)), labels)
         return cls(
             counts=np.bincount(labels, minlength=n_classes).astype(np.float64),
-            expected=expected,
+            expected=_expected(probs),
             agreed=np.bincount(labels, weights=own, minlength=n_classes),
         )
 
@@ -586,6 +583,30 @@ class ClassTally:
         union = self._union()
         iou = np.where(union > 0, self.agreed / np.maximum(union, 1e-12), 1.0)
         return np.clip(iou, MIN_EXPECTED_IOU, 1.0)
+
+
+def _expected(probs: np.ndarray) -> np.ndarray:
+    """Each class's probability summed over the rows of ``probs`` (N, C) in float64: per block
+    of ENTROPY_BLOCK rows, row after row (as numpy sums a C-contiguous block's first axis), the
+    blocks' sums then added. A block is converted a part of TALLY_ROWS rows at a time into one
+    small buffer whose first row carries the block's sum so far, and summed by ``np.bincount``
+    over the flat buffer with each value's class as its bin (it adds in order, the classes side
+    by side), so the sums round as over the whole block."""
+    n, n_classes = probs.shape
+    expected = np.zeros(n_classes)
+    buf = np.empty((min(n, TALLY_ROWS) + 1, n_classes))
+    bins = np.tile(np.arange(n_classes), len(buf))
+    for start in range(0, n, ENTROPY_BLOCK):
+        stop = min(start + ENTROPY_BLOCK, n)
+        block_sum = np.zeros(n_classes)
+        for part in range(start, stop, TALLY_ROWS):
+            rows = min(TALLY_ROWS, stop - part)
+            buf[0] = block_sum
+            np.copyto(buf[1 : rows + 1], probs[part : part + rows])
+            size = (rows + 1) * n_classes
+            block_sum = np.bincount(bins[:size], buf.reshape(-1)[:size], n_classes)
+        expected += block_sum
+    return expected
 
 
 def at_least_min_share(sizes: np.ndarray, points: float) -> np.ndarray:
