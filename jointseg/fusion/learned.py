@@ -598,7 +598,7 @@ def _expected(probs: np.ndarray) -> np.ndarray:
     bins = np.tile(np.arange(n_classes), len(buf))
     for start in range(0, n, ENTROPY_BLOCK):
         stop = min(start + ENTROPY_BLOCK, n)
-        block_sum = np.zeros(n_classes)
+        block_sum: np.ndarray = np.zeros(n_classes)
         for part in range(start, stop, TALLY_ROWS):
             rows = min(TALLY_ROWS, stop - part)
             buf[0] = block_sum
