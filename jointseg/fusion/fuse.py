@@ -165,7 +165,7 @@ def fuse(
     timings["transfer"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    segment_ids, seg = compact_ids(segments)
+    segment_ids, seg = _compact_segments(segments)
     ballot = _Ballot(xyz, seg, len(segment_ids), labels, probs, params, totals)
     vote = _vote(ballot, main_plane, structure, timings, t, has_colour)
     return _result(vote, labels, segment_ids, params, timings)
@@ -404,7 +404,17 @@ def _confidence(
         own = (fused == labels).astype(np.float64)
     else:
         own = _pick(probs, np.arange(len(fused)), fused)
-    return (0.5 * (own + unit_share)).astype(np.float32)
+    mean = np.add(own, unit_share, dtype=np.float64)
+    mean *= 0.5
+    return mean.astype(np.float32)
+
+
+def _compact_segments(segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`compact_ids` of the (non-negative) segment ids, at once where they already run
+    0..S-1 without a gap (as the geometry numbers them)."""
+    if len(segments) and not (np.bincount(segments) > 0).all():
+        return compact_ids(segments)
+    return np.arange(int(segments.max()) + 1 if len(segments) else 0), segments
 
 
 def _pick(table: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

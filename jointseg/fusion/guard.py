@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.fusion.params import FusionParams
-from jointseg.grouping import cell_keys, compact_ids
+from jointseg.grouping import DENSE_SPAN_FACTOR, cell_keys, compact_ids
 
 
 def top_two_shares(votes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -113,8 +113,19 @@ def segment_cells(xyz: np.ndarray, seg: np.ndarray, cell_size: float) -> tuple[n
     n_units : int
     """
     cells, n_cells = aligned_cell_keys(xyz, cell_size)
-    ids, unit = compact_ids(seg.astype(np.int64, copy=False) * n_cells + cells)
-    return unit, len(ids)
+    keys = seg.astype(np.int64, copy=False) * n_cells + cells
+    n_seg = int(seg.max()) + 1 if len(seg) else 0
+    if len(seg) == 0 or seg.min() < 0 or n_seg * n_cells > DENSE_SPAN_FACTOR * len(seg):
+        ids, unit = compact_ids(keys)
+        return unit, len(ids)
+    # every key lies in [0, n_seg * n_cells): a unit's number is its key's rank among the
+    # keys present (compact_ids's numbering), without the keys' least and largest
+    present = np.zeros(n_seg * n_cells, dtype=bool)
+    present[keys] = True
+    rank = np.cumsum(present, dtype=np.int32 if len(present) < 2**31 else np.int64)
+    unit = rank[keys].astype(np.int64)
+    unit -= 1
+    return unit, int(rank[-1])
 
 
 def aligned_cell_keys(xyz: np.ndarray, size: float) -> tuple[np.ndarray, int]:
