@@ -89,12 +89,17 @@ def components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     edges; edges sorted by ``src`` (the graph's own, and every subset of them) go straight into
     a CSR matrix without the COO conversion's sort.
     """
-    if len(src) == 0 or bool(np.all(src[1:] >= src[:-1])):
+    if is_sorted(src):
         graph = csr_matrix((np.ones(len(src)), dst, row_pointers(src, n)), shape=(n, n))
     else:
         graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n)).tocsr()
     _, labels = connected_components(graph, directed=False)
     return labels.astype(np.int64)
+
+
+def is_sorted(src: np.ndarray) -> bool:
+    """Whether ``src`` never decreases (the graph's edges and every subset of them)."""
+    return len(src) < 2 or bool(np.all(src[1:] >= src[:-1]))
 
 
 def row_pointers(src: np.ndarray, n: int) -> np.ndarray:
@@ -152,11 +157,15 @@ def smooth_colours(graph: NeighbourGraph, rgb: np.ndarray, edges: np.ndarray) ->
     """
     src, dst = graph.src[edges], graph.dst[edges]
     weights = np.ones(len(src), dtype=np.float32)
-    # the graph's edges come sorted by src: the CSR matrix the COO conversion makes, built
-    # directly (its sum_duplicates sorts each row's columns as the conversion does, so the
-    # float32 sums run in the same order)
-    adjacency = csr_matrix((weights, dst, row_pointers(src, graph.n)), shape=(graph.n, graph.n))
-    adjacency.sum_duplicates()
+    shape = (graph.n, graph.n)
+    if is_sorted(src):
+        # the graph's edges come sorted by src: the CSR matrix the COO conversion makes, built
+        # directly (its sum_duplicates sorts each row's columns as the conversion does, so the
+        # float32 sums run in the same order)
+        adjacency = csr_matrix((weights, dst, row_pointers(src, graph.n)), shape=shape)
+        adjacency.sum_duplicates()
+    else:
+        adjacency = coo_matrix((weights, (src, dst)), shape=shape).tocsr()
     colour = rgb.astype(np.float32)
     total = adjacency @ colour + colour
     count = np.bincount(src, minlength=graph.n).astype(np.float32) + 1.0

@@ -245,6 +245,11 @@ def test_smooth_colours_and_colour_noise_match_the_reference(seed: int) -> None:
     want = _reference_smooth(graph, rgb, edges)
     assert got.dtype == want.dtype == np.float32
     np.testing.assert_array_equal(got, want)
+    order = np.random.default_rng(seed).permutation(len(graph.src))  # a graph built otherwise
+    shuffled = clustering.NeighbourGraph(
+        graph.n, graph.src[order], graph.dst[order], graph.dist[order], graph.local
+    )
+    np.testing.assert_array_equal(clustering.smooth_colours(shuffled, rgb, edges[order]), want)
     nearest = np.flatnonzero(np.r_[True, graph.src[1:] != graph.src[:-1]])
     a, b = graph.src[nearest], graph.dst[nearest]
     want_noise = float(np.median(np.linalg.norm(got[a] - got[b], axis=1)))
