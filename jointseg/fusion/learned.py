@@ -29,10 +29,12 @@ from __future__ import annotations
 
 import json
 import threading
+from collections.abc import Callable
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cache, cached_property
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -112,6 +114,9 @@ STRUCTURAL[[CLASS_INDEX["ceiling"], CLASS_INDEX["floor"], CLASS_INDEX["wall"]]] 
 #: the network keeps them where it sees them.
 FIXTURE = np.zeros(NUM_CLASSES, dtype=bool)
 FIXTURE[[CLASS_INDEX[c] for c in ("window", "door", "board", "column", "beam")]] = True
+#: Whether the vote works out its entropies, wall fixtures and class tally in threads beside
+#: its sums (the same results either way; 0 runs everything in the caller's thread).
+WORKERS = 1
 #: :func:`offer_thresholds` counts every class as at least this share of the scan (a class
 #: of a few points would otherwise ask for certainty, or be joined on no evidence).
 MIN_CLASS_SHARE = 0.001
@@ -263,21 +268,28 @@ def _pick_offers(
     return point, offer, from_segment, only_structure
 
 
+def _unbelievable(
+    xyz: np.ndarray, labels: np.ndarray, structure: StructureHint | None
+) -> np.ndarray:
+    """Points the network labelled a door or column of no believable size or place (bool, N;
+    :func:`implausible_doors`, :func:`implausible_columns`), the floor level the structure
+    reading's."""
+    floor_z = None if structure is None else floor_level(xyz[:, 2], structure.kind)
+    return implausible_doors(xyz, labels, floor_z) | implausible_columns(xyz, labels)
+
+
 def _structure_columns(
     structure: StructureHint | None,
     point: np.ndarray,
     offer: np.ndarray,
     own: np.ndarray,
     only_structure: np.ndarray,
-    xyz: np.ndarray,
-    labels: np.ndarray,
+    unbelievable: np.ndarray,
 ) -> list[np.ndarray]:
     """The structure reading's features of each offer: how sure it is of the offer and of
     the point's own label, whether only it makes the offer, whether the own label is a wall
-    fixture of a believable size (:func:`implausible_doors`)."""
-    floor_z = None if structure is None else floor_level(xyz[:, 2], structure.kind)
-    doors, columns = implausible_doors(xyz, labels, floor_z), implausible_columns(xyz, labels)
-    fixture = FIXTURE[own] & ~doors[point] & ~columns[point]
+    fixture of a believable size (not ``unbelievable``, :func:`_unbelievable`)."""
+    fixture = FIXTURE[own] & ~unbelievable[point]
     reads_offer = reads_own = np.zeros(len(point))
     if structure is not None:
         kind = np.asarray(structure.kind, dtype=np.int64)
@@ -329,26 +341,32 @@ def vote_offers(
     if n == 0:
         return _no_offers(n_seg, n_classes)
     columns = ClassColumns.of(probs)
-    seg_size, seg_votes, seg_soft = _shares(seg, n_seg, columns)
-    counts = label_histogram(seg, n_seg, labels, n_classes)
-    seg_hard = counts / np.maximum(seg_size, 1)[:, None]
-    cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
-    cell_count, _, cell_soft = _shares(cell, n_cells, columns)
-    entropy = columns.entropy()
+    # the entropies, the doors' and columns' sizes and the cells' votes are worked out beside
+    # the segments' votes (numpy lets go of the GIL in its loops: a second core shares them)
+    with _workers(3) as pool:
+        entropy_job = pool.submit(columns.entropy)
+        unbelievable_job = pool.submit(_unbelievable, xyz, labels, structure)
+        cells_job = pool.submit(_cell_shares, xyz, seg, n_seg, cell_size, columns)
+        seg_size, seg_votes, seg_soft = _shares(seg, n_seg, columns)
+        counts = label_histogram(seg, n_seg, labels, n_classes)
+        seg_hard = counts / np.maximum(seg_size, 1)[:, None]
+        cell, n_cells, cell_count, cell_soft = cells_job.result()
+        seg_label, cell_label = seg_soft.argmax(axis=1)[seg], cell_soft.argmax(axis=1)[cell]
+        point, offer, from_segment, only_structure = _pick_offers(
+            labels, seg_label, cell_label, probs, min_support, structure
+        )
+        entropy = entropy_job.result()
+        unbelievable = unbelievable_job.result()
     del columns
     if totals is None:
         totals = (n, float(entropy.mean()), _disagreement(seg, n_seg, labels, counts))
     scan_points, scan_entropy, scan_disagreement = totals
     seg_entropy = np.bincount(seg, weights=entropy, minlength=n_seg) / np.maximum(seg_size, 1)
     plane_share = _plane_share(seg, n_seg, seg_size, main_plane)
-    seg_label, cell_label = seg_soft.argmax(axis=1)[seg], cell_soft.argmax(axis=1)[cell]
-    point, offer, from_segment, only_structure = _pick_offers(
-        labels, seg_label, cell_label, probs, min_support, structure
-    )
     s, c, own = seg[point], cell[point], labels[point]
     seg_of_cell = np.zeros(n_cells, dtype=np.int64)
     seg_of_cell[c] = s
-    structure_cols = _structure_columns(structure, point, offer, own, only_structure, xyz, labels)
+    structure_cols = _structure_columns(structure, point, offer, own, only_structure, unbelievable)
     cols = np.empty((len(FEATURES), len(point)))
     cols[0] = _logit(_at(probs, point, own))
     cols[1] = _logit(_at(probs, point, offer))
@@ -374,6 +392,23 @@ def vote_offers(
     context = (((c * n_classes + own) * n_classes + offer) * 2 + fixture) * 4
     context += from_segment * 2 + only_structure
     return Offers(point, offer, cols.T, seg_label.astype(np.int64), seg_votes, context)
+
+
+def _workers(n: int) -> Executor:
+    """Threads for work done beside the caller's (:data:`WORKERS` 0: none, run in place)."""
+    return ThreadPoolExecutor(max_workers=n) if WORKERS else _InPlace()
+
+
+class _InPlace(Executor):
+    """An executor that runs each job when it is submitted."""
+
+    def submit(self, fn: Callable[..., T], /, *args: Any, **kwargs: Any) -> Future[T]:
+        done: Future[T] = Future()
+        try:
+            done.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # handed to the caller by result(), as a thread would
+            done.set_exception(exc)
+        return done
 
 
 def _at(probs: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -405,6 +440,16 @@ def _cell_share(
     return np.log10(cell_count[c] / np.maximum(seg_size[s], 1))
 
 
+def _cell_shares(
+    xyz: np.ndarray, seg: np.ndarray, n_seg: int, cell_size: float, columns: ClassColumns
+) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """Every point's cell (its segment cut into cubes of ``cell_size``; the segment where 0),
+    the number of cells, their sizes and soft shares (:func:`_shares`)."""
+    cell, n_cells = segment_cells(xyz, seg, cell_size) if cell_size > 0 else (seg, n_seg)
+    size, _, soft = _shares(cell, n_cells, columns)
+    return cell, n_cells, size, soft
+
+
 def _disagreement(seg: np.ndarray, n_seg: int, labels: np.ndarray, counts: np.ndarray) -> float:
     """:func:`disagreement_share` from the segments' label counts (N, C) already taken."""
     if counts.shape[1] != NUM_CLASSES:
@@ -412,6 +457,8 @@ def _disagreement(seg: np.ndarray, n_seg: int, labels: np.ndarray, counts: np.nd
     majority = np.where(counts.sum(axis=1) > 0, counts.argmax(axis=1), -1)
     return float(np.mean(majority[seg] != labels))
 
+
+T = TypeVar("T")
 
 #: Guards each model's cache of specialised trees (fusions may run in threads).
 _PLANS_LOCK = threading.Lock()
@@ -730,24 +777,30 @@ def learned_labels(
     """
     model = model or shipped_model()
     labels = np.asarray(labels, dtype=np.int64)
-    offers = vote_offers(
-        xyz,
-        seg,
-        n_seg,
-        labels,
-        probs,
-        cell_size=model.cell_size,
-        main_plane=main_plane,
-        min_support=min_support,
-        totals=totals,
-        structure=structure if model.weighs_structure else None,
-        has_colour=has_colour,
-    )
-    p = model.probability(offers.features, offers.context) if len(offers.point) else np.zeros(0)
+    weigh_classes = metric_iou == "auto" or float(metric_iou) < 1
+    with _workers(1) as pool:
+        tally_job = None
+        if weigh_classes and classes is None:
+            tally_job = pool.submit(ClassTally.of, labels, probs)
+        offers = vote_offers(
+            xyz,
+            seg,
+            n_seg,
+            labels,
+            probs,
+            cell_size=model.cell_size,
+            main_plane=main_plane,
+            min_support=min_support,
+            totals=totals,
+            structure=structure if model.weighs_structure else None,
+            has_colour=has_colour,
+        )
+        p = model.probability(offers.features, offers.context) if len(offers.point) else np.zeros(0)
+        tally = classes if tally_job is None else tally_job.result()
     p = np.where(seen_fixtures(offers.features, offers.label, seen_fixture_share), 0.0, p)
     at: float | np.ndarray = threshold
-    if metric_iou == "auto" or float(metric_iou) < 1:
-        tally = ClassTally.of(labels, probs) if classes is None else classes
+    if weigh_classes:
+        assert tally is not None
         own = labels[offers.point]
         at = offer_thresholds(tally, own, offers.label, threshold, metric_iou)
     return best_offers(labels, offers.point, offers.label, p, at), offers.segment_votes

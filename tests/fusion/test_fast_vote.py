@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
-from jointseg.fusion import FusionParams, StructureHint, fixtures, fuse, trees
+from jointseg.fusion import FusionParams, StructureHint, fixtures, fuse, learned, trees
 from jointseg.fusion.columns import ClassColumns, rows_entropy
 from jointseg.fusion.columns import _pairwise_matches_numpy as pairwise_matches_numpy
 from jointseg.fusion.guard import aligned_cell_keys, segment_cells
@@ -269,12 +269,18 @@ def room_inputs(seed: int, points: int, dead: bool) -> dict:
 
 
 @pytest.mark.parametrize(
-    ("seed", "dead", "structure", "metric_iou"),
-    [(0, False, True, "auto"), (1, True, True, "auto"), (2, False, False, 0.6)],
+    ("seed", "dead", "structure", "metric_iou", "workers"),
+    [(0, False, True, "auto", 1), (1, True, True, "auto", 0), (2, False, False, 0.6, 1)],
 )
 def test_the_fast_vote_is_the_plain_vote(
-    seed: int, dead: bool, structure: bool, metric_iou
+    monkeypatch: pytest.MonkeyPatch,
+    seed: int,
+    dead: bool,
+    structure: bool,
+    metric_iou: float | str,
+    workers: int,
 ) -> None:
+    monkeypatch.setattr(learned, "WORKERS", workers)
     given = room_inputs(seed, 25_000, dead)
     hint = given["structure"] if structure else None
     n_seg = int(given["seg"].max()) + 1
@@ -304,6 +310,19 @@ def test_the_fast_vote_is_the_plain_vote(
     np.testing.assert_array_equal(fused, plain_fused)
     np.testing.assert_array_equal(votes, plain_votes)
     assert (fused != given["labels"]).any()
+
+
+def test_a_failure_beside_the_vote_reaches_the_caller(monkeypatch: pytest.MonkeyPatch) -> None:
+    given = room_inputs(5, 5000, False)
+
+    def broken(*args: object, **kwargs: object) -> np.ndarray:
+        raise RuntimeError("door sizes failed")
+
+    monkeypatch.setattr(learned, "implausible_doors", broken)
+    for workers in (0, 1):
+        monkeypatch.setattr(learned, "WORKERS", workers)
+        with pytest.raises(RuntimeError, match="door sizes failed"):
+            fuse(given["xyz"], given["seg"], given["labels"], given["probs"])
 
 
 def test_fusing_the_same_scan_twice_gives_the_same_bits() -> None:
