@@ -100,7 +100,8 @@ def _densest_layer(
     centimetres to decimetres outside the wall itself; the wall is the densest layer near the
     face, so the face set is centred there instead.
     """
-    near = coord[(inward * (coord - value) >= -bin_width) & (inward * (coord - value) <= depth)]
+    inside = inward * (coord - value)
+    near = coord[(inside >= -bin_width) & (inside <= depth)]
     if len(near) == 0:
         return value
     bins = max(1, int(np.ceil((depth + bin_width) / bin_width)))
