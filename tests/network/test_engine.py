@@ -1,6 +1,6 @@
-"""RandLA-Net's forward pass through OpenVINO (network.randlanet.engine "openvino"): the same
-labels as torch, compiled once per crop shape, the export kept in the cache for the next
-process.
+"""RandLA-Net's forward pass through OpenVINO (network.randlanet.engine, "auto" by default): the
+same labels as torch, compiled once per crop shape, the export kept in the cache for the next
+process, run by a forked worker, and torch where OpenVINO cannot run.
 
 OpenVINO's thread pools do not survive a fork, and other tests in this process fork (training
 batch workers), so everything that loads OpenVINO runs in a child interpreter of its own.
@@ -35,11 +35,11 @@ from jointseg.network.registry import load
 from jointseg.synth import make_room
 
 room = make_room(21, points=20_000)
-fast = load("randlanet", params=RandLANetParams(engine="openvino"))
+fast = load("randlanet")  # the default engine
 b = fast.predict(room, seed=0)
 out = {"engines": [fast.engine], "labels": b.labels[::97].tolist()}
 if sys.argv[1:] != ["again"]:  # the second process only reads the cached export
-    plain = load("randlanet")
+    plain = load("randlanet", params=RandLANetParams(engine="torch"))
     a = plain.predict(room, seed=0)
     out.update(engines=[plain.engine, fast.engine], agree=float((a.labels == b.labels).mean()),
                max_prob_diff=float(np.abs(a.probs - b.probs).max()))
@@ -74,12 +74,55 @@ print(json.dumps({"same": same, "exports": len(list(folder.glob("*.onnx")))}))
 
 NO_OPENVINO = """
 import json, sys
+from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.registry import load
 from jointseg.synth import make_room
 
-net = load("randlanet")
+net = load("randlanet", params=RandLANetParams(engine="torch"))
 net.predict(make_room(23, points=20_000), seed=0)
 print(json.dumps({"engine": net.engine, "openvino_loaded": "openvino" in sys.modules}))
+"""
+
+
+FORKED = """
+import json, multiprocessing, sys
+from jointseg.network.randlanet.params import RandLANetParams
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+net = load("randlanet")  # loaded once, as a worker pool's parent does, then forked
+room = make_room(24, points=20_000)
+if sys.argv[1:] == ["ran"]:  # the parent ran it too: OpenVINO's and torch's pools exist here
+    net.predict(room, seed=0)
+
+def work(queue):
+    out = net.predict(room, seed=0)
+    queue.put({"engine": net.engine, "labels": out.labels.tolist()})
+
+ctx = multiprocessing.get_context("fork")
+queue = ctx.Queue()
+child = ctx.Process(target=work, args=(queue,))
+child.start()
+got = queue.get(timeout=240)
+child.join(30)
+plain = load("randlanet", params=RandLANetParams(engine="torch")).predict(room, seed=0)
+agree = sum(a == b for a, b in zip(got["labels"], plain.labels.tolist())) / len(plain.labels)
+print(json.dumps({"exit": child.exitcode, "engine": got["engine"], "agree": agree,
+                  "parent_loaded_openvino": "openvino" in sys.modules}))
+"""
+
+UNUSABLE_CACHE = """
+import json
+import numpy as np
+from jointseg.network.randlanet.params import RandLANetParams
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+room = make_room(25, points=20_000)
+auto = load("randlanet")
+a = auto.predict(room, seed=0)
+b = load("randlanet", params=RandLANetParams(engine="torch")).predict(room, seed=0)
+print(json.dumps({"engine": auto.engine, "same": bool(np.array_equal(a.labels, b.labels))}))
 """
 
 
@@ -112,6 +155,44 @@ def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) ->
 def test_shapes_beyond_the_compiled_ones_run_on_torch(tmp_path) -> None:
     out = in_child(SHAPES_BEYOND, tmp_path, str(tmp_path / "ov"))
     assert out == {"same": True, "exports": 0}  # torch's own output, nothing compiled
+
+
+@pytest.mark.slow
+def test_a_forked_worker_runs_the_default_engine(tmp_path: Path) -> None:
+    out = in_child(FORKED, tmp_path)
+    assert out["exit"] == 0 and out["engine"] == "openvino"
+    assert out["agree"] >= 0.995
+    assert not out["parent_loaded_openvino"]  # the child compiled for itself
+
+
+@pytest.mark.slow
+def test_a_worker_forked_after_its_parent_ran_the_network_runs_it_on_torch(
+    tmp_path: Path,
+) -> None:
+    """OpenVINO's pool does not survive a fork (such a child hung): the child takes torch, on one
+    thread, and gives the same labels."""
+    out = in_child(FORKED, tmp_path, "ran")
+    assert out["exit"] == 0 and out["engine"] == "torch"
+    assert out["agree"] >= 0.995
+
+
+@pytest.mark.slow
+def test_the_default_engine_falls_back_to_torch_when_openvino_cannot_compile(
+    tmp_path: Path,
+) -> None:
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder would go")
+    out = in_child(UNUSABLE_CACHE, blocker)
+    assert out == {"engine": "torch", "same": True}
+
+
+def test_auto_is_openvino_on_the_cpu_torch_where_it_cannot_run(monkeypatch) -> None:
+    net = load("randlanet")
+    assert net.params.engine == "auto" and net.engine == "openvino"
+    monkeypatch.setattr("jointseg.network.randlanet.predict.usable_here", lambda: False)
+    assert net.engine == "torch"  # e.g. forked from a process that ran OpenVINO
+    monkeypatch.setattr("jointseg.network.randlanet.predict.openvino_available", lambda: False)
+    assert net.engine == "torch"
 
 
 def test_the_engine_is_torch_on_a_gpu_and_refused_when_missing(monkeypatch) -> None:

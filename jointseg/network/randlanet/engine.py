@@ -33,6 +33,16 @@ def openvino_available() -> bool:
     return all(importlib.util.find_spec(m) is not None for m in ("openvino", "onnx"))
 
 
+#: The process that created an OpenVINO runtime, if any (its thread pool lives there).
+_runtime_pid: int | None = None
+
+
+def usable_here() -> bool:
+    """Whether this process may run OpenVINO: not in a child forked from a process that already
+    had a runtime (OpenVINO's thread pool does not survive a fork: such a child hangs)."""
+    return _runtime_pid is None or _runtime_pid == os.getpid()
+
+
 def cache_dir() -> Path:
     """``$JOINTSEG_CACHE`` or ``~/.cache/jointseg``, its ``openvino`` folder."""
     root = os.environ.get("JOINTSEG_CACHE") or Path.home() / ".cache" / "jointseg"
@@ -54,17 +64,30 @@ class FlatInputs(torch.nn.Module):
 class CompiledForward:
     """A callable with the model's forward signature that runs it through OpenVINO."""
 
-    def __init__(self, model: torch.nn.Module, threads: int, folder: Path | None = None) -> None:
+    def __init__(
+        self,
+        model: torch.nn.Module,
+        threads: int,
+        folder: Path | None = None,
+        *,
+        strict: bool = True,
+    ) -> None:
         import openvino as ov
 
         self.model = model
+        self.strict = strict
         self.threads = threads
         self.folder = folder or cache_dir()
         self.folder.mkdir(parents=True, exist_ok=True)
+        global _runtime_pid
+        if not usable_here():
+            raise RuntimeError("forked from a process that ran OpenVINO")
         self.core = ov.Core()
+        _runtime_pid = os.getpid()
         self.core.set_property({"CACHE_DIR": str(self.folder / "blobs")})
         state = b"".join(t.detach().cpu().numpy().tobytes() for t in model.state_dict().values())
         self.digest = hashlib.sha1(state).hexdigest()[:16]
+        #: infer request per input shape; None for a shape that failed to compile (torch runs it)
         self.compiled: dict[tuple, Any] = {}
 
     def __call__(
@@ -77,13 +100,25 @@ class CompiledForward:
     ) -> torch.Tensor:
         flat = [features, *coords, *neighbours, *pools, *upsamples]
         key = tuple(tuple(t.shape) for t in flat)
+        if key not in self.compiled and len(self.compiled) < MAX_SHAPES:
+            self.compiled[key] = self._compile_or_none(flat, key)
         request = self.compiled.get(key)
         if request is None:
-            if len(self.compiled) >= MAX_SHAPES:
-                return self.model(features, coords, neighbours, pools, upsamples)
-            request = self.compiled[key] = self._compile(flat, key)
+            return self.model(features, coords, neighbours, pools, upsamples)
         out = request.infer([t.numpy() for t in flat])[0]
         return torch.from_numpy(np.array(out))
+
+    def _compile_or_none(self, flat: list[torch.Tensor], key: tuple) -> Any:
+        """:meth:`_compile`, or None when it fails and the engine was not asked for by name
+        (the default engine falls back to torch for that shape, with a warning)."""
+        try:
+            return self._compile(flat, key)
+        except Exception as exc:  # export and compilation raise many types
+            if self.strict:
+                raise
+            log.warning("OpenVINO could not compile crops of %s points (%s): torch runs them",
+                        key[0][1], exc)  # fmt: skip
+            return None
 
     def _compile(self, flat: list[torch.Tensor], key: tuple) -> Any:
         """The infer request of one input shape, from the cached export when there is one."""

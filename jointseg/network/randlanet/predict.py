@@ -12,6 +12,7 @@ needs 50 crops instead of 69 and four real Area_6 rooms 47 instead of 61, at the
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -38,7 +39,11 @@ from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet.crops import Batch, build_batch
 from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
-from jointseg.network.randlanet.engine import CompiledForward, openvino_available
+from jointseg.network.randlanet.engine import (
+    CompiledForward,
+    openvino_available,
+    usable_here,
+)
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.views import in_view
@@ -48,6 +53,32 @@ from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)
 STAGE = "network"
+
+#: torch's threads when this process last forked, and in a forked child its parent's.
+_threads_at_fork = 0
+_parent_threads: int | None = None
+
+
+def _before_fork() -> None:
+    global _threads_at_fork
+    _threads_at_fork = torch.get_num_threads()
+
+
+def _in_forked_child() -> None:
+    """torch's OpenMP pool does not survive a fork: a child whose parent had used it hangs at its
+    first parallel operation. The child keeps torch to one thread; OpenVINO, whose pool is made
+    in the child, gets the parent's threads (:func:`forward_threads`)."""
+    global _parent_threads
+    _parent_threads = _threads_at_fork
+    torch.set_num_threads(1)
+
+
+os.register_at_fork(before=_before_fork, after_in_child=_in_forked_child)
+
+
+def forward_threads() -> int:
+    """Threads of an OpenVINO forward pass: torch's, or in a forked child its parent's."""
+    return _parent_threads or torch.get_num_threads()
 
 
 @contextmanager
@@ -92,13 +123,17 @@ class RandLANetPredictor(NetworkPredictor):
         self.params = params or RandLANetParams()
         self.min_possibility = self.params.coverage
         self._compiled: CompiledForward | None = None
+        self._compiled_pid = -1
+        self._failed_pid = -1
 
     @property
     def engine(self) -> str:
-        """What runs the forward pass: ``openvino`` when asked for and on the CPU, else
-        ``torch``."""
+        """What runs the forward pass: ``openvino`` on the CPU when asked for, or by default
+        (``auto``) where it is installed and usable in this process; else ``torch``."""
         if self.device.type != "cpu" or self.params.engine == "torch":
             return "torch"
+        if self.params.engine == "auto":
+            return "openvino" if openvino_available() and self._openvino_usable() else "torch"
         if not openvino_available():
             raise ConfigError(
                 "network.randlanet.engine 'openvino': install it with pip install "
@@ -106,11 +141,30 @@ class RandLANetPredictor(NetworkPredictor):
             )
         return "openvino"
 
+    def _openvino_usable(self) -> bool:
+        """False in a child forked from a process that ran OpenVINO, and once compiling failed
+        in this process (e.g. a read-only cache folder): the default engine then falls back to
+        torch instead of hanging or failing the run."""
+        return usable_here() and self._failed_pid != os.getpid()
+
     def _forward(self) -> Callable[..., torch.Tensor]:
         if self.engine == "torch":
             return self.model
-        if self._compiled is None:
-            self._compiled = CompiledForward(self.model, torch.get_num_threads())
+        pid = os.getpid()
+        if self._compiled is None or self._compiled_pid != pid:
+            # a forked child never uses its parent's compiled model: OpenVINO's thread pool does
+            # not survive a fork, so each process compiles (from the shared cache) for itself
+            try:
+                self._compiled = CompiledForward(
+                    self.model, forward_threads(), strict=self.params.engine == "openvino"
+                )
+            except (OSError, RuntimeError) as exc:
+                if self.params.engine == "openvino":
+                    raise ConfigError(f"network.randlanet.engine 'openvino': {exc}") from exc
+                log.warning("OpenVINO unusable here (%s): the network runs on torch", exc)
+                self._failed_pid = pid
+                return self.model
+            self._compiled_pid = pid
         return self._compiled
 
     def _batches(
