@@ -391,7 +391,8 @@ def vote_offers(
     fixture = structure_cols[3]
     context = (((c * n_classes + own) * n_classes + offer) * 2 + fixture) * 4
     context += from_segment * 2 + only_structure
-    return Offers(point, offer, cols.T, seg_label.astype(np.int64), seg_votes, context)
+    segment_label = np.asarray(seg_label, dtype=np.int64)
+    return Offers(point, offer, cols.T, segment_label, seg_votes, context)
 
 
 def _workers(n: int) -> Executor:
