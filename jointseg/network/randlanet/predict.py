@@ -416,7 +416,7 @@ class RandLANetPredictor(NetworkPredictor):
     @property
     def grid_size(self) -> float:
         """Side (m) of the grid the network sub-samples a scan on."""
-        return float(self.model.config.grid_size)
+        return float(self.params.grid or self.model.config.grid_size)
 
 
 def load_randlanet(
