@@ -1,6 +1,7 @@
 """A Python client of the job service, pure HTTP (httpx): submit, wait, download.
 
-It does not import the service: anything that speaks the REST API works, on any machine.
+It does not import the service: anything that speaks the REST API works, on any machine. httpx
+is imported when a client is made, not with this module: the CLI imports it for every command.
 
 Examples
 --------
@@ -19,14 +20,16 @@ import time
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import httpx
 from pydantic import BaseModel, ConfigDict
 
 from jointseg.exceptions import ConfigError, JobFailed, ServiceError
 from jointseg.io.atomic import atomic_open
 from jointseg.progress import ProgressFn
+
+if TYPE_CHECKING:
+    import httpx
 
 #: Environment variable holding the API key, when the service needs one.
 API_KEY_ENV = "JOINTSEG_API_KEY"
@@ -77,6 +80,8 @@ class JobClient:
     """
 
     def __init__(self, server: str, *, api_key: str | None = None, timeout: float = 30.0) -> None:
+        import httpx
+
         api_key = api_key or os.environ.get(API_KEY_ENV) or None
         headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
         self.server = server.rstrip("/")
@@ -98,6 +103,8 @@ class JobClient:
         self.http.close()
 
     def _request(self, method: str, url: str, **kwargs: Any) -> httpx.Response:
+        import httpx
+
         try:
             response = self.http.request(method, url, **kwargs)
         except httpx.HTTPError as exc:
@@ -113,6 +120,8 @@ class JobClient:
         self, path: str | os.PathLike[str], *, config: Mapping[str, Any] | None = None
     ) -> RemoteJob:
         """Upload a scan (streamed from disk) with an optional PipelineConfig as a dict."""
+        import httpx
+
         path = Path(path)
         if not path.is_file():
             raise ConfigError(f"{path}: file not found")
@@ -171,6 +180,8 @@ class JobClient:
     ) -> Path:
         """Save the result as ``out`` (format from its suffix: .ply, .las or .laz), atomically;
         of labels ``version`` (0: the machine's own; default: the current one)."""
+        import httpx
+
         out = Path(out)
         fmt = fmt or out.suffix.lower().lstrip(".")
         if f".{fmt}" not in RESULT_SUFFIXES:

@@ -8,6 +8,7 @@ no output behind; outputs are written atomically at the end.
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,6 +25,8 @@ from jointseg.network.registry import BACKENDS
 if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
     from jointseg.pipeline.config import PipelineConfig
     from jointseg.pipeline.segment import SegmentedFile
+
+log = logging.getLogger(__name__)
 
 #: Output formats that keep per-point fields (text formats would drop them).
 FIELD_EXTENSIONS = (".ply", ".las", ".laz", ".pcd", ".npz")
@@ -119,6 +122,21 @@ def _write_text(path: Path, text: str) -> None:
         fh.write(text.encode())
 
 
+def _import_pipeline(network: str) -> None:
+    """Import the code a run needs (seconds): open3d without its viewer
+    (:func:`~jointseg.lazy.import_open3d`), the pipeline, and the network's backend (torch), so
+    ``load_network`` in the report times the network's loading, not imports."""
+    from jointseg.lazy import import_open3d
+    from jointseg.network.registry import import_backend
+
+    started = time.perf_counter()
+    import_open3d()  # first: the pipeline imports open3d
+    import jointseg.pipeline.segment  # noqa: F401 - imported here to be timed
+
+    import_backend(network)
+    log.info("imports: %.2f s", time.perf_counter() - started)
+
+
 def segment_scan(
     source: Path = typer.Argument(..., help=SCAN_HELP),
     output: Path = typer.Option(
@@ -179,7 +197,7 @@ def segment_scan(
     info = probe_scan(source, max_points=max_points)
     if work_dir is not None and not work_dir.is_dir():
         raise ConfigError(f"--work-dir {work_dir}: not a folder")
-    # the pipeline (torch, open3d: seconds) only once every option holds
+    _import_pipeline(cfg.network.name)  # torch, open3d: only once every option holds
     from jointseg.pipeline import load_predictor, segment_file
 
     started = time.perf_counter()
@@ -273,9 +291,6 @@ def evaluate_scans(
     max_points: int = typer.Option(DEFAULT_MAX_POINTS, help="Refuse larger scans."),
 ) -> None:
     """Run the pipeline on labelled scans and print the paper's Table 1 and Table 2."""
-    from jointseg.pipeline import load_predictor, report_body, run
-    from jointseg.pipeline.tables import RoomScores, format_table, table1, table2, to_csv
-
     cfg = _config(config, network, weights, device)
     scans = _scan_paths(paths)
     for path in scans:  # refuse unlabelled input before any work
@@ -283,6 +298,10 @@ def evaluate_scans(
             raise ConfigError(f"{path}: has no ground-truth labels; eval needs labelled scans")
     if out is not None and out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: exists and is not a folder")
+    _import_pipeline(cfg.network.name)
+    from jointseg.pipeline import load_predictor, report_body, run
+    from jointseg.pipeline.tables import RoomScores, format_table, table1, table2, to_csv
+
     predictor = load_predictor(cfg.network)
     rooms: list[RoomScores] = []
     details: list[dict[str, Any]] = []

@@ -35,6 +35,7 @@ __all__ = [
     "available_backends",
     "backend",
     "has_weights",
+    "import_backend",
     "installed_backends",
     "load",
     "resolve_weights",
@@ -223,6 +224,19 @@ def load(
     chosen = params if params is not None else options.get(name)
     size = batch_size or default_batch_size(device)
     return record.load(path, device=device, batch_size=size, options=chosen)
+
+
+def import_backend(name: str = DEFAULT_BACKEND) -> None:
+    """Import the code backend ``name`` (or the one a weights path's suffix names) runs on:
+    torch and the model, seconds on a cold start, without reading any weights.
+
+    Why: a caller that times :func:`load` (the report's ``load_network``) imports first, so
+    the time it reports is the network's own and the imports are counted apart. An unknown
+    name imports nothing; :func:`load` says what is wrong with it.
+    """
+    record = REGISTRY.get(name) or REGISTRY.get(backend_for_suffix(name) or "")
+    if record is not None:
+        import_module(record.loader.partition(":")[0])
 
 
 def _missing_weights(name: str, path: Path, record: Backend) -> str:
