@@ -7,9 +7,11 @@ horizontal normal direction first lifts that limit for any yaw.
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
 
+from jointseg.lazy import import_open3d
 from jointseg.voxels import cell_centroids, voxel_count
+
+o3d = import_open3d()  # open3d without its Plotly viewer (jointseg.lazy)
 
 
 def estimate_normals(xyz: np.ndarray, *, k: int = 16) -> np.ndarray:

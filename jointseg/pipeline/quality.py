@@ -15,10 +15,10 @@ Quality = Literal["fast", "standard", "best"]
 
 #: What each preset sets, as a partial pipeline config.
 PRESETS: dict[str, dict[str, Any]] = {
-    # one pass: the network on a 6 cm grid (half the cells) with crops until each point is seen
-    # about once, the geometry on coarser voxels with fewer RANSAC tries
+    # one pass: the network on a 5 cm grid (two thirds of the cells) with crops until each point
+    # is seen about once, the geometry on coarser voxels with fewer RANSAC tries
     "fast": {
-        "network": {"randlanet": {"coverage": 0.05, "grid": 0.06}},
+        "network": {"randlanet": {"coverage": 0.05, "grid": 0.05}},
         "geometry": {"voxel_factor": 5.0, "ransac_iterations": 300},
     },
     "standard": {},

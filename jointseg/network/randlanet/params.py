@@ -54,6 +54,6 @@ class RandLANetParams(BaseModel):
         gt=0,
         le=0.2,
         description="Side (m) of the grid the network sub-samples a scan on; default: the "
-        "model's own (0.04 for the bundled ones). The fast quality preset takes 0.06: about half "
-        "the cells and crops (the network was trained with densities from 1 to 6 cm).",
+        "model's own (0.04 for the bundled ones). The fast quality preset takes 0.05: about "
+        "two thirds of the cells and crops (the network was trained with densities of 1-6 cm).",
     )
