@@ -20,6 +20,16 @@ from scipy.spatial import cKDTree
 from jointseg.grouping import compact_ids, sorted_distinct
 from jointseg.voxels import cell_means
 
+#: Edges handled at a time by the per-edge arithmetic: temporaries of a few megabytes stay in
+#: the cache and in memory already mapped, where whole-graph ones (tens of millions of edges on
+#: a big scan) fault in fresh pages on every step.
+EDGE_CHUNK = 1 << 18
+
+
+def edge_chunks(m: int) -> range:
+    """Start of each chunk of :data:`EDGE_CHUNK` edges among ``m``."""
+    return range(0, m, EDGE_CHUNK)
+
 
 @dataclass(frozen=True)
 class NeighbourGraph:
@@ -50,8 +60,12 @@ class NeighbourGraph:
             if adaptive <= 0:
                 mask = self.dist < distance
             else:
-                scale = np.maximum(self.local[self.src], self.local[self.dst])
-                mask = self.dist < np.maximum(distance, adaptive * scale)
+                mask = np.empty(len(self.dist), dtype=bool)
+                for s in edge_chunks(len(mask)):
+                    e = slice(s, s + EDGE_CHUNK)
+                    scale = np.maximum(self.local[self.src[e]], self.local[self.dst[e]])
+                    scale *= adaptive
+                    np.less(self.dist[e], np.maximum(scale, distance, out=scale), out=mask[e])
             mask.setflags(write=False)
             self._masks[key] = mask
         return self._masks[key]
@@ -64,11 +78,14 @@ def neighbour_graph(tree: cKDTree, xyz: np.ndarray, *, k: int, radius: float) ->
     valid = idx < n
     valid &= idx != np.arange(n)[:, None]
     # a missing neighbour's distance is inf and a point's own is 0, so the positive distances
-    # are those of valid neighbours; reduced over a transposed copy, as a row of k + 1 is too
-    # short for numpy's reduction to run fast
-    positive = np.ascontiguousarray(dist.T)
-    positive[positive <= 0] = np.inf
-    local = np.minimum.reduce(positive, axis=0)
+    # are those of valid neighbours; reduced over transposed copies of a few rows at a time, as
+    # a row of k + 1 is too short for numpy's reduction to run fast
+    local = np.empty(n)
+    rows = max(1, EDGE_CHUNK // (k + 1))
+    for s in range(0, n, rows):
+        positive = dist[s : s + rows].T.copy()  # a copy even of a single row
+        positive[positive <= 0] = np.inf
+        np.minimum.reduce(positive, axis=0, out=local[s : s + rows])
     local[~np.isfinite(local)] = radius
     edges = np.flatnonzero(valid)  # row-major, so the edges come sorted by src
     src = edges // (k + 1)
@@ -109,6 +126,15 @@ def row_pointers(src: np.ndarray, n: int) -> np.ndarray:
     return indptr
 
 
+def colour_close(colour: np.ndarray, a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
+    """``colour_distance(colour, a, b) < threshold``, edge chunk by edge chunk."""
+    close = np.empty(len(a), dtype=bool)
+    for s in edge_chunks(len(a)):
+        e = slice(s, s + EDGE_CHUNK)
+        np.less(colour_distance(colour, a[e], b[e]), threshold, out=close[e])
+    return close
+
+
 def colour_distance(colour: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(colour[a] - colour[b], axis=1)`` to the bit, for 3-channel ``colour``.
 
@@ -117,6 +143,14 @@ def colour_distance(colour: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndar
     """
     if colour.ndim != 2 or colour.shape[1] != 3:
         return np.linalg.norm(colour[a] - colour[b], axis=1)
+    if len(a) > EDGE_CHUNK:
+        first = colour_distance(colour, a[:EDGE_CHUNK], b[:EDGE_CHUNK])
+        out = np.empty(len(a), dtype=first.dtype)
+        out[:EDGE_CHUNK] = first
+        for s in edge_chunks(len(a))[1:]:
+            e = slice(s, s + EDGE_CHUNK)
+            out[e] = colour_distance(colour, a[e], b[e])
+        return out
     diff = np.take(colour, a, axis=0)
     diff -= np.take(colour, b, axis=0)
     if not np.issubdtype(diff.dtype, np.inexact):
@@ -195,12 +229,17 @@ def region_grow_rgb(
     ndarray of shape (N,), int64
         Region id (0..R-1) of every point.
     """
-    same = (groups[graph.src] == groups[graph.dst]) & graph.within(distance, adaptive=adaptive)
+    near = graph.within(distance, adaptive=adaptive)
+    same = np.empty(len(near), dtype=bool)
+    for s in edge_chunks(len(same)):
+        e = slice(s, s + EDGE_CHUNK)
+        np.equal(groups[graph.src[e]], groups[graph.dst[e]], out=same[e])
+        same[e] &= near[e]
     src, dst = graph.src[same], graph.dst[same]
     if rgb is None or point_threshold is None:
         return compact(groups)
     colour = rgb.astype(np.float32)  # may already be smoothed
-    close = colour_distance(colour, src, dst) < point_threshold
+    close = colour_close(colour, src, dst, point_threshold)
     if normals is not None and max_normal_deg < 90:
         # a crease (table top to leg, seat to back, lamp to ceiling) stops a region too
         cos = np.abs(np.einsum("ij,ij->i", normals[src], normals[dst]))
@@ -210,13 +249,16 @@ def region_grow_rgb(
         return regions
     count = int(regions.max()) + 1
     means = cell_means(colour, regions, count)
-    a, b = regions[src], regions[dst]
-    cross = a != b
-    keys = sorted_distinct(a[cross] * count + b[cross])
+    pairs = [np.zeros(0, dtype=np.int64)]
+    for s in edge_chunks(len(src)):
+        a, b = regions[src[s : s + EDGE_CHUNK]], regions[dst[s : s + EDGE_CHUNK]]
+        cross = a != b
+        pairs.append(a[cross] * count + b[cross])
+    keys = sorted_distinct(np.concatenate(pairs))
     if len(keys) == 0:
         return regions
     pa, pb = keys // count, keys % count
-    similar = colour_distance(means, pa, pb) < region_threshold
+    similar = colour_close(means, pa, pb, region_threshold)
     merged = components(count, pa[similar], pb[similar])
     return merged[regions]
 

@@ -176,6 +176,13 @@ def _reference_ransac(
     return normal, float(offset), inliers
 
 
+@pytest.fixture(params=[7, clustering.EDGE_CHUNK], ids=["small_chunks", "default_chunks"])
+def edge_chunk(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> int:
+    """Per-edge arithmetic in chunks of 7 edges too, so every chunk boundary is crossed."""
+    monkeypatch.setattr(clustering, "EDGE_CHUNK", request.param)
+    return int(request.param)
+
+
 def _cloud(seed: int, n: int = 3000, *, duplicates: int = 200) -> np.ndarray:
     """Clumps of points with exact duplicates and a few far strays: zero distances, missing
     neighbours beyond the radius and rows of every length."""
@@ -196,7 +203,9 @@ def _assert_same_graph(got: clustering.NeighbourGraph, want: clustering.Neighbou
 
 
 @pytest.mark.parametrize(("seed", "k", "radius"), [(0, 6, 0.05), (1, 3, 0.02), (2, 8, 10.0)])
-def test_neighbour_graph_matches_the_reference(seed: int, k: int, radius: float) -> None:
+def test_neighbour_graph_matches_the_reference(
+    seed: int, k: int, radius: float, edge_chunk: int
+) -> None:
     xyz = _cloud(seed)
     tree = cKDTree(xyz)
     got = clustering.neighbour_graph(tree, xyz, k=k, radius=radius)
@@ -220,7 +229,7 @@ def test_components_match_the_coo_version_sorted_or_not(seed: int) -> None:
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64, np.uint8, np.int64])
 @pytest.mark.parametrize("m", [0, 1, 2, 7, 1000, 50_000])
-def test_colour_distance_is_the_norm_to_the_bit(dtype: type, m: int) -> None:
+def test_colour_distance_is_the_norm_to_the_bit(dtype: type, m: int, edge_chunk: int) -> None:
     rng = np.random.default_rng(m)
     colour: np.ndarray = (rng.random((300, 3)) * 255).astype(dtype)
     a, b = rng.integers(0, 300, m), rng.integers(0, 300, m)
@@ -228,6 +237,7 @@ def test_colour_distance_is_the_norm_to_the_bit(dtype: type, m: int) -> None:
     got = clustering.colour_distance(colour, a, b)
     assert got.dtype == want.dtype
     np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(clustering.colour_close(colour, a, b, 90.0), want < 90.0)
     four = rng.random((300, 4))
     np.testing.assert_array_equal(
         clustering.colour_distance(four, a, b), np.linalg.norm(four[a] - four[b], axis=1)
@@ -235,12 +245,14 @@ def test_colour_distance_is_the_norm_to_the_bit(dtype: type, m: int) -> None:
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_smooth_colours_and_colour_noise_match_the_reference(seed: int) -> None:
+def test_smooth_colours_and_colour_noise_match_the_reference(seed: int, edge_chunk: int) -> None:
     xyz = _cloud(seed)
     graph = clustering.neighbour_graph(cKDTree(xyz), xyz, k=6, radius=0.08)
     # voxel mean colours are not integers: their float32 sums depend on the order of the terms
     rgb = (np.random.default_rng(seed).random((len(xyz), 3)) * 255).astype(np.float32)
     edges = graph.within(0.03, adaptive=2.5)
+    scale = np.maximum(graph.local[graph.src], graph.local[graph.dst])
+    np.testing.assert_array_equal(edges, graph.dist < np.maximum(0.03, 2.5 * scale))
     got = clustering.smooth_colours(graph, rgb, edges)
     want = _reference_smooth(graph, rgb, edges)
     assert got.dtype == want.dtype == np.float32
@@ -257,7 +269,7 @@ def test_smooth_colours_and_colour_noise_match_the_reference(seed: int) -> None:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_region_growing_and_merging_match_the_reference(seed: int) -> None:
+def test_region_growing_and_merging_match_the_reference(seed: int, edge_chunk: int) -> None:
     rng = np.random.default_rng(seed)
     xyz = _cloud(seed, n=4000)
     graph = clustering.neighbour_graph(cKDTree(xyz), xyz, k=6, radius=0.1)
