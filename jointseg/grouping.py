@@ -143,22 +143,28 @@ def cell_keys(
         raise ValueError(f"xyz must have shape (N, D), got {xyz.shape}")
     if len(xyz) == 0:
         return np.zeros(0, dtype=np.int64), 0
-    # floor((xyz - lo) / size) with the temporaries reused: the same dtypes and values
-    if aligned:
-        cells = _floor_cells(xyz / size)
-        cells -= _column_extremes(cells, np.min)
-    else:
-        lo = _column_extremes(xyz, np.min) if origin is None else origin
-        shifted = xyz - lo
-        same = shifted.dtype.kind == "f" and np.result_type(shifted, size) == shifted.dtype
-        cells = _floor_cells(np.divide(shifted, size, out=shifted if same else None))
-        if origin is not None and cells.min() < 0:
-            raise ValueError("origin must not lie above any point")
-    dims = _column_extremes(cells, np.max) + 1
-    keys = cells[:, 0].copy()
-    for axis in range(1, cells.shape[1]):
+    # floor((xyz - lo) / size) column by column, each column's values and dtype as the whole
+    # array's: a scan of millions of points then needs temporaries of one column, not three
+    lo = None
+    if not aligned:
+        lo = _column_extremes(xyz, np.min) if origin is None else np.asarray(origin)
+        lo = np.broadcast_to(lo, (xyz.shape[1],))
+    keys = np.zeros(len(xyz), dtype=np.int64)
+    dims = np.ones(xyz.shape[1], dtype=np.int64)
+    for axis in range(xyz.shape[1]):
+        column = xyz[:, axis]
+        if lo is None:
+            cells = _floor_cells(column / size)
+            cells -= cells.min()
+        else:
+            shifted = column - lo[axis]
+            same = shifted.dtype.kind == "f" and np.result_type(shifted, size) == shifted.dtype
+            cells = _floor_cells(np.divide(shifted, size, out=shifted if same else None))
+            if origin is not None and cells.min() < 0:
+                raise ValueError("origin must not lie above any point")
+        dims[axis] = cells.max() + 1
         keys *= dims[axis]
-        keys += cells[:, axis]
+        keys += cells
     return keys, int(dims.prod())
 
 

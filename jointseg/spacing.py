@@ -57,12 +57,12 @@ def _cell_sample(xyz: np.ndarray, sample: int, rng: np.random.Generator) -> np.n
     share = min(1.0, 20 * sample / n)
     if share >= 1.0:
         return xyz
-    scaled = xyz / 0.25
-    keys = np.floor(scaled, out=scaled).astype(np.int64)
-    del scaled
-    hashed = keys[:, 0] * 73856093
-    hashed ^= keys[:, 1] * 19349663
-    hashed ^= keys[:, 2] * 83492791
+    hashed = np.zeros(n, dtype=np.int64)
+    for axis, prime in enumerate((73856093, 19349663, 83492791)):  # a column at a time
+        scaled = xyz[:, axis] / 0.25
+        key = np.floor(scaled, out=scaled).astype(np.int64)
+        key *= prime
+        hashed ^= key
     buckets = max(1, int(round(1 / share)))
     hashed %= buckets
     chosen = hashed == rng.integers(buckets)
