@@ -39,12 +39,19 @@ def decide_colour(rgb: np.ndarray | None, correct: bool = True) -> ColourDecisio
     """Whether the scan has colour, and the gains that bring it within the training range."""
     if rgb is None or len(rgb) == 0:
         return ColourDecision("none", None)
-    sample = rgb[:: max(1, len(rgb) // 200_000)].astype(np.float64)
-    if float(sample.std(axis=0).max()) < CONSTANT_STD:
+    sample = rgb[:: max(1, len(rgb) // 200_000)]
+    moments = _moments(sample)
+    if moments is None:  # not 8- or 16-bit integers: the float moments themselves
+        sample = sample.astype(np.float64)
+        constant = float(sample.std(axis=0).max()) < CONSTANT_STD
+        mean = sample.mean(axis=0)
+    else:
+        constant, mean = moments
+    if constant:
         return ColourDecision("constant", None)
     if not correct:
         return ColourDecision("rgb", None)
-    mean = sample.mean(axis=0) + 1e-6
+    mean = mean + 1e-6
     gains = np.ones(3)
     red, blue = mean[0] / mean[1], mean[2] / mean[1]
     gains[0] = float(np.clip(red, *RED_RANGE)) / red
@@ -57,6 +64,37 @@ def decide_colour(rgb: np.ndarray | None, correct: bool = True) -> ColourDecisio
     if np.allclose(gains, 1.0):
         return ColourDecision("rgb", None)
     return ColourDecision("rgb", gains)
+
+
+#: The float spread differs from the exact one by far less than this share, so only a spread
+#: this near :data:`CONSTANT_STD` is measured in floats.
+_MARGIN = 1e-6
+
+
+def _moments(sample: np.ndarray) -> tuple[bool, np.ndarray] | None:
+    """``(sample.std(axis=0).max() < CONSTANT_STD, sample.mean(axis=0))`` of integer colour,
+    as the float64 computation gives them, from each channel's exact integer sums (a count
+    per value): the float sums of integers are exact, so the means are the same; the spread
+    is decided exactly unless it lies within a hair of the threshold, where the float
+    computation decides. None for colour that is not 8- or 16-bit integers."""
+    if sample.dtype not in (np.uint8, np.uint16) or sample.ndim != 2 or sample.shape[1] != 3:
+        return None
+    m = len(sample)
+    values = np.arange(256 if sample.dtype == np.uint8 else 65536, dtype=np.int64)
+    sums, squares = [], []
+    for c in range(3):
+        counts = np.bincount(sample[:, c], minlength=len(values))
+        sums.append(int(counts @ values))
+        squares.append(int(counts @ (values * values)))
+    mean = np.array(sums, dtype=np.float64) / m
+    # exact variance m² var = m S2 - S1²: Python integers, no overflow
+    var = [(m * s2 - s1 * s1) / (m * m) for s1, s2 in zip(sums, squares, strict=True)]
+    limit = CONSTANT_STD * CONSTANT_STD
+    if any(v > limit * (1 + _MARGIN) for v in var):
+        return False, mean
+    if all(v < limit * (1 - _MARGIN) for v in var):
+        return True, mean
+    return float(sample.astype(np.float64).std(axis=0).max()) < CONSTANT_STD, mean
 
 
 def apply_gains(rgb: np.ndarray, gains: np.ndarray) -> np.ndarray:

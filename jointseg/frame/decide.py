@@ -23,7 +23,7 @@ from jointseg.frame.colour import ColourDecision, apply_gains, decide_colour
 from jointseg.frame.judge import LabelFn, judge_frames
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES, FileEvidence, file_evidence
-from jointseg.frame.strays import find_strays
+from jointseg.frame.strays import strays_of_columns, work_columns
 from jointseg.frame.units import UNITS, UnitsDecision, units_from_scale
 from jointseg.scan import Scan
 
@@ -197,8 +197,9 @@ def decide_frame(
     """
     params = params or FrameParams()
     rng = np.random.default_rng(0)
-    centre = np.median(scan.xyz[:: max(1, len(scan) // 100_000)], axis=0)
-    sample = gravity.frame_sample(scan.xyz - centre, rng)
+    step = max(1, len(scan) // 100_000)
+    centre = np.array([np.median(scan.xyz[::step, a]) for a in range(3)])  # = along axis 0
+    sample = gravity.frame_sample(scan.xyz, rng, centre=centre)
     colour = decide_colour(scan.rgb, params.colour)
     warnings: list[str] = []
     ahead = StraysAhead(scan, centre, params.strays)
@@ -320,7 +321,10 @@ class StraysAhead:
         self.future: Future[np.ndarray] | None = None
 
     def _find(self, rotation: np.ndarray, metres: float) -> np.ndarray:
-        return find_strays(((self.scan.xyz - self.centre) @ rotation.T) * metres)
+        xyz = self.scan.xyz
+        if len(xyz) < 100:
+            return np.zeros(len(xyz), dtype=bool)
+        return strays_of_columns(work_columns(xyz, self.centre, rotation, metres))
 
     def start(self, rotation: np.ndarray, metres: float) -> None:
         """Start finding the strays of the frame ``rotation`` (file axes to work) and scale."""
@@ -452,10 +456,10 @@ def work_scan(scan: Scan, frame: Frame) -> tuple[Scan, np.ndarray | None]:
     if frame.identity and rgb is scan.rgb and keep.all():
         return scan, None
     xyz = frame.to_work(scan.xyz)
-    work = Scan(
-        xyz=xyz[keep],
-        rgb=None if rgb is None else rgb[keep],
-        labels=None if scan.labels is None else scan.labels[keep],
+    work = Scan(  # np.compress: the rows of xyz[keep], without boolean indexing's slow path
+        xyz=np.compress(keep, xyz, axis=0),
+        rgb=None if rgb is None else np.compress(keep, rgb, axis=0),
+        labels=None if scan.labels is None else np.compress(keep, scan.labels),
         source_format=scan.source_format,
     )
     if keep.all():
@@ -464,6 +468,60 @@ def work_scan(scan: Scan, frame: Frame) -> tuple[Scan, np.ndarray | None]:
         raise ConfigError("every point of the scan looks stray: nothing to label")
     index = np.empty(len(scan), dtype=np.int64)
     index[keep] = np.arange(int(keep.sum()))
-    _, nearest = cKDTree(work.xyz).query(xyz[~keep], workers=-1)
-    index[~keep] = nearest
+    index[~keep] = nearest_kept(work.xyz, xyz[~keep])
     return work, index
+
+
+#: Strays are matched to kept points through a tree of candidates only when they are fewer than
+#: this share of the kept points, on a scan of at least :data:`NEAR_MIN_POINTS` ...
+NEAR_MAX_SHARE = 1 / 64
+NEAR_MIN_POINTS = 50_000
+#: ... from an upper bound on each one's distance given by every this many kept points ...
+NEAR_STEP = 32
+#: ... on a grid of at most this many cells along the scan's longest side.
+NEAR_CELLS = 128
+
+
+def nearest_kept(kept: np.ndarray, strays: np.ndarray) -> np.ndarray:
+    """The index of each stray point's nearest kept point, as a k-d tree of all the kept points
+    answers (``cKDTree(kept).query``), without building that tree over a big scan.
+
+    A tree of every :data:`NEAR_STEP`-th kept point bounds each stray's distance; only the
+    kept points in grid cells within that bound of some stray can be nearest, and a tree of
+    them answers. Where two of them lie (nearly) as near as each other the full tree's own
+    choice among them is kept: it is asked instead.
+    """
+    n = len(kept)
+    if n < NEAR_MIN_POINTS or len(strays) > NEAR_MAX_SHARE * n:
+        return _full_tree_nearest(kept, strays)
+    bound, _ = cKDTree(kept[::NEAR_STEP]).query(strays, workers=-1)
+    bound = bound * (1.0 + 1e-9) + 1e-9
+    lo = kept.min(axis=0)
+    cell = max(float(np.max(kept.max(axis=0) - lo)) / NEAR_CELLS, 1e-9)
+    dims = np.floor((kept.max(axis=0) - lo) / cell).astype(np.int64) + 1
+    # the cells each stray's box of half-width ``bound`` overlaps, marked through a difference
+    # array (+1 and -1 at the box's corners, summed up along the three axes)
+    first = np.clip(np.floor((strays - bound[:, None] - lo) / cell).astype(np.int64), 0, dims)
+    last = np.clip(np.floor((strays + bound[:, None] - lo) / cell).astype(np.int64) + 1, 0, dims)
+    marks = np.zeros(tuple(dims + 1), dtype=np.int32)
+    for corner in range(8):
+        ends = [last if corner >> a & 1 else first for a in range(3)]
+        sign = -1 if bin(corner).count("1") % 2 else 1
+        np.add.at(marks, (ends[0][:, 0], ends[1][:, 1], ends[2][:, 2]), sign)
+    marked = np.cumsum(np.cumsum(np.cumsum(marks, 0), 1), 2)[:-1, :-1, :-1] > 0
+    ij = [
+        np.minimum(np.floor((kept[:, a] - lo[a]) / cell).astype(np.int64), dims[a] - 1)
+        for a in range(3)
+    ]
+    candidates = np.flatnonzero(marked[ij[0], ij[1], ij[2]])
+    if len(candidates) > n // 2:
+        return _full_tree_nearest(kept, strays)
+    distance, found = cKDTree(kept[candidates]).query(strays, k=2, workers=-1)
+    if not np.all(distance[:, 1] - distance[:, 0] > 1e-9 * distance[:, 0] + 1e-12):
+        return _full_tree_nearest(kept, strays)
+    return candidates[found[:, 0]]
+
+
+def _full_tree_nearest(kept: np.ndarray, strays: np.ndarray) -> np.ndarray:
+    _, nearest = cKDTree(kept).query(strays, workers=-1)
+    return np.asarray(nearest, dtype=np.int64)

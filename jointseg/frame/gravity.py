@@ -131,12 +131,18 @@ class FrameSample:
         return float(hi - lo)
 
 
-def frame_sample(xyz: np.ndarray, rng: np.random.Generator | None = None) -> FrameSample:
+def frame_sample(
+    xyz: np.ndarray, rng: np.random.Generator | None = None, *, centre: np.ndarray | None = None
+) -> FrameSample:
     """A scale-free sample for the decisions: voxel centroids at 1/:data:`VOXELS_ACROSS` of the
-    robust extent, normals from 16 neighbours."""
+    robust extent, normals from 16 neighbours; of ``xyz - centre`` when ``centre`` is given
+    (only the sampled points are moved, the same values as moving all of them first)."""
     rng = rng or np.random.default_rng(0)
     pts = xyz if len(xyz) <= SAMPLE_POINTS else xyz[rng.choice(len(xyz), SAMPLE_POINTS, False)]
-    lo, hi = np.quantile(pts, [0.005, 0.995], axis=0)
+    if centre is not None:
+        pts = pts - centre
+    # each axis on its own: the quantiles along axis 0, without its strided copy
+    lo, hi = np.array([np.quantile(pts[:, a], [0.005, 0.995]) for a in range(3)]).T
     voxel = max(float(np.max(hi - lo)) / VOXELS_ACROSS, 1e-9)
     _, centroids = voxel_index(pts - pts.mean(axis=0), voxel)
     if len(centroids) < 20:
