@@ -12,6 +12,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from jointseg.grouping import compact_ids
 from jointseg.objects.params import THING_CLASSES, ObjectParams
 
 #: The 13 forward neighbours of a cell (the other 13 are their opposites).
@@ -69,13 +70,17 @@ def find_instances(
         members = np.flatnonzero(labels == cls)
         if members.size < params.min_points:
             continue
-        cell = np.floor(xyz[members] / size).astype(np.int64)
-        cell -= cell.min(axis=0)
-        dims = cell.max(axis=0) + 1
-        key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-        uniq_key, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-        comp = cell_components(cell[first])[inverse.reshape(-1)]
-        comp = _join_parts(xyz[members], comp)
+        points = np.take(xyz, members, axis=0)
+        cell = [np.floor(points[:, a] / size).astype(np.int64) for a in range(3)]
+        for c in cell:  # each axis from 0 (reduced column by column: the same cells)
+            c -= c.min()
+        dims = np.array([c.max() + 1 for c in cell])
+        key = (cell[0] * dims[1] + cell[1]) * dims[2] + cell[2]
+        # the occupied cells in key order (as np.unique sorts them), each from its own key
+        uniq_key, inverse = compact_ids(key)
+        cells = np.stack(np.unravel_index(uniq_key, tuple(int(d) for d in dims)), axis=1)
+        comp = cell_components(cells.astype(np.int64))[inverse]
+        comp = _join_parts(points, comp)
         counts = np.bincount(comp)
         keep = np.flatnonzero(counts >= params.min_points)
         keep = keep[np.argsort(-counts[keep], kind="stable")]
@@ -100,20 +105,63 @@ def _join_parts(xyz: np.ndarray, comp: np.ndarray) -> np.ndarray:
     if n < 2:
         return comp
     counts = np.bincount(comp, minlength=n)
-    lo = np.full((n, 2), np.inf)
-    hi = np.full((n, 2), -np.inf)
-    np.minimum.at(lo, comp, xyz[:, :2])
-    np.maximum.at(hi, comp, xyz[:, :2])
-    target = np.arange(n)
-    for small in np.argsort(counts, kind="stable"):
-        big = np.flatnonzero(
-            (counts * PART_SHARE >= counts[small])
-            & np.all(lo - PART_MARGIN <= lo[small], axis=1)
-            & np.all(hi + PART_MARGIN >= hi[small], axis=1)
-        )
-        if big.size:
-            target[small] = big[np.argmax(counts[big])]
+    order = group_order(comp, n)
+    starts = np.r_[0, np.cumsum(counts)[:-1]]  # every group 0..n-1 has points
+    xy = np.take(xyz, order, axis=0)[:, :2]
+    lo = np.minimum.reduceat(xy, starts, axis=0)
+    hi = np.maximum.reduceat(xy, starts, axis=0)
+    target = part_targets(counts, lo, hi)
     # follow chains (a part of a part) to their root
     for _ in range(4):
         target = target[target]
     return target[comp]
+
+
+def group_order(ids: np.ndarray, n: int) -> np.ndarray:
+    """The rows ordered by id (0..n-1), each id's rows ascending: a stable sort, on 16-bit
+    keys where the ids fit them (numpy sorts those by radix, in linear time)."""
+    if n <= np.iinfo(np.int16).max:
+        return np.argsort(ids.astype(np.int16), kind="stable")
+    return np.argsort(ids, kind="stable")
+
+
+def rows_by_group(ids: np.ndarray) -> list[np.ndarray]:
+    """:func:`jointseg.grouping.rows_by_id` (the rows of each id >= 0, ascending, ids in
+    ascending order) through :func:`group_order`."""
+    valid = np.flatnonzero(ids >= 0)
+    if valid.size == 0:
+        return []
+    order = valid[group_order(ids[valid], int(ids[valid].max()) + 1)]
+    bounds = np.flatnonzero(np.diff(ids[order])) + 1
+    return np.split(order, bounds)
+
+
+#: Parts and objects compared at once in :func:`part_targets` (pairs), to bound its memory.
+PAIRS_PER_BLOCK = 1 << 22
+
+
+def part_targets(counts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """For each group (``counts`` points, plan box ``lo``..``hi``, (n, 2)), the group it joins:
+    the largest (the first of equals) of those at least ``1 / PART_SHARE`` times its size
+    whose box, grown by ``PART_MARGIN``, holds its own; itself when none does. Every pair is
+    compared at once, a block of parts at a time."""
+    n = len(counts)
+    target = np.arange(n)
+    big = np.flatnonzero(counts * PART_SHARE >= counts.min())  # any group is part of these
+    if big.size == 0:
+        return target
+    small = np.flatnonzero(counts <= counts[big].max() * PART_SHARE)
+    grown_lo, grown_hi = lo[big] - PART_MARGIN, hi[big] + PART_MARGIN
+    size = counts[big]
+    step = max(1, PAIRS_PER_BLOCK // big.size)
+    for first in range(0, small.size, step):
+        rows = small[first : first + step]
+        holds = (
+            (size[None, :] * PART_SHARE >= counts[rows, None])
+            & np.all(grown_lo[None, :, :] <= lo[rows, None, :], axis=2)
+            & np.all(grown_hi[None, :, :] >= hi[rows, None, :], axis=2)
+        )
+        found = holds.any(axis=1)
+        best = np.argmax(np.where(holds, size[None, :], -1), axis=1)
+        target[rows[found]] = big[best[found]]
+    return target

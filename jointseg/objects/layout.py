@@ -14,11 +14,10 @@ import numpy as np
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.geometry.alignment import dominant_yaw, point_normals
-from jointseg.grouping import rows_by_id
-from jointseg.objects.instances import find_instances
+from jointseg.objects.instances import find_instances, group_order
 from jointseg.objects.openings import add_openings
 from jointseg.objects.outline import fit_to_walls, room_outline
-from jointseg.objects.params import DOOR, WALL, ObjectParams
+from jointseg.objects.params import CEILING, DOOR, WALL, ObjectParams
 from jointseg.objects.records import LayoutReport, ObjectRecord, RoomRecord, user_coords, vec
 from jointseg.objects.rooms import (
     RoomGrid,
@@ -80,29 +79,59 @@ def find_layout(
     # normals of the wall and door points only: the walls' direction, planes and the rooms'
     # barriers need no others
     barrier = walls_mask | (labels == DOOR)
-    barrier_normals = point_normals(xyz[barrier], spacing) if walls_mask.sum() >= 10 else None
-    normals = None if barrier_normals is None else barrier_normals[walls_mask[barrier]]
+    barrier_rows = np.flatnonzero(barrier)
+    barrier_normals = (
+        point_normals(np.take(xyz, barrier_rows, axis=0), spacing)
+        if np.count_nonzero(walls_mask) >= 10
+        else None
+    )
+    wall_of_barrier = np.flatnonzero(walls_mask[barrier_rows])
+    normals = None if barrier_normals is None else np.take(barrier_normals, wall_of_barrier, 0)
     yaw = dominant_yaw(normals) if normals is not None else 0.0
     report = LayoutReport(floor_z=floor_z, yaw=yaw, to_user=matrix.tolist())
-    conf = np.ones(len(xyz)) if confidence is None else np.asarray(confidence, np.float64)
+    # every point's plan coordinates once: each step below reads its own points' rows
+    plan = RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), 1.0, yaw).plan_xy(xyz)
     if floor_z is None:
         report.reason = "no floor found (fewer than 50 floor points): no rooms, no heights"
-        report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, None, None)
+        report.objects = _objects(xyz, labels, confidence, instances, matrix, yaw, None, None, plan)
         return Layout(instances, report)
-    grid = _plan(xyz, labels, structure, yaw, floor_z, params, barrier, barrier_normals)
-    report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, floor_z, grid)
+    grid = _plan(xyz, labels, structure, yaw, floor_z, params, barrier, barrier_normals, plan)
+    report.objects = _objects(xyz, labels, confidence, instances, matrix, yaw, floor_z, grid, plan)
     if grid.labels.size == 0 or grid.labels.max() < 0:
         report.reason = "no room found: the floor is not closed by walls into any region"
         return Layout(instances, report)
-    report.rooms = _rooms(xyz, labels, grid, floor_z, structure)
-    faces = [] if normals is None else wall_faces(xyz, labels, normals, instances, grid, params)
-    if join_door_pieces(instances, labels, xyz, grid, faces, floor_z):
-        report.objects = _objects(xyz, labels, conf, instances, matrix, yaw, floor_z, grid)
+    report.rooms = _rooms(xyz, labels, grid, floor_z, structure, plan)
+    faces = (
+        []
+        if normals is None
+        else wall_faces(xyz, labels, normals, instances, grid, params, plan=plan)
+    )
+    doors = np.flatnonzero(labels == DOOR)
+    before = instances[doors]
+    if join_door_pieces(instances, labels, xyz, grid, faces, floor_z, plan=plan):
+        # only the door objects the join changed (or removed) are measured again
+        moved = np.flatnonzero(instances[doors] != before)
+        ids = np.unique(np.r_[before[moved], instances[doors[moved]]])
+        ids = ids[ids >= 0]
+        again = _objects(
+            xyz, labels, confidence, instances, matrix, yaw, floor_z, grid, plan, only=ids
+        )
+        kept = [o for o in report.objects if o.id not in set(ids.tolist())]
+        report.objects = sorted(kept + again, key=lambda o: o.id)
     wall = labels == WALL
-    top = float(np.quantile(xyz[wall, 2], 0.99)) if wall.any() else floor_z
+    top = float(np.quantile(xyz[np.flatnonzero(wall), 2], 0.99)) if wall.any() else floor_z
     report.walls = wall_records(faces, grid, floor_z, top, matrix)
     add_openings(
-        report.walls, faces, report.objects, instances, labels, xyz, grid, floor_z, spacing
+        report.walls,
+        faces,
+        report.objects,
+        instances,
+        labels,
+        xyz,
+        grid,
+        floor_z,
+        spacing,
+        plan=plan,
     )
     for r in report.rooms:
         r.walls = [w.id for w in report.walls if r.id in w.rooms]
@@ -124,60 +153,81 @@ def _plan(
     params: ObjectParams,
     barrier: np.ndarray,
     barrier_normals: np.ndarray | None,
+    plan: np.ndarray | None = None,
 ) -> RoomGrid:
     """The rooms' grid, cut by the walls the structure reading confirms (``plan_labels``):
     their normals are those of ``barrier``'s points (wall and door labels), of which the
     confirmed walls and the doors are a subset."""
     cut = plan_labels(labels, structure)
     if barrier_normals is not None:
-        barrier_normals = barrier_normals[((cut == WALL) | (cut == DOOR))[barrier]]
-    return room_grid(xyz, cut, yaw, floor_z, params, barrier_normals)
+        confirmed = ((cut == WALL) | (cut == DOOR))[np.flatnonzero(barrier)]
+        barrier_normals = np.take(barrier_normals, np.flatnonzero(confirmed), axis=0)
+    return room_grid(xyz, cut, yaw, floor_z, params, barrier_normals, plan=plan)
 
 
 def _objects(
     xyz: np.ndarray,
     labels: np.ndarray,
-    conf: np.ndarray,
+    confidence: np.ndarray | None,
     instances: np.ndarray,
     matrix: np.ndarray,
     yaw: float,
     floor_z: float | None,
     grid: RoomGrid | None,
+    plan: np.ndarray,
+    only: np.ndarray | None = None,
 ) -> list[ObjectRecord]:
-    groups = rows_by_id(instances)
-    if not groups:
+    """A record per object (per object of ``only`` when given; ``plan``: every point's plan
+    coordinates). The points are sorted by object once and every box, class and room is
+    found for all objects together; the means stay per object (a slice each), so they are
+    summed in the same order as one object's own points would be."""
+    chosen = instances >= 0 if only is None else np.isin(instances, only)
+    valid = np.flatnonzero(chosen)
+    if valid.size == 0:
         return []
+    rows = valid[group_order(instances[valid], int(instances[valid].max()) + 1)]
+    ids = instances[rows]
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    ends = np.r_[starts[1:], rows.size]
     helper = grid or RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), 1.0, yaw)
+    p = np.take(xyz, rows, axis=0)
+    flat = np.take(plan, rows, axis=0)
+    lo = np.column_stack(
+        [np.minimum.reduceat(flat, starts, axis=0), np.minimum.reduceat(p[:, 2], starts)]
+    )
+    hi = np.column_stack(
+        [np.maximum.reduceat(flat, starts, axis=0), np.maximum.reduceat(p[:, 2], starts)]
+    )
+    # the 8 corners of each box: z (low, high) outer, then the plan's 4 corners in turn
+    cx = np.where(np.array([0, 1, 1, 0] * 2, dtype=bool), hi[:, None, 0], lo[:, None, 0])
+    cy = np.where(np.array([0, 0, 1, 1] * 2, dtype=bool), hi[:, None, 1], lo[:, None, 1])
+    cz = np.where(np.array([0] * 4 + [1] * 4, dtype=bool), hi[:, None, 2], lo[:, None, 2])
+    work = helper.work_xy(np.column_stack([cx.ravel(), cy.ravel()]))
+    corners = np.stack([work[:, 0], work[:, 1], cz.ravel()], axis=1).reshape(-1, 8, 3)
+    segment = np.repeat(np.arange(starts.size), ends - starts)
+    votes = np.bincount(segment * NUM_CLASSES + labels[rows], minlength=starts.size * NUM_CLASSES)
+    classes = votes.reshape(-1, NUM_CLASSES).argmax(axis=1)
+    centroids = np.stack([p[a:b].mean(axis=0) for a, b in zip(starts, ends, strict=True)])
+    rooms = np.full(starts.size, -1, dtype=np.int64)
+    if grid is not None and grid.labels.size:
+        rooms = grid.room_of(centroids)
+    c = np.ones(rows.size) if confidence is None else np.asarray(confidence[rows], np.float64)
     out = []
-    for rows in groups:
-        p = xyz[rows]
-        plan = helper.plan_xy(p)
-        lo = np.r_[plan.min(axis=0), p[:, 2].min()]
-        hi = np.r_[plan.max(axis=0), p[:, 2].max()]
-        corners_plan = np.array(
-            [[x, y, z] for z in (lo[2], hi[2]) for x, y in
-             ((lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]), (lo[0], hi[1]))]
-        )  # fmt: skip
-        corners = np.c_[helper.work_xy(corners_plan[:, :2]), corners_plan[:, 2]]
-        cls = int(np.bincount(labels[rows], minlength=NUM_CLASSES).argmax())
-        centroid = p.mean(axis=0)
-        room = None
-        if grid is not None and grid.labels.size:
-            r = int(grid.room_of(centroid[None])[0])
-            room = r if r >= 0 else None
+    for k, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        cls = CLASS_NAMES[int(classes[k])]
+        size = vec(hi[k] - lo[k])
         out.append(
             ObjectRecord(
-                id=int(instances[rows[0]]),
-                cls=CLASS_NAMES[cls],
-                points=int(rows.size),
-                confidence=round(float(conf[rows].mean()), 4),
-                centroid=vec(user_coords(matrix, centroid)),
-                box=[vec(c) for c in user_coords(matrix, corners)],
-                size=vec(hi - lo),
-                height_above_floor=round(float(lo[2] - (floor_z or 0.0)), 4),
-                room=room,
-                plausible=floor_z is None
-                or fits_class(CLASS_NAMES[cls], vec(hi - lo), float(lo[2] - floor_z)),
+                id=int(ids[a]),
+                cls=cls,
+                points=int(b - a),
+                confidence=round(float(c[a:b].mean()), 4),
+                centroid=vec(user_coords(matrix, centroids[k])),
+                box=[vec(v) for v in user_coords(matrix, corners[k])],
+                size=size,
+                height_above_floor=round(float(lo[k, 2] - (floor_z or 0.0)), 4),
+                room=int(rooms[k]) if rooms[k] >= 0 else None,
+                plausible=floor_z is None or fits_class(cls, size, float(lo[k, 2] - floor_z)),
             )
         )
     return out
@@ -189,10 +239,22 @@ def _rooms(
     grid: RoomGrid,
     floor_z: float,
     structure: np.ndarray | None,
+    plan: np.ndarray,
 ) -> list[RoomRecord]:
     areas = room_areas(grid)
-    room = grid.room_of(xyz)
-    heights = ceiling_heights(xyz, labels, room, floor_z, len(areas), structure)
+    # only ceiling and wall points set a height: only they are placed in rooms
+    tall = (labels == CEILING) | (labels == WALL)
+    if structure is not None:
+        tall |= structure == CEILING
+    rows = np.flatnonzero(tall)
+    heights = ceiling_heights(
+        np.take(xyz, rows, axis=0),
+        labels[rows],
+        grid.room_of_plan(np.take(plan, rows, axis=0)),
+        floor_z,
+        len(areas),
+        None if structure is None else structure[rows],
+    )
     out = []
     for r, area in enumerate(areas):
         ii, jj = np.nonzero(grid.labels == r)

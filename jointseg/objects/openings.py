@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.geometry.alignment import point_normals
-from jointseg.grouping import rows_by_id
+from jointseg.objects.instances import rows_by_group
 from jointseg.objects.params import DOOR, WINDOW
 from jointseg.objects.records import ObjectRecord, OpeningRecord, WallRecord
 from jointseg.objects.rooms import RoomGrid
@@ -37,16 +37,20 @@ def add_openings(
     grid: RoomGrid,
     floor_z: float,
     spacing: float,
+    *,
+    plan: np.ndarray | None = None,
 ) -> None:
     """Each door and window to the wall it stands in, with its width, height and sill; the
-    wall's net area loses the opening."""
+    wall's net area loses the opening (``plan``: every point's plan coordinates, when already
+    found)."""
     rows = np.flatnonzero(((labels == DOOR) | (labels == WINDOW)) & (instances >= 0))
     if rows.size == 0:
         return
     kinds = {o.id: o.cls for o in objects if o.cls in ("door", "window")}
-    normals = grid.plan_xy(point_normals(xyz[rows], spacing))
-    plan = grid.plan_xy(xyz[rows])
-    for part in rows_by_id(instances[rows]):
+    points = np.take(xyz, rows, axis=0)
+    normals = _LazyNormals(points, spacing, grid)
+    plan = grid.plan_xy(points) if plan is None else np.take(plan, rows, axis=0)
+    for part in rows_by_group(instances[rows]):
         obj = int(instances[rows[part[0]]])
         if obj not in kinds:
             continue
@@ -55,9 +59,12 @@ def add_openings(
             # the face nearest its points (both faces of a wall between two rooms hold it)
             k = min(holding, key=lambda k: _offset(faces[k], plan[part]))
             wall, face = walls[k], faces[k]
-            z = xyz[rows[part], 2]
+            z = points[part, 2]
             zlo, zhi = (float(v) for v in np.quantile(z, [0.01, 0.99]))
-            lo, hi = opening_span(face, plan[part], z, normals[part], kinds[obj] == "door")
+            door = kinds[obj] == "door"
+            # only a door's span reads its points' normals: a window's needs none
+            part_normals = normals.of(part) if door else np.zeros((part.size, 2))
+            lo, hi = opening_span(face, plan[part], z, part_normals, door)
             opening = OpeningRecord(
                 object=obj,
                 kind=kinds[obj],
@@ -67,6 +74,21 @@ def add_openings(
             )
             wall.openings.append(opening)
             wall.net_area = round(max(wall.net_area - opening.width * opening.height, 0.0), 3)
+
+
+class _LazyNormals:
+    """The openings' plan normals (:func:`point_normals` of all their points, turned to the
+    plan), found on the first door that needs them: a scan with no door in a wall never
+    pays for them."""
+
+    def __init__(self, xyz: np.ndarray, spacing: float, grid: RoomGrid) -> None:
+        self.xyz, self.spacing, self.grid = xyz, spacing, grid
+        self.normals: np.ndarray | None = None
+
+    def of(self, rows: np.ndarray) -> np.ndarray:
+        if self.normals is None:
+            self.normals = self.grid.plan_xy(point_normals(self.xyz, self.spacing))
+        return self.normals[rows]
 
 
 def _offset(face: WallFace, plan: np.ndarray) -> float:

@@ -79,16 +79,18 @@ def snap_ring(ring: np.ndarray, faces: list[WallFace]) -> np.ndarray:
 def _cell_ring(mask: np.ndarray, *, simplify: float) -> np.ndarray | None:
     """The outline of the largest part of the cells (cell units), simplified within
     ``simplify`` cells (0: only collinear corners go, the edges stay axis-aligned)."""
-    from shapely.geometry import Polygon, box
+    import shapely
+    from shapely.geometry import Polygon
     from shapely.ops import unary_union
 
-    rects = []
-    for i in np.flatnonzero(mask.any(axis=1)):
-        row = np.r_[False, mask[i], False].astype(np.int8)
-        edges = np.flatnonzero(np.diff(row))
-        rects += [box(i, a, i + 1, b) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    if not rects:
+    # each row's runs of cells, in row order and along each row: where a run starts and ends
+    steps = np.diff(np.pad(mask, ((0, 0), (1, 1))).astype(np.int8), axis=1)
+    row, first = np.nonzero(steps == 1)
+    _, last = np.nonzero(steps == -1)
+    if row.size == 0:
         return None
+    # the same boxes as shapely.geometry.box(row, first, row + 1, last), made all at once
+    rects = shapely.box(row, first, row + 1, last)
     shape = unary_union(rects)
     if shape.geom_type == "MultiPolygon":
         shape = max(shape.geoms, key=lambda g: g.area)

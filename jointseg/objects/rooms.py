@@ -45,24 +45,44 @@ class RoomGrid:
 
     def plan_xy(self, xyz: np.ndarray) -> np.ndarray:
         """Work-frame points' plan coordinates (turned so walls run along the axes), (N, 2)."""
-        a = np.radians(-self.yaw)
-        c, s = np.cos(a), np.sin(a)
-        return np.c_[c * xyz[:, 0] - s * xyz[:, 1], s * xyz[:, 0] + c * xyz[:, 1]]
+        return _turned(xyz, -self.yaw)
 
     def work_xy(self, plan: np.ndarray) -> np.ndarray:
         """Plan coordinates back to the work frame, (N, 2)."""
-        a = np.radians(self.yaw)
-        c, s = np.cos(a), np.sin(a)
-        return np.c_[c * plan[:, 0] - s * plan[:, 1], s * plan[:, 0] + c * plan[:, 1]]
+        return _turned(plan, self.yaw)
 
     def room_of(self, xyz: np.ndarray) -> np.ndarray:
         """The room id under each work-frame point, -1 outside every room, (N,)."""
-        ij = np.floor((self.plan_xy(xyz) - self.origin) / self.cell).astype(np.int64)
+        return self.room_of_plan(self.plan_xy(xyz))
+
+    def room_of_plan(self, plan: np.ndarray) -> np.ndarray:
+        """The room id at each plan position (:meth:`plan_xy`), -1 outside every room, (N,)."""
+        if self.labels.size == 0:
+            return np.full(len(plan), -1, dtype=np.int64)
         h, w = self.labels.shape
-        inside = (ij[:, 0] >= 0) & (ij[:, 0] < h) & (ij[:, 1] >= 0) & (ij[:, 1] < w)
-        out = np.full(len(xyz), -1, dtype=np.int64)
-        out[inside] = self.labels[ij[inside, 0], ij[inside, 1]]
-        return out
+        i, j = (
+            np.floor((plan[:, a] - self.origin[a]) / self.cell).astype(np.int64) for a in (0, 1)
+        )
+        inside = (i >= 0) & (i < h) & (j >= 0) & (j < w)
+        np.clip(i, 0, h - 1, out=i)  # a cell for every point, read only where it is inside
+        np.clip(j, 0, w - 1, out=j)
+        i *= w
+        i += j
+        return np.where(inside, self.labels.ravel()[i], -1).astype(np.int64, copy=False)
+
+
+def _turned(xy: np.ndarray, degrees: float) -> np.ndarray:
+    """``[c x - s y, s x + c y]`` of the first two columns, turned by ``degrees``, (N, 2): each
+    product and sum written in place (the same values as the expression, fewer temporaries)."""
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    x, y = np.asarray(xy[:, 0], dtype=np.float64), np.asarray(xy[:, 1], dtype=np.float64)
+    out = np.empty((len(xy), 2))
+    np.multiply(x, c, out=out[:, 0])
+    out[:, 0] -= s * y
+    np.multiply(x, s, out=out[:, 1])
+    out[:, 1] += c * y
+    return out
 
 
 #: The least points of a structure reading's ceiling before it sets a room's ceiling height
@@ -103,35 +123,45 @@ def room_grid(
     floor_z: float,
     params: ObjectParams,
     barrier_normals: np.ndarray | None = None,
+    *,
+    plan: np.ndarray | None = None,
 ) -> RoomGrid:
     """Split the floor plan into rooms (see the module's docstring).
 
     ``barrier_normals`` (of the wall and door points, in order) let each wall's gaps be closed
     along its own direction only, so a corridor narrower than a double door between two
     parallel walls is not closed shut; without them walls are closed along both directions.
+    ``plan``: every point's plan coordinates, when already found.
     """
     cell = params.room_cell
     grid = RoomGrid(np.zeros((0, 0), np.int64), np.zeros(2), cell, yaw)
-    plan = grid.plan_xy(xyz)
     height = xyz[:, 2] - floor_z
     floor = labels == FLOOR
     stands = (labels > WALL) & (labels != DOOR) & (height < STANDS_BELOW) & (height > -0.2)
-    barrier = ((labels == WALL) | (labels == DOOR)) & (height > 0.1)
+    walls = (labels == WALL) | (labels == DOOR)
+    raised = height > 0.1
+    barrier = walls & raised
     used = floor | stands | barrier
     if not floor.any():
         return grid
-    lo = np.quantile(plan[used], 0.0005, axis=0) - 2 * cell
-    hi = np.quantile(plan[used], 0.9995, axis=0) + 2 * cell
+    # only the points that count are binned (every count is of them)
+    rows = np.flatnonzero(used)
+    plan = grid.plan_xy(np.take(xyz, rows, axis=0)) if plan is None else np.take(plan, rows, 0)
+    # each axis's quantiles on its own (the same values as along axis 0 of both)
+    ends = np.array([np.quantile(plan[:, a], [0.0005, 0.9995]) for a in (0, 1)]).T
+    lo, hi = ends[0] - 2 * cell, ends[1] + 2 * cell
     cells = _Cells(plan, lo, cell, tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1))
+    floor, stands, barrier = floor[rows], stands[rows], barrier[rows]
     runs = None
     if barrier_normals is not None:
-        n_plan = np.abs(grid.plan_xy(barrier_normals))
-        rows = np.flatnonzero((labels == WALL) | (labels == DOOR))
+        # the used wall and door points are the raised ones: their normals, in the same order
+        raised_walls = np.flatnonzero(raised[np.flatnonzero(walls)])
+        n_plan = np.abs(grid.plan_xy(np.take(barrier_normals, raised_walls, axis=0)))
         votes = []
         for axis in (0, 1):  # a wall (or a door in it) runs along the axis its normal is across
-            mask = np.zeros(len(labels), dtype=bool)
-            mask[rows] = n_plan[:, 1 - axis] > 0.85
-            votes.append(cells.count(barrier & mask))
+            mask = np.zeros(len(rows), dtype=bool)
+            mask[barrier] = n_plan[:, 1 - axis] > 0.85
+            votes.append(cells.count(mask))
         runs = wall_lines(votes, cell)
     closed = close_walls(cells.count(barrier) > 0, runs, cell)
     seen = ndimage.binary_closing(
@@ -140,19 +170,24 @@ def room_grid(
     return RoomGrid(_regions(closed, seen, cell, params), lo, cell, yaw)
 
 
-@dataclass(frozen=True)
 class _Cells:
-    """Points' plan coordinates on the room grid: how many of a set fall in each cell."""
+    """Points' plan coordinates on the room grid: how many of a set fall in each cell (each
+    point's cell found once, -1 off the grid)."""
 
-    plan: np.ndarray
-    lo: np.ndarray
-    cell: float
-    shape: tuple[int, int]
+    def __init__(
+        self, plan: np.ndarray, lo: np.ndarray, cell: float, shape: tuple[int, int]
+    ) -> None:
+        self.shape = shape
+        i, j = (np.floor((plan[:, a] - lo[a]) / cell).astype(np.int64) for a in (0, 1))
+        ok = (i >= 0) & (j >= 0) & (i < shape[0]) & (j < shape[1])
+        i *= shape[1]
+        i += j
+        self.flat = np.where(ok, i, -1)
 
     def count(self, mask: np.ndarray) -> np.ndarray:
-        ij = np.floor((self.plan[mask] - self.lo) / self.cell).astype(np.int64)
-        ok = (ij >= 0).all(axis=1) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
-        flat = np.ravel_multi_index((ij[ok, 0], ij[ok, 1]), self.shape)
+        """Points of ``mask`` (over the points given) in each cell, shape ``self.shape``."""
+        flat = self.flat[np.flatnonzero(mask)]
+        flat = flat[np.flatnonzero(flat >= 0)]
         return np.bincount(flat, minlength=self.shape[0] * self.shape[1]).reshape(self.shape)
 
 
@@ -323,20 +358,27 @@ def ceiling_heights(
 ) -> np.ndarray:
     """Per room: the median height above the floor of the geometry's ceiling planes in it
     (``structure``), else of its points labelled ceiling; without either, the 99th percentile
-    of the room's wall points (NaN when the room has none of these)."""
+    of the room's wall points (NaN when the room has none of these). The points are sorted
+    by room once, so each room reads only its own."""
     out = np.full(n_rooms, np.nan)
+    inside = np.flatnonzero((room >= 0) & (room < n_rooms))
+    order = inside[np.argsort(room[inside], kind="stable")]
+    bounds = np.searchsorted(room[order], np.arange(n_rooms + 1))
+    z = xyz[order, 2]
+    kinds = labels[order]
+    planes_all = None if structure is None else structure[order] == CEILING
     for r in range(n_rooms):
-        inside = room == r
-        if structure is not None:
-            planes = xyz[inside & (structure == CEILING), 2]
+        part = slice(bounds[r], bounds[r + 1])
+        if planes_all is not None:
+            planes = z[part][planes_all[part]]
             if planes.size >= MIN_CEILING_POINTS:
                 out[r] = float(np.median(planes)) - floor_z
                 continue
-        ceiling = xyz[inside & (labels == CEILING), 2]
+        ceiling = z[part][kinds[part] == CEILING]
         if ceiling.size >= 20:
             out[r] = float(np.median(ceiling)) - floor_z
             continue
-        walls = xyz[inside & (labels == WALL), 2]
+        walls = z[part][kinds[part] == WALL]
         if walls.size >= 20:
             out[r] = float(np.quantile(walls, 0.99)) - floor_z
     return out

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from jointseg.grouping import rows_by_id
+from jointseg.objects.instances import rows_by_group
 from jointseg.objects.params import DOOR, FLOOR, WALL, WINDOW, ObjectParams
 from jointseg.objects.records import WallRecord, user_coords, vec
 from jointseg.objects.rooms import RoomGrid
@@ -55,24 +55,34 @@ def wall_faces(
     instances: np.ndarray,
     grid: RoomGrid,
     params: ObjectParams,
+    *,
+    plan: np.ndarray | None = None,
 ) -> list[WallFace]:
-    """The faces of the walls, along the plan's two axes (``normals``: of the wall points)."""
+    """The faces of the walls, along the plan's two axes (``normals``: of the wall points;
+    ``plan``: every point's plan coordinates, when already found)."""
+    points = _Planned(xyz, grid, plan)
     wall = np.flatnonzero(labels == WALL)
-    plan = grid.plan_xy(xyz[wall])
+    plan = points.of(wall)
     n_plan = grid.plan_xy(normals)
     openings = np.flatnonzero(((labels == DOOR) | (labels == WINDOW)) & (instances >= 0))
-    open_plan = grid.plan_xy(xyz[openings])
-    floor_plan = grid.plan_xy(xyz[labels == FLOOR])
+    open_plan = points.of(openings)
+    floor_plan = points.of(np.flatnonzero(labels == FLOOR))
     wall_z = xyz[wall, 2]
     out: list[WallFace] = []
     for axis in (0, 1):
-        facing = np.abs(n_plan[:, axis]) > 0.8
+        facing = np.flatnonzero(np.abs(n_plan[:, axis]) > 0.8)
         coord, along, z = plan[facing, axis], plan[facing, 1 - axis], wall_z[facing]
         for c in _planes(coord, min_count=max(50, int(0.002 * wall.size))):
-            on = np.abs(coord - c) < 0.06
-            near_open = np.abs(open_plan[:, axis] - c) < 0.3
-            u = np.sort(np.r_[along[on], open_plan[near_open, 1 - axis]])
-            own = np.sort(along[on])
+            on = np.flatnonzero(np.abs(coord - c) < 0.06)
+            face_u, face_z = along[on], z[on]
+            own = np.sort(face_u)
+            near_open = np.flatnonzero(np.abs(open_plan[:, axis] - c) < 0.3)
+            # with no opening near, the runs are of its own points (the same sort)
+            u = (
+                own
+                if near_open.size == 0
+                else np.sort(np.r_[face_u, open_plan[near_open, 1 - axis]])
+            )
             for u0, u1 in _runs(u, gap=WALL_GAP):
                 # its own wall points must span a wall (a window's reveal faces along the wall
                 # it is cut in, and a door's leaf beside it would lengthen the run)
@@ -80,7 +90,7 @@ def wall_faces(
                 span = float(inside[-1] - inside[0]) if inside.size else 0.0
                 if span >= params.min_wall_length:
                     back = _back_side(floor_plan, axis, c, u0, u1)
-                    out.append(WallFace(axis, c, u0, u1, back, along[on], z[on]))
+                    out.append(WallFace(axis, c, u0, u1, back, face_u, face_z))
     return out
 
 
@@ -91,6 +101,8 @@ def join_door_pieces(
     grid: RoomGrid,
     faces: list[WallFace],
     floor_z: float,
+    *,
+    plan: np.ndarray | None = None,
 ) -> int:
     """Join the pieces of one door in place; return how many joins were made.
 
@@ -103,9 +115,9 @@ def join_door_pieces(
     doors = np.flatnonzero(labels == DOOR)
     if doors.size == 0 or not (instances[doors] >= 0).any():
         return 0
-    plan = grid.plan_xy(xyz[doors])
+    plan = _Planned(xyz, grid, plan).of(doors)
     ids = instances[doors]
-    parts = {int(ids[p[0]]): p for p in rows_by_id(ids)}
+    parts = {int(ids[p[0]]): p for p in rows_by_group(ids)}
     crumbs = np.flatnonzero(ids < 0)
     joined = 0
     for face in faces:
@@ -136,6 +148,19 @@ def join_door_pieces(
     changed = ids != instances[doors]
     instances[doors[changed]] = ids[changed]
     return joined + int(changed.any())
+
+
+class _Planned:
+    """Points' plan coordinates by rows: read from every point's (``plan``) when given, else
+    turned from the work frame."""
+
+    def __init__(self, xyz: np.ndarray, grid: RoomGrid, plan: np.ndarray | None) -> None:
+        self.xyz, self.grid, self.plan = xyz, grid, plan
+
+    def of(self, rows: np.ndarray) -> np.ndarray:
+        if self.plan is None:
+            return self.grid.plan_xy(np.take(self.xyz, rows, axis=0))
+        return np.take(self.plan, rows, axis=0)
 
 
 def _pieces(
