@@ -126,6 +126,19 @@ print(json.dumps({"engine": auto.engine, "same": bool(np.array_equal(a.labels, b
 """
 
 
+NO_TELEMETRY = """
+import json, os, sys
+forks = []
+os.register_at_fork(before=lambda: forks.append(1))
+from jointseg.network.registry import load
+from jointseg.synth import make_room
+
+net = load("randlanet")
+net.predict(make_room(26, points=20_000), seed=0)
+print(json.dumps({"engine": net.engine, "forks": len(forks)}))
+"""
+
+
 def in_child(code: str, cache: Path, *args: str) -> dict:
     """Run ``code`` in a fresh interpreter with ``JOINTSEG_CACHE=cache``; its last JSON line."""
     env = {**os.environ, "JOINTSEG_CACHE": str(cache)}
@@ -155,6 +168,14 @@ def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) ->
 def test_shapes_beyond_the_compiled_ones_run_on_torch(tmp_path) -> None:
     out = in_child(SHAPES_BEYOND, tmp_path, str(tmp_path / "ov"))
     assert out == {"same": True, "exports": 0}  # torch's own output, nothing compiled
+
+
+@pytest.mark.slow
+def test_the_default_engine_sends_no_telemetry_and_forks_nothing(tmp_path: Path) -> None:
+    """OpenVINO's conversion tools send telemetry from a thread that forks; a fork while the
+    geometry thread was inside OpenBLAS left `jointseg segment` spinning forever."""
+    out = in_child(NO_TELEMETRY, tmp_path)
+    assert out["engine"] == "openvino" and out["forks"] == 0
 
 
 @pytest.mark.slow

@@ -15,6 +15,7 @@ import hashlib
 import importlib.util
 import logging
 import os
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,29 @@ def usable_here() -> bool:
     """Whether this process may run OpenVINO: not in a child forked from a process that already
     had a runtime (OpenVINO's thread pool does not survive a fork: such a child hangs)."""
     return _runtime_pid is None or _runtime_pid == os.getpid()
+
+
+def import_openvino() -> Any:
+    """``openvino``, without its model-conversion tools' telemetry.
+
+    Why: ``import openvino`` imports ``openvino.tools.ovc``, which sends usage telemetry unless
+    the user opted out, from a thread that forks a process. A fork while another thread is
+    inside OpenBLAS (the geometry stage runs beside the network) leaves that thread spinning
+    forever in ``exec_blas``: ``jointseg segment`` hung so. jointseg reads ONNX files with the
+    runtime and never converts models, so the tools are kept out; a later explicit import of
+    them by the caller still works.
+    """
+    if "openvino" in sys.modules:
+        return sys.modules["openvino"]
+    blocked = "openvino.tools.ovc" not in sys.modules
+    if blocked:
+        sys.modules["openvino.tools.ovc"] = None  # type: ignore[assignment]  # ImportError
+    try:
+        import openvino
+    finally:
+        if blocked and sys.modules.get("openvino.tools.ovc", 0) is None:
+            del sys.modules["openvino.tools.ovc"]
+    return openvino
 
 
 def cache_dir() -> Path:
@@ -72,8 +96,7 @@ class CompiledForward:
         *,
         strict: bool = True,
     ) -> None:
-        import openvino as ov
-
+        ov = import_openvino()
         self.model = model
         self.strict = strict
         self.threads = threads
