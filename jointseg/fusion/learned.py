@@ -367,6 +367,38 @@ def vote_offers(
     seg_of_cell = np.zeros(n_cells, dtype=np.int64)
     seg_of_cell[c] = s
     structure_cols = _structure_columns(structure, point, offer, own, only_structure, unbelievable)
+    cols = _feature_columns(
+        probs, point, own, offer, (seg_soft, seg_hard, cell_soft), s, c,
+        (seg_size, seg_entropy, plane_share, entropy), cell_count, seg_of_cell, from_segment,
+        (scan_points, scan_entropy, scan_disagreement), structure_cols, has_colour,
+    )  # fmt: skip
+    fixture = structure_cols[3]
+    context = (((c * n_classes + own) * n_classes + offer) * 2 + fixture) * 4
+    context += from_segment * 2 + only_structure
+    segment_label = np.asarray(seg_label, dtype=np.int64)
+    return Offers(point, offer, cols.T, segment_label, seg_votes, context)
+
+
+def _feature_columns(
+    probs: np.ndarray,
+    point: np.ndarray,
+    own: np.ndarray,
+    offer: np.ndarray,
+    votes: tuple[np.ndarray, np.ndarray, np.ndarray],
+    s: np.ndarray,
+    c: np.ndarray,
+    per_segment: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    cell_count: np.ndarray,
+    seg_of_cell: np.ndarray,
+    from_segment: np.ndarray,
+    scan: tuple[int, float, float],
+    structure_cols: tuple[np.ndarray, ...] | list[np.ndarray],
+    has_colour: bool,
+) -> np.ndarray:
+    """The offers' features, one row per :data:`FEATURES` name (filled in its order)."""
+    seg_soft, seg_hard, cell_soft = votes
+    seg_size, seg_entropy, plane_share, entropy = per_segment
+    scan_points, scan_entropy, scan_disagreement = scan
     cols = np.empty((len(FEATURES), len(point)))
     cols[0] = _logit(_at(probs, point, own))
     cols[1] = _logit(_at(probs, point, offer))
@@ -388,11 +420,7 @@ def vote_offers(
     for i, col in enumerate(structure_cols):
         cols[17 + i] = col
     cols[21] = float(has_colour)
-    fixture = structure_cols[3]
-    context = (((c * n_classes + own) * n_classes + offer) * 2 + fixture) * 4
-    context += from_segment * 2 + only_structure
-    segment_label = np.asarray(seg_label, dtype=np.int64)
-    return Offers(point, offer, cols.T, segment_label, seg_votes, context)
+    return cols
 
 
 def _workers(n: int) -> Executor:

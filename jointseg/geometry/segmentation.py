@@ -164,8 +164,7 @@ def segment(
     laps.lap("clustering", 0.7)
     regions = _regions(graph, work, colours, groups, frame.normals, p)
     laps.lap("region_growing", 0.95)
-    # narrowed per work point, then gathered per scan point: the same values, half the bytes
-    segments = regions.astype(np.int32)[work.inverse]
+    segments = regions.astype(np.int32)[work.inverse]  # narrowed, then gathered: half the bytes
     point_plane = plane_id.astype(np.int32)[work.inverse]
     laps.lap("map_back", 0.97)
     infos = _plane_infos(found, frame.rotation.T, centre, point_plane)

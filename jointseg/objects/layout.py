@@ -75,18 +75,7 @@ def find_layout(
     matrix = np.eye(4) if to_user is None else np.asarray(to_user, dtype=np.float64)
     instances = find_instances(xyz, labels, spacing, params)
     floor_z = floor_height(xyz[:, 2], labels, structure)
-    walls_mask = labels == WALL
-    # normals of the wall and door points only: the walls' direction, planes and the rooms'
-    # barriers need no others
-    barrier = walls_mask | (labels == DOOR)
-    barrier_rows = np.flatnonzero(barrier)
-    barrier_normals = (
-        point_normals(np.take(xyz, barrier_rows, axis=0), spacing)
-        if np.count_nonzero(walls_mask) >= 10
-        else None
-    )
-    wall_of_barrier = np.flatnonzero(walls_mask[barrier_rows])
-    normals = None if barrier_normals is None else np.take(barrier_normals, wall_of_barrier, 0)
+    barrier, barrier_normals, normals = _barrier_normals(xyz, labels, spacing)
     yaw = dominant_yaw(normals) if normals is not None else 0.0
     report = LayoutReport(floor_z=floor_z, yaw=yaw, to_user=matrix.tolist())
     # every point's plan coordinates once: each step below reads its own points' rows
@@ -121,18 +110,8 @@ def find_layout(
     wall = labels == WALL
     top = float(np.quantile(xyz[np.flatnonzero(wall), 2], 0.99)) if wall.any() else floor_z
     report.walls = wall_records(faces, grid, floor_z, top, matrix)
-    add_openings(
-        report.walls,
-        faces,
-        report.objects,
-        instances,
-        labels,
-        xyz,
-        grid,
-        floor_z,
-        spacing,
-        plan=plan,
-    )
+    add_openings(report.walls, faces, report.objects, instances, labels, xyz, grid, floor_z,
+                 spacing, plan=plan)  # fmt: skip
     for r in report.rooms:
         r.walls = [w.id for w in report.walls if r.id in w.rooms]
     fit_to_walls(report.rooms, grid, faces)
@@ -142,6 +121,25 @@ def find_layout(
     if not report.walls:
         report.reason = "no wall plane long enough was found"
     return Layout(instances, report)
+
+
+def _barrier_normals(
+    xyz: np.ndarray, labels: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The wall and door points (the rooms' barriers), their normals and the wall points'
+    normals (None with fewer than 10 wall points): the walls' direction, planes and the
+    barriers need no others."""
+    walls_mask = labels == WALL
+    barrier = walls_mask | (labels == DOOR)
+    barrier_rows = np.flatnonzero(barrier)
+    barrier_normals = (
+        point_normals(np.take(xyz, barrier_rows, axis=0), spacing)
+        if np.count_nonzero(walls_mask) >= 10
+        else None
+    )
+    wall_of_barrier = np.flatnonzero(walls_mask[barrier_rows])
+    normals = None if barrier_normals is None else np.take(barrier_normals, wall_of_barrier, 0)
+    return barrier, barrier_normals, normals
 
 
 def _plan(
