@@ -17,7 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from jointseg.classes import CLASS_INDEX
-from jointseg.grouping import compact_ids
+from jointseg.grouping import compact_ids, group_quantiles
 
 DOOR, COLUMN = CLASS_INDEX["door"], CLASS_INDEX["column"]
 #: Side (m) of the cells that join door points into one door.
@@ -129,24 +129,5 @@ def _extents(xyz: np.ndarray, group: np.ndarray, n: int) -> tuple[np.ndarray, ..
     lo, hi = np.full(n, np.inf), np.full(n, -np.inf)
     np.minimum.at(lo, group, along)
     np.maximum.at(hi, group, along)
-    zlo, zhi = _quantiles(group, n, xyz[:, 2], (0.02, 0.98))
+    zlo, zhi = group_quantiles(group, n, xyz[:, 2], (0.02, 0.98))
     return hi - lo, zhi - zlo, zlo, count
-
-
-def _quantiles(
-    group: np.ndarray, n: int, values: np.ndarray, qs: tuple[float, ...]
-) -> list[np.ndarray]:
-    """:func:`jointseg.grouping.group_quantiles` to the bit, sorted faster: by value, then
-    stably by group (a radix sort where the group ids fit 16 bits), not by ``np.lexsort``."""
-    counts = np.bincount(group, minlength=n)
-    if len(values) == 0:
-        return [np.full(n, np.nan) for _ in qs]
-    by_value = np.argsort(values)
-    small = group.astype(np.uint16) if n <= np.iinfo(np.uint16).max else group
-    ordered = values[by_value[np.argsort(small[by_value], kind="stable")]]
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    out = []
-    for q in qs:
-        pos = starts + np.floor(q * np.maximum(counts - 1, 0)).astype(np.int64)
-        out.append(np.where(counts > 0, ordered[np.minimum(pos, len(values) - 1)], np.nan))
-    return out

@@ -27,7 +27,7 @@ from jointseg.fusion.learned import (
     shipped_model,
     vote_offers,
 )
-from jointseg.grouping import cell_keys, compact_ids, group_quantiles, group_sums
+from jointseg.grouping import cell_keys, compact_ids, group_sums
 from jointseg.synth import make_room
 from jointseg.synth.label_noise import corrupt_labels
 from tests.fusion import plain_vote
@@ -214,14 +214,6 @@ def test_cells_and_door_pieces_are_found_as_before() -> None:
     plain_piece, plain_n = plain_vote.pieces(clustered)
     np.testing.assert_array_equal(piece, plain_piece)
     assert n == plain_n
-    group = rng.integers(0, 40, len(xyz))
-    z = np.round(xyz[:, 2], 1)  # ties
-    for fast, plain in zip(
-        fixtures._quantiles(group, 45, z, (0.02, 0.98)),
-        group_quantiles(group, 45, z, (0.02, 0.98)),
-        strict=True,
-    ):
-        assert same_bits(fast, plain)
 
 
 def test_the_best_offer_per_point_is_the_most_probable_first_one() -> None:
