@@ -69,8 +69,12 @@ def test_panels_show_class_colours_and_a_class_switched_off_disappears(
             seen = palette_pixels(image, span)
             expected = visible_classes(labels)
             assert len(expected) >= 3
+            # a small class may sit mostly behind a wall from the camera's corner (CI's chromium
+            # once drew 9 bookcase pixels where this machine's drew 140), so a class present is
+            # a few pixels of its exact palette colour; the large ones must fill a real area
             for cls in expected:
-                assert seen[cls] >= 20, f"{CLASS_NAMES[cls]} missing: {seen.tolist()}"
+                floor = 100 if cls in visible_classes(labels, share=0.1) else 5
+                assert seen[cls] >= floor, f"{CLASS_NAMES[cls]} missing: {seen.tolist()}"
             assert seen[0] == 0  # the ceiling starts hidden
         # the raw panel shows the scan's own colours, not the palette
         raw_pixels = image[:, raw[0] : raw[1]][ink(image[:, raw[0] : raw[1]])]
