@@ -143,7 +143,9 @@ def train(
     epochs: int = typer.Option(20, min=1),
     steps: int = typer.Option(100, min=1, help="Steps per epoch."),
     batch_size: int = typer.Option(2, min=1),
-    num_points: int = typer.Option(16_384, min=1024, help="Points per training crop."),
+    num_points: int | None = typer.Option(
+        None, min=1024, help="Points per training crop (default 16384, or the bank's)."
+    ),
     lr: float = typer.Option(0.01, min=0.0),
     gamma: float = typer.Option(0.95, min=0.01, max=1.0, help="Learning-rate decay per epoch."),
     test_area: int = typer.Option(5, min=1, max=6, help="S3DIS area held out."),
@@ -203,6 +205,15 @@ def train(
     seed: int = typer.Option(0),
     init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
+    bank: Path | None = typer.Option(
+        None,
+        help="Train on the crops of this crop bank (crops and their neighbour indices drawn "
+        "once, read per step; see docs/guide/training.md).",
+    ),
+    bank_crops: int | None = typer.Option(
+        None, min=1, help="First build or extend --bank to this many crops, from --data."
+    ),
+    bank_gb: float = typer.Option(4.0, min=0.001, help="Bound on the bank's size on disk (GB)."),
 ) -> None:
     """Train RandLA-Net on synthetic rooms, S3DIS, folders of labelled scans, or a mix."""
     # every option by name, as typer passed it (nothing else is bound yet)
@@ -216,7 +227,7 @@ def _run_train(
     epochs: int,
     steps: int,
     batch_size: int,
-    num_points: int,
+    num_points: int | None,
     lr: float,
     gamma: float,
     test_area: int,
@@ -242,12 +253,22 @@ def _run_train(
     seed: int,
     init: Path | None,
     resume: Path | None,
+    bank: Path | None,
+    bank_crops: int | None,
+    bank_gb: float,
 ) -> None:
     """Body of ``jointseg train``, apart from its long option list so both stay readable."""
     from jointseg.network.training.augment import AugmentParams
     from jointseg.network.training.loop import TrainConfig, best_path, default_workers
     from jointseg.network.training.loop import train as run_training
 
+    if num_points is None:
+        num_points = 16_384
+        if bank is not None and bank_crops is None:
+            from jointseg.network.training.bank import read_manifest
+
+            manifest = read_manifest(bank)
+            num_points = manifest.spec.num_points if manifest else num_points
     cfg = TrainConfig(
         data=data,
         out=out,
@@ -277,6 +298,9 @@ def _run_train(
         prefetch=prefetch,
         colour=colour,
         device=device,
+        bank=bank,
+        bank_crops=bank_crops,
+        bank_gb=bank_gb,
         command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )
     with progress_bar() as progress:

@@ -16,6 +16,7 @@ import os
 import platform
 import time
 from collections.abc import Iterator
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -28,6 +29,7 @@ from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
 from jointseg.network.base import pick_device
+from jointseg.network.batches import Prefetcher
 from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.randlanet.crops import (
     MIN_CROP,
@@ -41,6 +43,7 @@ from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.randlanet.slicing import sliced_init
 from jointseg.network.training.augment import AugmentParams
+from jointseg.network.training.bank_batches import BankBatches, StepAugment, check_bank
 from jointseg.network.training.batches import BatchMaker, CropBatch, batch_stream
 from jointseg.network.training.data import centre_weights
 from jointseg.network.training.sources import (
@@ -174,6 +177,22 @@ class TrainConfig(BaseModel):
     command: str | None = Field(
         None, description="the command line that started the run, kept in the model card"
     )
+    bank: Path | None = Field(
+        None,
+        description="train on the crops of this crop bank (jointseg.network.training.bank): "
+        "crops and their neighbour indices drawn once, read per step, with step_augment",
+    )
+    bank_crops: int | None = Field(
+        None, ge=1, description="first build or extend the bank to this many crops"
+    )
+    bank_gb: float = Field(4.0, gt=0, description="the bank's bound on disk (GB)")
+    bank_workers: int | None = Field(
+        None, ge=0, le=64, description="processes building the bank (default: one per core)"
+    )
+    step_augment: StepAugment = Field(
+        default_factory=StepAugment,
+        description="augmentation drawn per step on bank crops (none changes a neighbour)",
+    )
 
     @field_validator("data", mode="before")
     @classmethod
@@ -252,6 +271,7 @@ class TrainingData:
     centre_p: list[np.ndarray | None]
     loss_weights: torch.Tensor
     description: str
+    bank: dict | None = None  # the bank's summary for the model card
 
 
 def training_data(cfg: TrainConfig, grid: float) -> TrainingData:
@@ -369,6 +389,18 @@ def train(
     data = training_data(cfg, run.model.config.grid_size)
     if cfg.init is not None:
         data.description += f"; started from {cfg.init.name}"
+    stream = _bank_stream(cfg, run, data) if cfg.bank is not None else _crop_stream(cfg, run, data)
+    loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights.to(run.device), ignore_index=-1)
+    train_mode(run.model, cfg)
+    with stream as batches:
+        _train_epochs(cfg, run, loss_fn, batches, data, _Clock(cfg, started), (progress, cancel))
+    return cfg.out
+
+
+def _crop_stream(
+    cfg: TrainConfig, run: TrainingRun, data: TrainingData
+) -> AbstractContextManager[Iterator[Batch | CropBatch]]:
+    """Batches of crops drawn from the sources as the run goes (by workers or a thread)."""
     on_device = (
         cfg.neighbours_on_device
         if cfg.neighbours_on_device is not None
@@ -387,14 +419,50 @@ def train(
         count=(cfg.epochs - run.start_epoch) * cfg.steps_per_epoch,
         neighbours_on_device=on_device,
     )
-    loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights.to(run.device), ignore_index=-1)
-    train_mode(run.model, cfg)
-    stream = batch_stream(
+    return batch_stream(
         maker, workers=cfg.workers, prefetch=cfg.prefetch, pin=run.device.type == "cuda"
     )
-    with stream as batches:
-        _train_epochs(cfg, run, loss_fn, batches, data, _Clock(cfg, started), (progress, cancel))
-    return cfg.out
+
+
+def _bank_stream(
+    cfg: TrainConfig, run: TrainingRun, data: TrainingData
+) -> AbstractContextManager[Iterator[Batch]]:
+    """Batches read from the crop bank (built or extended first when ``cfg.bank_crops``);
+    reading is cheap, so in this process, a step ahead in a thread."""
+    from jointseg.network.training.bank import CropBank, build_bank
+
+    assert cfg.bank is not None
+    if cfg.bank_crops is not None:
+        workers = cfg.bank_workers
+        build_bank(
+            cfg.model_copy(update={"colour": True}) if not cfg.colour else cfg,
+            cfg.bank,
+            cfg.bank_crops,
+            max_bytes=int(cfg.bank_gb * 1e9),
+            workers=len(os.sched_getaffinity(0)) if workers is None else workers,
+            data=data if cfg.colour else None,
+        )
+    bank = CropBank(cfg.bank)
+    check_bank(bank, run.model.config, cfg.num_points, cfg.colour)
+    if bank.spec.sources != cfg.sources():
+        log.warning(
+            "crop bank %s was drawn from %s, this run names %s (validation and loss weights "
+            "follow the run's)", cfg.bank, bank.spec.sources, cfg.sources(),
+        )  # fmt: skip
+    data.bank = {**bank.manifest.summary(cfg.bank), "step_augment": cfg.step_augment.model_dump()}
+    data.description += f"; crops from the bank {cfg.bank} ({len(bank)} crops)"
+    aug = cfg.step_augment.model_copy(update={"colour_drop": cfg.augmentation().colour_drop})
+    batches = BankBatches(
+        bank,
+        cfg.batch_size,
+        cfg.seed,
+        aug,
+        colour=cfg.colour,
+        first=run.start_epoch * cfg.steps_per_epoch,
+        count=(cfg.epochs - run.start_epoch) * cfg.steps_per_epoch,
+    )
+    items = (batches[i] for i in range(len(batches)))
+    return Prefetcher(items) if cfg.prefetch else nullcontext(items)
 
 
 @dataclass
@@ -622,6 +690,8 @@ def _save(
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
         **card_facts(cfg, run.history),
     }
+    if data.bank is not None:
+        card["bank"] = data.bank
     extra = {
         "optimizer": run.optimiser.state_dict(),
         "scheduler": run.scheduler.state_dict(),

@@ -12,7 +12,17 @@ by validation) into the output folder, and at the end ``train.log`` and a ``summ
 the three: eight files, the most a lease hands back.
 
     python -m jointseg.network.training.prepared pack --shared ../shared/data --out .gpu/data
+    python -m jointseg.network.training.pseudo_pack --shared ../shared/data --out .gpu/data
     python -m jointseg.network.training.prepared run --data .gpu/data --out $OUT --minutes 8
+
+(The second line is optional: self-training on unlabelled scans the pipeline labelled.)
+
+On a CPU, a crop bank (:mod:`jointseg.network.training.bank`) drawn once from the same data
+keeps both cores on the steps: ``bank`` builds one, ``run --bank DIR`` trains from it.
+
+    python -m jointseg.network.training.prepared bank --data .gpu/data --out runs/bank --crops 4000
+    python -m jointseg.network.training.prepared run --only colour --device cpu --data .gpu/data \
+        --out runs/cpu --bank runs/bank
 """
 
 from __future__ import annotations
@@ -51,7 +61,9 @@ JUDGING = ("scene0002_", "scene0007_")
 VALIDATION = ("area6_office_4", "scene0005_*", "synth_000")
 #: Each source's share of the training crops (renormalised over the sources carried).
 #: (Folders named as the datasets, so that the cards name the datasets' terms of use.)
-SHARES = {"s3dis_area6": 0.5, "scannet": 0.35, "synth": 0.15}
+#: ``pseudo``: unlabelled real scans labelled by the pipeline where it is sure
+#: (:mod:`jointseg.network.training.pseudo_pack`; few scans, labels ~93 % right, so a small share).
+SHARES = {"s3dis_area6": 0.5, "scannet": 0.35, "synth": 0.15, "pseudo": 0.15}
 #: Coordinates are stored on a binary lattice (1/128 m) so that they compress well.
 LATTICE = 128.0
 #: What each network of the run starts from and how it learns.
@@ -66,6 +78,10 @@ RECIPE: dict[str, dict[str, object]] = {
         "lr": 0.002,
     },
 }
+#: Crops per step when training from a bank (reading them is cheap; several crops per step keep
+#: both cores busy) and the crops' size on a CPU.
+BANK_BATCH = 8
+BANK_POINTS = 4_096
 
 
 def write_arrays(xyz: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, path: Path) -> int:
@@ -88,7 +104,8 @@ def write_arrays(xyz: np.ndarray, rgb: np.ndarray | None, labels: np.ndarray, pa
 
 def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) -> dict:
     """Write the carried training data under ``out`` (``s3dis_area6/``, ``scannet/``, ``synth/`` and
-    ``manifest.json``); ``shared`` None packs synthetic rooms only (the test suite's run)."""
+    ``manifest.json``); ``shared`` None packs synthetic rooms only (the test suite's run). A
+    ``pseudo/`` folder already there (``pseudo_pack``) stays, with its manifest entry."""
     from jointseg.io import read_scan
     from jointseg.synth import make_room
 
@@ -118,12 +135,30 @@ def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) ->
         "synth_points": synth_points,
         "bytes": total,
         "scans": files,
+        "terms": {name: source_terms(name) for name in files},
     }
+    _keep_pseudo(out, manifest)
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     log.info(
         "packed %d scans, %.1f MiB, into %s", sum(map(len, files.values())), total / 2**20, out
     )
     return manifest
+
+
+def source_terms(name: str) -> str:
+    """The terms of use a packed source folder carries (as the model card names them)."""
+    from jointseg.network.training.sources import SYNTH_TERMS, SourceSpec, terms_for
+
+    return SYNTH_TERMS if name == "synth" else terms_for(SourceSpec(name, name, None))
+
+
+def _keep_pseudo(out: Path, manifest: dict) -> None:
+    """A pack written again keeps the ``pseudo/`` folder's entry (``pseudo_pack`` wrote it)."""
+    old = _manifest(out)
+    if (out / "pseudo").is_dir() and "pseudo" in old:
+        manifest["scans"]["pseudo"] = old["scans"].get("pseudo", [])
+        manifest["terms"]["pseudo"] = old["terms"]["pseudo"]
+        manifest["pseudo"] = old["pseudo"]
 
 
 @dataclass(frozen=True)
@@ -139,6 +174,7 @@ class RunOptions:
     steps_per_epoch: int | None = None
     resume: bool = False
     alongside: int = 1  # networks training at once on this machine, which share its cores
+    bank: Path | None = None  # train from this crop bank
 
     @property
     def gpu(self) -> bool:
@@ -151,11 +187,7 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
     :func:`work_dir`, from which ``opts.resume`` continues."""
     from jointseg.network.training.loop import TrainConfig
 
-    data, work = opts.data, work_dir(opts.out)
-    present = [s for s in SHARES if (data / s).is_dir()]
-    if not present:
-        raise SystemExit(f"{data}: no s3dis_area6/, scannet/ or synth/ folder; run 'pack' first")
-    total = sum(SHARES[s] for s in present)
+    work = work_dir(opts.out)
     full = work / f"{name}.pt"
     recipe = dict(RECIPE[name])
     resume = full if opts.resume and full.is_file() else None
@@ -163,20 +195,29 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
         for key in ("init", "sliced_init"):
             recipe.pop(key, None)
     cores = len(os.sched_getaffinity(0))
+    batches: dict[str, object] = {
+        "batch_size": 4 if opts.gpu else 1,
+        "num_points": 16_384 if opts.gpu else 4_096,
+        "workers": max(1, (cores - 2) // opts.alongside) if opts.gpu else 0,
+    }
+    if opts.bank is not None:
+        from jointseg.network.training.bank import read_manifest
+
+        manifest = read_manifest(opts.bank)
+        if manifest is None:
+            raise SystemExit(f"{opts.bank}: no crop bank; build one with 'bank' first")
+        batches = {"batch_size": BANK_BATCH, "num_points": manifest.spec.num_points,
+                   "workers": 0, "bank": opts.bank}  # fmt: skip
     return TrainConfig(
-        data=[f"{s}={data / s}:{SHARES[s] / total:.4f}" for s in present],
+        **data_fields(opts.data),
         out=full,
         resume=resume,
         packed_copy=opts.out / f"{name}.pt",
-        val_scans=[v for v in VALIDATION if any(fnmatch(p.stem, v) for p in data.rglob("*.npz"))],
-        exclude_scans=[f"{p}*" for p in JUDGING],
         epochs=10_000,
         steps_per_epoch=opts.steps_per_epoch or (50 if opts.gpu else 4),
-        batch_size=4 if opts.gpu else 1,
-        num_points=16_384 if opts.gpu else 4_096,
+        **batches,  # type: ignore[arg-type]
         gamma=0.97,
         device=opts.device,
-        workers=max(1, (cores - 2) // opts.alongside) if opts.gpu else 0,
         threads=None if opts.gpu else max(1, cores // opts.alongside),
         minutes=opts.minutes,
         save_minutes=opts.save_minutes,
@@ -184,6 +225,35 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
         command=" ".join([Path(sys.executable).name, "-m", MODULE, *sys.argv[1:]]),
         **recipe,  # type: ignore[arg-type]
     )
+
+
+def data_fields(data: Path) -> dict[str, object]:
+    """The sources of the carried data with their shares, validation and judging scans."""
+    present = [s for s in SHARES if (data / s).is_dir()]
+    if not present:
+        raise SystemExit(f"{data}: no s3dis_area6/, scannet/ or synth/ folder; run 'pack' first")
+    total = sum(SHARES[s] for s in present)
+    return {
+        "data": [f"{s}={data / s}:{SHARES[s] / total:.4f}" for s in present],
+        "val_scans": [
+            v for v in VALIDATION if any(fnmatch(p.stem, v) for p in data.rglob("*.npz"))
+        ],
+        "exclude_scans": [f"{p}*" for p in JUDGING],
+    }
+
+
+def build(data: Path, out: Path, crops: int, *, gb: float, workers: int, num_points: int) -> dict:
+    """Build (or extend) a crop bank of the carried data, with the colour network's
+    augmentation and colour (it serves the colour-free network too, its colour held at zero)."""
+    from jointseg.network.training.bank import build_bank
+    from jointseg.network.training.loop import TrainConfig
+
+    cfg = TrainConfig(**data_fields(data), out=out / "unused.pt", num_points=num_points)  # type: ignore[arg-type]
+    manifest = build_bank(cfg, out, crops, max_bytes=int(gb * 1e9), workers=workers)
+    rate = manifest.crops / max(manifest.build_seconds, 1e-9)
+    log.info("crop bank %s: %d crops, %.2f GB, %.2f crops/s with %d workers", out,
+             manifest.crops, manifest.bytes / 1e9, rate, manifest.build_workers)  # fmt: skip
+    return manifest.model_dump(mode="json")
 
 
 def run(opts: RunOptions) -> int:
@@ -205,6 +275,8 @@ def run(opts: RunOptions) -> int:
             cmd += ["--steps", str(opts.steps_per_epoch)]
         if opts.resume:
             cmd.append("--resume")
+        if opts.bank is not None:
+            cmd += ["--bank", str(opts.bank)]
         logfile = (work / f"{name}.log").open("a" if opts.resume else "w")
         procs[name] = (subprocess.Popen(cmd, stdout=logfile, stderr=subprocess.STDOUT), logfile)
     codes = {}
@@ -264,6 +336,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--synth-rooms", type=int, default=4)
     p.add_argument("--synth-points", type=int, default=150_000)
+    b = sub.add_parser("bank", help="build or extend a crop bank of the carried data")
+    b.add_argument("--data", type=Path, required=True)
+    b.add_argument("--out", type=Path, required=True, help="the bank's folder")
+    b.add_argument("--crops", type=int, required=True, help="crops the bank holds at the end")
+    b.add_argument("--bank-gb", type=float, default=4.0, help="bound on the bank's size (GB)")
+    b.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    b.add_argument("--num-points", type=int, default=BANK_POINTS)
     for what in ("run", "one"):
         r = sub.add_parser(what, help="train the networks" if what == "run" else "one of them")
         if what == "one":
@@ -277,12 +356,17 @@ def main(argv: list[str] | None = None) -> int:
         r.add_argument("--save-minutes", type=float, default=2.0)
         r.add_argument("--steps", type=int, default=None, help="steps per epoch")
         r.add_argument("--resume", action="store_true", help="continue the work folder's runs")
+        r.add_argument("--bank", type=Path, default=None, help="train from this crop bank")
         if what == "one":
             r.add_argument("--alongside", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     if args.what == "pack":
         pack(args.out, args.shared, args.synth_rooms, args.synth_points)
+        return 0
+    if args.what == "bank":
+        build(args.data, args.out, args.crops, gb=args.bank_gb, workers=args.workers,
+              num_points=args.num_points)  # fmt: skip
         return 0
     import torch
 
@@ -297,6 +381,7 @@ def main(argv: list[str] | None = None) -> int:
         steps_per_epoch=args.steps,
         resume=args.resume,
         alongside=getattr(args, "alongside", len(names)),
+        bank=args.bank,
     )
     if args.what == "one":
         from jointseg.network.training.loop import train
