@@ -46,6 +46,15 @@ SCANNET_TERMS = (
 )
 SYNTH_TERMS = "synthetic rooms only (jointseg.synth); no third-party data"
 OTHER_TERMS = "user-supplied labelled scans: their own terms of use apply"
+#: Pseudo-labels (jointseg.network.training.pseudo) come from the pipeline's network, trained
+#: on S3DIS and ScanNet, so they carry the strictest terms of the data behind them.
+PSEUDO_TERMS = (
+    "pseudo-labels made by jointseg's pipeline, whose bundled network was trained on data "
+    "derived from S3DIS (Armeni et al., CVPR 2016) and ScanNet (Dai et al., CVPR 2017), on "
+    "unlabelled scans from the Point Cloud Library's data (BSD 3-clause) and Open3D-ML (MIT): "
+    "the strictest terms of those apply, non-commercial research and educational use only, "
+    "cite both dataset papers; weights derived from them carry the same terms"
+)
 
 _SPEC = re.compile(r"^(?:(?P<name>[A-Za-z0-9_.-]+)=)?(?P<path>.+?)(?::(?P<share>[0-9.]+))?$")
 
@@ -104,6 +113,8 @@ def terms_for(spec: SourceSpec) -> str:
     text = f"{spec.name} {spec.path}".lower()
     if spec.is_synth:
         return SYNTH_TERMS
+    if "pseudo" in text:  # before the datasets: pseudo-labels carry both datasets' terms
+        return PSEUDO_TERMS
     if "scannet" in text:
         return SCANNET_TERMS
     if "s3dis" in text or "stanford3d" in text or "area_" in text:
