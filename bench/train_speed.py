@@ -1,4 +1,5 @@
-"""Training speed: batches per second from worker processes, and whole training steps per second.
+"""Training speed: batches per second from worker processes, whole training steps per second,
+and points trained per second from a crop bank.
 
 Two tables, both measured in this one process against a baseline from the same run:
 
@@ -13,9 +14,18 @@ Two tables, both measured in this one process against a baseline from the same r
 Default data: the real S3DIS Area_6 and ScanNet scans when ../shared holds them, with synthetic
 rooms; else synthetic rooms only.
 
+``--points`` prints a third table instead (issue 65): **points trained per second** by today's
+CPU recipe (the prepared run's colour network: one 4 096-point crop per step, built a step
+ahead in a thread, two torch threads, fine-tuned from the bundled weights) against training
+from a crop bank (``--bank-batch`` crops per step), each through the trainer's own stream and
+step, in this one process; with the bank's build rate (crops/s by ``--bank-workers``
+processes) and bytes per crop. Its data is a ``prepared pack`` folder (``--recipe-data``,
+default ``.gpu/data``; synthetic rooms are packed when there is none).
+
     .venv/bin/python bench/train_speed.py [--workers 1 2] [--batch-size 2 --num-points 8192]
     .venv/bin/python bench/train_speed.py --device cuda --batch-size 4 --num-points 16384 \\
         --workers 4 8 12
+    .venv/bin/python bench/train_speed.py --points --recipe-data .gpu/data --bank-crops 256
 """
 
 from __future__ import annotations
@@ -25,8 +35,10 @@ import logging
 import os
 import shutil
 import subprocess
+import tempfile
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +48,18 @@ from helpers.report import header
 
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.training.batches import BatchMaker, batch_stream
-from jointseg.network.training.loop import TrainConfig, TrainingRun, device_batch, training_data
+from jointseg.network.training.loop import (
+    TrainConfig,
+    TrainingRun,
+    _bank_stream,
+    _crop_stream,
+    _start,
+    _step,
+    device_batch,
+    train,
+    train_mode,
+    training_data,
+)
 
 
 def default_data() -> list[str]:
@@ -116,6 +139,106 @@ def step_rate(
         return (len(maker) - warmup) / (time.perf_counter() - started), gpu.mean()
 
 
+def points_rate(cfg: TrainConfig, steps: int, warmup: int) -> tuple[float, float]:
+    """Points trained per second (the crops' points as they came, a crop cut smaller than
+    ``num_points`` counted as it is) and steps per second of ``cfg``'s run, by the trainer's own
+    batch stream and step (validation left out)."""
+    if cfg.threads:
+        torch.set_num_threads(cfg.threads)
+    run = _start(cfg)
+    data = training_data(cfg, run.model.config.grid_size)
+    cfg = cfg.model_copy(update={"epochs": 1, "steps_per_epoch": steps + warmup})
+    stream = _bank_stream(cfg, run, data) if cfg.bank else _crop_stream(cfg, run, data)
+    loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights, ignore_index=-1)
+    train_mode(run.model, cfg)
+    points = 0
+    with stream as batches:
+        for i in range(steps + warmup):
+            if i == warmup:
+                started = time.perf_counter()
+            batch = device_batch(next(batches), run)
+            _step(run, loss_fn, batch, cfg)
+            points += batch.features.shape[0] * batch.features.shape[1] if i >= warmup else 0
+    seconds = time.perf_counter() - started
+    return points / seconds, steps / seconds
+
+
+def points_run(cfg: TrainConfig, minutes: float) -> tuple[float, int]:
+    """Points trained per wall-clock second of a whole run of ``minutes`` through
+    :func:`train` (validation every epoch and checkpoints included, from its first step), and
+    its steps: crops counted at ``num_points``."""
+    steps: list[float] = []
+
+    def progress(stage: str, fraction: float) -> None:
+        if fraction > 0:
+            steps.append(time.perf_counter())
+
+    train(cfg.model_copy(update={"minutes": minutes}), progress=progress)
+    ended = time.perf_counter()
+    return len(steps) * cfg.batch_size * cfg.num_points / (ended - steps[0]), len(steps)
+
+
+def points_table(args: argparse.Namespace) -> None:
+    """Today's CPU recipe against training from a crop bank, points trained per second."""
+    from jointseg.network.training import prepared
+    from jointseg.network.training.bank import SHARD_CROPS
+
+    scratch = Path(tempfile.mkdtemp(prefix="train-speed-"))
+    os.environ["JOINTSEG_GPU_WORK"] = str(scratch / "work")
+    data = args.recipe_data
+    if not (data / "manifest.json").is_file():
+        data = scratch / "data"
+        prepared.pack(data, None, synth_rooms=4, synth_points=150_000)
+    print(f"# points trained per second, {len(os.sched_getaffinity(0))} cores, "
+          f"torch {torch.__version__}, data {data}, {time.strftime('%F %H:%M')}")  # fmt: skip
+    print("\n## crop bank build\n")
+    print("| workers | crops | crops/s | bytes per crop | bank size |")
+    print("|---|---|---|---|---|")
+    bank = scratch / "bank"
+    for workers in args.bank_workers:
+        folder = scratch / f"bank{workers}"
+        count = args.bank_crops if workers == args.bank_workers[-1] else SHARD_CROPS * workers
+        manifest = prepared.build(
+            data, folder, count, gb=args.bank_gb, workers=workers, num_points=prepared.BANK_POINTS
+        )
+        rate = manifest["crops"] / manifest["build_seconds"]
+        per = manifest["bytes"] / manifest["crops"]
+        print(f"| {workers} | {manifest['crops']} | {rate:.2f} | {per / 1e3:.0f} kB "
+              f"| {manifest['bytes'] / 1e6:.0f} MB |")  # fmt: skip
+        bank = folder
+    opts = prepared.RunOptions(data=data, out=scratch / "out", device="cpu", names=("colour",))
+    opts.out.mkdir()
+    today = prepared.train_config("colour", opts)
+    print(f"\n## training steps ({today.threads} torch threads)\n")
+    print("| recipe | crops x points per step | steps/s | points/s | vs today |")
+    print("|---|---|---|---|---|")
+    base, steps = points_rate(today, args.recipe_steps, args.warmup)
+    shape = f"{today.batch_size} x {today.num_points}"
+    print(f"| today: prepared CPU recipe, crops built a step ahead in a thread | {shape} "
+          f"| {steps:.2f} | {base:.0f} | 1.00x |")  # fmt: skip
+    for size in args.bank_batch:
+        with_bank = prepared.train_config("colour", replace(opts, bank=bank))
+        with_bank = with_bank.model_copy(update={"batch_size": size})
+        rate, steps = points_rate(with_bank, max(8, args.recipe_steps // size), args.warmup)
+        print(f"| crop bank ({bank.name}), read a step ahead in a thread "
+              f"| {size} x {with_bank.num_points} | {steps:.2f} | {rate:.0f} "
+              f"| {rate / base:.2f}x |")  # fmt: skip
+    if not args.run_minutes:
+        return
+    print(
+        f"\n## whole runs of {args.run_minutes} minutes (prepared 'one colour': validation "
+        f"every {today.steps_per_epoch} steps, checkpoints every {today.save_minutes} min)\n"
+    )
+    print("| recipe | crops x points per step | steps | points/s | vs today |")
+    print("|---|---|---|---|---|")
+    base, count = points_run(today, args.run_minutes)
+    print(f"| today | {shape} | {count} | {base:.0f} | 1.00x |")
+    with_bank = prepared.train_config("colour", replace(opts, bank=bank))
+    rate, count = points_run(with_bank, args.run_minutes)
+    print(f"| crop bank | {with_bank.batch_size} x {with_bank.num_points} | {count} | {rate:.0f} "
+          f"| {rate / base:.2f}x |")  # fmt: skip
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", action="append", default=None)
@@ -128,9 +251,20 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads for the steps")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--skip-steps", action="store_true", help="only the batch table")
+    parser.add_argument("--points", action="store_true", help="only the points/s table")
+    parser.add_argument("--recipe-data", type=Path, default=Path(".gpu/data"))
+    parser.add_argument("--recipe-steps", type=int, default=40, help="today's recipe's steps")
+    parser.add_argument("--bank-crops", type=int, default=256)
+    parser.add_argument("--bank-gb", type=float, default=2.0)
+    parser.add_argument("--bank-workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--bank-batch", type=int, nargs="+", default=[4, 8])
+    parser.add_argument("--run-minutes", type=float, default=2.0, help="0: no whole runs")
     args = parser.parse_args()
     header()
     logging.basicConfig(level=logging.WARNING)
+    if args.points:
+        points_table(args)
+        return
     torch.set_num_threads(args.threads)
     cfg = TrainConfig(
         data=args.data or default_data(),

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial import cKDTree
 
 from jointseg.exceptions import ConfigError
@@ -88,7 +89,8 @@ def test_bank_crops_hold_build_batchs_indices_exactly(built) -> None:
                 assert a.shape == b.shape and a.dtype == b.dtype, name
                 assert bool((a == b).all()), name
         assert bool((got.features == want.features).all())
-        assert bool((got.labels == want.labels).all())
+        assert got.labels is not None and want.labels is not None
+        assert torch.equal(got.labels, want.labels)
 
 
 def knn_agreement(coords: np.ndarray, stored: np.ndarray, k: int) -> float:
@@ -224,3 +226,30 @@ def test_jointseg_train_builds_a_bank_and_trains_from_it(tmp_path) -> None:
     )  # fmt: skip
     assert result.returncode == 2 and "beyond the bound" in result.stderr
     assert "Traceback" not in result.stderr and read_manifest(bank).crops == 4  # type: ignore[union-attr]
+
+
+@pytest.mark.slow
+def test_the_prepared_run_trains_the_colour_free_network_from_a_colour_bank(tmp_path) -> None:
+    from jointseg.network.training import prepared
+
+    data = tmp_path / "data"
+    prepared.pack(data, None, synth_rooms=2, synth_points=40_000)
+    bank = tmp_path / "bank"
+    assert prepared.main(["bank", "--data", str(data), "--out", str(bank), "--crops", "3",
+                          "--num-points", "2048", "--workers", "1"]) == 0  # fmt: skip
+    assert read_manifest(bank).spec.colour  # type: ignore[union-attr]
+    opts = prepared.RunOptions(data=data, out=tmp_path / "out", device="cpu", bank=bank)
+    opts.out.mkdir()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("JOINTSEG_GPU_WORK", str(tmp_path / "work"))
+        cfg = prepared.train_config("nocolour", opts)
+        assert (cfg.bank, cfg.batch_size, cfg.num_points) == (bank, prepared.BANK_BATCH, 2048)
+        assert cfg.workers == 0 and not cfg.colour
+        cfg = cfg.model_copy(update={"epochs": 1, "steps_per_epoch": 1, "batch_size": 2})
+        card = load_checkpoint(train(cfg))[1]
+    assert card["bank"]["crops"] == 3 and card["colour"] is False
+    # a colour-free bank cannot train a colour network
+    nocolour = tmp_path / "nocolour"
+    build_bank(tiny(tmp_path, colour=False), nocolour, 1, max_bytes=10**9, workers=1)
+    with pytest.raises(ConfigError, match="drawn without colour"):
+        train(tiny(tmp_path, bank=nocolour))

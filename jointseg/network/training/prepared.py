@@ -78,9 +78,10 @@ RECIPE: dict[str, dict[str, object]] = {
         "lr": 0.002,
     },
 }
-#: Crops per step when training from a bank (reading them is cheap; several crops per step keep
-#: both cores busy) and the crops' size on a CPU.
-BANK_BATCH = 8
+#: Crops per step when training from a bank and the crops' size on a CPU: on the 2-core CPU 2 or
+#: 4 crops a step trained the most points per second (1.57x and 1.52x today's one crop; 8:
+#: 1.47x; docs/guide/training.md), and 4 trains 16 crops between validations where 2 trains 8.
+BANK_BATCH = 4
 BANK_POINTS = 4_096
 
 
