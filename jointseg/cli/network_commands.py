@@ -130,6 +130,26 @@ COLOUR_HELP = (
 )
 
 
+#: ``jointseg train``'s crop-bank and worker options (module level: the command's option list
+#: is long enough).
+BANK_OPTION = typer.Option(
+    None,
+    help="Train on the crops of this crop bank (crops and their neighbour indices drawn "
+    "once, read per step; see docs/guide/training.md).",
+)
+BANK_CROPS_OPTION = typer.Option(
+    None, min=1, help="First build or extend --bank to this many crops, from --data."
+)
+BANK_GB_OPTION = typer.Option(4.0, min=0.001, help="Bound on the bank's size on disk (GB).")
+WORKERS_OPTION = typer.Option(
+    None,
+    min=0,
+    max=64,
+    help="Processes building batches (0: in this process; default: one per spare core, "
+    "at most 8). The batches are the same for any number.",
+)
+
+
 def train(
     data: list[str] = typer.Option(
         ["synth"],
@@ -186,13 +206,7 @@ def train(
     ),
     tilt: float = typer.Option(3.0, min=0.0, max=15.0, help="Largest tilt in degrees."),
     colour: bool = typer.Option(True, help=COLOUR_HELP),
-    workers: int | None = typer.Option(
-        None,
-        min=0,
-        max=64,
-        help="Processes building batches (0: in this process; default: one per spare core, "
-        "at most 8). The batches are the same for any number.",
-    ),
+    workers: int | None = WORKERS_OPTION,
     prefetch: bool = typer.Option(
         True, help="Without workers: build the next batch in a background thread."
     ),
@@ -205,102 +219,64 @@ def train(
     seed: int = typer.Option(0),
     init: Path | None = typer.Option(None, help="Start from these weights (fresh optimiser)."),
     resume: Path | None = typer.Option(None, help="Continue from this checkpoint."),
-    bank: Path | None = typer.Option(
-        None,
-        help="Train on the crops of this crop bank (crops and their neighbour indices drawn "
-        "once, read per step; see docs/guide/training.md).",
-    ),
-    bank_crops: int | None = typer.Option(
-        None, min=1, help="First build or extend --bank to this many crops, from --data."
-    ),
-    bank_gb: float = typer.Option(4.0, min=0.001, help="Bound on the bank's size on disk (GB)."),
+    bank: Path | None = BANK_OPTION,
+    bank_crops: int | None = BANK_CROPS_OPTION,
+    bank_gb: float = BANK_GB_OPTION,
 ) -> None:
     """Train RandLA-Net on synthetic rooms, S3DIS, folders of labelled scans, or a mix."""
     # every option by name, as typer passed it (nothing else is bound yet)
     _run_train(**locals())
 
 
-def _run_train(
-    *,
-    data: list[str],
-    out: Path,
-    epochs: int,
-    steps: int,
-    batch_size: int,
-    num_points: int | None,
-    lr: float,
-    gamma: float,
-    test_area: int,
-    synth_rooms: int,
-    synth_floors: int,
-    synth_val_rooms: int,
-    val_scan: list[str],
-    val_count: int,
-    exclude_scan: list[str],
-    synth_share: float,
-    balanced: bool,
-    channels: float,
-    elastic: float,
-    density: float,
-    partial: float,
-    slices: float,
-    tilt: float,
-    colour: bool,
-    workers: int | None,
-    prefetch: bool,
-    threads: int | None,
-    device: str | None,
-    seed: int,
-    init: Path | None,
-    resume: Path | None,
-    bank: Path | None,
-    bank_crops: int | None,
-    bank_gb: float,
-) -> None:
+def _run_train(**o: Any) -> None:
     """Body of ``jointseg train``, apart from its long option list so both stay readable."""
     from jointseg.network.training.augment import AugmentParams
-    from jointseg.network.training.loop import TrainConfig, best_path, default_workers
+    from jointseg.network.training.config import TrainConfig
+    from jointseg.network.training.loop import best_path, default_workers
     from jointseg.network.training.loop import train as run_training
 
+    num_points = o["num_points"]
     if num_points is None:
         num_points = 16_384
-        if bank is not None and bank_crops is None:
+        if o["bank"] is not None and o["bank_crops"] is None:
             from jointseg.network.training.bank import read_manifest
 
-            manifest = read_manifest(bank)
+            manifest = read_manifest(o["bank"])
             num_points = manifest.spec.num_points if manifest else num_points
     cfg = TrainConfig(
-        data=data,
-        out=out,
-        epochs=epochs,
-        steps_per_epoch=steps,
-        batch_size=batch_size,
+        data=o["data"],
+        out=o["out"],
+        epochs=o["epochs"],
+        steps_per_epoch=o["steps"],
+        batch_size=o["batch_size"],
         num_points=num_points,
-        lr=lr,
-        gamma=gamma,
-        test_area=test_area,
-        synth_rooms=synth_rooms,
-        synth_floors=synth_floors,
-        val_rooms=synth_val_rooms,
-        seed=seed,
-        resume=resume,
-        init=init,
-        val_scans=val_scan,
-        val_count=val_count,
-        exclude_scans=exclude_scan,
-        synth_share=synth_share,
-        balanced_crops=balanced,
-        num_channels_scale=channels,
-        threads=threads,
-        elastic=elastic,
-        augment=AugmentParams(density=density, partial=partial, slice=slices, tilt_degrees=tilt),
-        workers=default_workers() if workers is None else workers,
-        prefetch=prefetch,
-        colour=colour,
-        device=device,
-        bank=bank,
-        bank_crops=bank_crops,
-        bank_gb=bank_gb,
+        lr=o["lr"],
+        gamma=o["gamma"],
+        test_area=o["test_area"],
+        synth_rooms=o["synth_rooms"],
+        synth_floors=o["synth_floors"],
+        val_rooms=o["synth_val_rooms"],
+        seed=o["seed"],
+        resume=o["resume"],
+        init=o["init"],
+        val_scans=o["val_scan"],
+        val_count=o["val_count"],
+        exclude_scans=o["exclude_scan"],
+        synth_share=o["synth_share"],
+        balanced_crops=o["balanced"],
+        num_channels_scale=o["channels"],
+        threads=o["threads"],
+        elastic=o["elastic"],
+        augment=AugmentParams(
+            density=o["density"], partial=o["partial"], slice=o["slices"], tilt_degrees=o["tilt"]
+        ),
+        workers=default_workers() if o["workers"] is None else o["workers"],
+        prefetch=o["prefetch"],
+        colour=o["colour"],
+        device=o["device"],
+        bank=o["bank"],
+        bank_crops=o["bank_crops"],
+        bank_gb=o["bank_gb"],
         command="jointseg " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
     )
     with progress_bar() as progress:

@@ -14,6 +14,7 @@ from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.randlanet.crops import build_batch
 from jointseg.network.randlanet.model import RandLANetConfig
 from jointseg.network.training import bank as bank_module
+from jointseg.network.training.augment import StepAugment
 from jointseg.network.training.bank import (
     CropBank,
     _Drawer,
@@ -22,13 +23,9 @@ from jointseg.network.training.bank import (
     layer_sizes,
     read_manifest,
 )
-from jointseg.network.training.bank_batches import (
-    BankBatches,
-    StepAugment,
-    augment_xyz,
-    bank_batch,
-)
-from jointseg.network.training.loop import TrainConfig, train, training_data
+from jointseg.network.training.bank_batches import BankBatches, augment_xyz, bank_batch
+from jointseg.network.training.config import TrainConfig, training_data
+from jointseg.network.training.loop import train
 from tests.support.cli import run_cli
 
 POINTS = 2048

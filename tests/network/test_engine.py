@@ -63,7 +63,7 @@ forward = CompiledForward(net.model, threads=1, folder=folder)
 room = make_room(22, points=20_000)
 cloud = anchored_cloud([(room.xyz, room.rgb)], net.grid_size, room.xyz.min(axis=0))
 plan = net.plan(cloud, seed=0)
-batch, _ = next(iter(net._batches(cloud, plan, np.arange(1), 0)))
+batch, _ = next(iter(net.batches(cloud, plan, np.arange(1), 0)))
 args = (batch.features, batch.coords, batch.neighbours, batch.pools, batch.upsamples)
 with torch.inference_mode():
     # torch's own forward: the same up to the threads' summation order

@@ -21,11 +21,12 @@ from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.slicing import channel_maps, sliced_init
-from jointseg.network.training.loop import _model_config, distillation_loss, train
+from jointseg.network.training.config import model_config
+from jointseg.network.training.loop import distillation_loss, train
 from jointseg.network.training.prepared import (
     COLOUR_WEIGHTS,
+    DEFAULT_RUN,
     LATTICE,
-    RECIPE,
     RunOptions,
     pack,
     train_config,
@@ -57,14 +58,14 @@ def test_the_half_minute_run_leaves_eight_files_and_three_networks(carried: Path
     assert seconds < 60, f"a half-minute run took {seconds:.0f} s"
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(
-        [f"{n}{s}.pt" for n in RECIPE for s in ("", ".best")] + ["summary.json", "train.log"]
+        [f"{n}{s}.pt" for n in DEFAULT_RUN for s in ("", ".best")] + ["summary.json", "train.log"]
     )
     summary = json.loads((out / "summary.json").read_text())
     nets = summary["networks"]
-    assert all(nets[n]["exit_code"] == 0 and nets[n]["steps"] > 0 for n in RECIPE)
+    assert all(nets[n]["exit_code"] == 0 and nets[n]["steps"] > 0 for n in DEFAULT_RUN)
     assert nets["student"]["parameters"] < nets["colour"]["parameters"] / 3
     assert summary["data"]["scans"]["synth"][0].startswith("synth_000")
-    for name in RECIPE:
+    for name in DEFAULT_RUN:
         model, card, body = load_checkpoint(out / f"{name}.pt")
         assert card["weights_dtype"] == "float16" and "optimizer" not in body
         assert card["train_config"]["minutes"] < 0.5 and card["colour"] == (name != "nocolour")
@@ -135,7 +136,7 @@ def test_a_sliced_narrow_network_computes_what_the_wide_one_does_on_its_channels
     tiny_training,
 ) -> None:
     wide, _, _ = load_checkpoint(COLOUR_WEIGHTS)
-    narrow = RandLANet(_model_config(tiny_training(num_channels_scale=0.5)))
+    narrow = RandLANet(model_config(tiny_training(num_channels_scale=0.5)))
     _zero_outside(wide, narrow)
     sliced_init(narrow, wide)
     wide.eval(), narrow.eval()
@@ -154,8 +155,8 @@ def test_a_sliced_narrow_network_computes_what_the_wide_one_does_on_its_channels
 def test_a_leading_block_copy_would_not_do(tiny_training) -> None:
     """The decoder reads a skip beside the upsampled features: the narrow network's second part
     sits at the wide one's offset, not right after its own first part."""
-    wide = RandLANet(_model_config(tiny_training()))
-    narrow = RandLANet(_model_config(tiny_training(num_channels_scale=0.5)))
+    wide = RandLANet(model_config(tiny_training()))
+    narrow = RandLANet(model_config(tiny_training(num_channels_scale=0.5)))
     index = channel_maps("decoder.0.conv.weight", (1, 768, 1, 1), wide.config, narrow.config)[1]
     assert index[:256].tolist() == list(range(256))
     assert index[256:].tolist() == list(range(512, 1024))

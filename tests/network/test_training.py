@@ -8,7 +8,8 @@ import torch
 from jointseg.exceptions import ConfigError
 from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.training.augment import augment
-from jointseg.network.training.loop import class_weights, train
+from jointseg.network.training.config import class_weights
+from jointseg.network.training.loop import train
 
 
 @pytest.mark.slow

@@ -270,3 +270,16 @@ def add_stray_points(
     rgb[slots] = rng.uniform(0, 1, (count, 3)).astype(rgb.dtype)
     labels[slots] = -1
     return xyz, rgb, labels
+
+
+class StepAugment(BaseModel):
+    """Augmentation drawn per step on bank crops (none changes a neighbour)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    rotate: bool = Field(True, description="rotate each crop by a random angle about z")
+    mirror: float = Field(0.5, ge=0, le=1, description="share of crops mirrored in x")
+    scale: tuple[float, float] = Field((0.95, 1.05), description="uniform scale range")
+    gain: float = Field(0.1, ge=0, le=0.5, description="per-channel colour gain of 1 +- this")
+    offset: float = Field(0.03, ge=0, le=0.2, description="per-channel colour offset +- this")
+    colour_drop: float = Field(0.05, ge=0, le=1, description="share of crops without colour")

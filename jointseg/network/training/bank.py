@@ -44,7 +44,7 @@ from jointseg.network.training.augment import AugmentParams
 from jointseg.network.training.batches import Crop, training_crop
 
 if TYPE_CHECKING:
-    from jointseg.network.training.loop import TrainConfig, TrainingData
+    from jointseg.network.training.config import TrainConfig, TrainingData
 
 log = logging.getLogger(__name__)
 
@@ -313,7 +313,7 @@ def build_bank(
         return manifest
     check_room(folder, spec, have, crops, max_bytes)
     if data is None:
-        from jointseg.network.training.loop import training_data
+        from jointseg.network.training.config import training_data
 
         data = training_data(cfg, spec.grid)
     manifest.data = data.description

@@ -14,25 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.crops import Batch
 from jointseg.network.randlanet.model import RandLANetConfig
+from jointseg.network.training.augment import StepAugment
 from jointseg.network.training.bank import CropBank, layer_sizes
-
-
-class StepAugment(BaseModel):
-    """Augmentation drawn per step on bank crops (none changes a neighbour)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    rotate: bool = Field(True, description="rotate each crop by a random angle about z")
-    mirror: float = Field(0.5, ge=0, le=1, description="share of crops mirrored in x")
-    scale: tuple[float, float] = Field((0.95, 1.05), description="uniform scale range")
-    gain: float = Field(0.1, ge=0, le=0.5, description="per-channel colour gain of 1 +- this")
-    offset: float = Field(0.03, ge=0, le=0.2, description="per-channel colour offset +- this")
-    colour_drop: float = Field(0.05, ge=0, le=1, description="share of crops without colour")
 
 
 def check_bank(bank: CropBank, model: RandLANetConfig, num_points: int, colour: bool) -> None:

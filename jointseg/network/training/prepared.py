@@ -45,7 +45,7 @@ import numpy as np
 from jointseg.io.atomic import atomic_open
 
 if TYPE_CHECKING:
-    from jointseg.network.training.loop import TrainConfig
+    from jointseg.network.training.config import TrainConfig
 
 log = logging.getLogger(__name__)
 MODULE = "jointseg.network.training.prepared"
@@ -77,7 +77,18 @@ RECIPE: dict[str, dict[str, object]] = {
         "num_channels_scale": STUDENT_CHANNELS,
         "lr": 0.002,
     },
+    # issue 65's campaign: the colour network fine-tuned with half its loss the bundled
+    # network's softened outputs on the same crops, so what it knew is not traded away
+    "colour_soft": {
+        "init": COLOUR_WEIGHTS,
+        "lr": 0.0002,
+        "freeze_norm": True,
+        "teacher": COLOUR_WEIGHTS,
+        "distill_weight": 0.5,
+    },
 }
+#: The networks a run trains unless told (the prepared GPU run: ``make gpu-train``).
+DEFAULT_RUN = ("colour", "nocolour", "student")
 #: Crops per step when training from a bank and the crops' size on a CPU: on the 2-core CPU 2 or
 #: 4 crops a step trained the most points per second (1.57x and 1.52x today's one crop; 8:
 #: 1.47x; docs/guide/training.md), and 4 trains 16 crops between validations where 2 trains 8.
@@ -171,7 +182,7 @@ class RunOptions:
     minutes: float = 8.0
     device: str = "cpu"
     save_minutes: float = 2.0
-    names: tuple[str, ...] = tuple(RECIPE)
+    names: tuple[str, ...] = DEFAULT_RUN
     steps_per_epoch: int | None = None
     resume: bool = False
     alongside: int = 1  # networks training at once on this machine, which share its cores
@@ -186,7 +197,7 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
     """The :class:`~jointseg.network.training.loop.TrainConfig` of one network of the run: the
     packed checkpoints in ``opts.out``, the full ones (with optimiser state) in
     :func:`work_dir`, from which ``opts.resume`` continues."""
-    from jointseg.network.training.loop import TrainConfig
+    from jointseg.network.training.config import TrainConfig
 
     work = work_dir(opts.out)
     full = work / f"{name}.pt"
@@ -247,7 +258,7 @@ def build(data: Path, out: Path, crops: int, *, gb: float, workers: int, num_poi
     """Build (or extend) a crop bank of the carried data, with the colour network's
     augmentation and colour (it serves the colour-free network too, its colour held at zero)."""
     from jointseg.network.training.bank import build_bank
-    from jointseg.network.training.loop import TrainConfig
+    from jointseg.network.training.config import TrainConfig
 
     cfg = TrainConfig(**data_fields(data), out=out / "unused.pt", num_points=num_points)  # type: ignore[arg-type]
     manifest = build_bank(cfg, out, crops, max_bytes=int(gb * 1e9), workers=workers)
@@ -349,7 +360,7 @@ def main(argv: list[str] | None = None) -> int:
         if what == "one":
             r.add_argument("name", choices=list(RECIPE))
         else:
-            r.add_argument("--only", nargs="+", choices=list(RECIPE), default=list(RECIPE))
+            r.add_argument("--only", nargs="+", choices=list(RECIPE), default=list(DEFAULT_RUN))
         r.add_argument("--data", type=Path, required=True)
         r.add_argument("--out", type=Path, required=True)
         r.add_argument("--minutes", type=float, default=8.0)
