@@ -74,7 +74,7 @@ def crop_inputs(net: RandLANetPredictor, points: int, limit: int) -> list[list[t
     plan = net.plan(cloud, seed=0)
     crops = np.arange(len(plan) if limit <= 0 else min(limit, len(plan)))
     out = []
-    for batch, _ in net._batches(cloud, plan, crops, 0):
+    for batch, _ in net.batches(cloud, plan, crops, 0):
         out.append([batch.features, *batch.coords, *batch.neighbours, *batch.pools,
                     *batch.upsamples])  # fmt: skip
     return out

@@ -167,7 +167,7 @@ class RandLANetPredictor(NetworkPredictor):
             self._compiled_pid = pid
         return self._compiled
 
-    def _batches(
+    def batches(
         self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int
     ) -> Iterator[tuple[Batch, int]]:
         """Batches of the crops ``crops`` (indices into ``plan``), each with the number of
@@ -207,7 +207,7 @@ class RandLANetPredictor(NetworkPredictor):
         m = len(cloud.xyz)
         prob_sum = torch.zeros((m, cfg.num_classes), dtype=torch.float64)
         seen = torch.zeros(m, dtype=torch.float64)
-        source = self._batches(cloud, plan, np.asarray(crops, dtype=np.int64), seed)
+        source = self.batches(cloud, plan, np.asarray(crops, dtype=np.int64), seed)
         with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
             for batch, done in ahead:
                 batch = batch.to(self.device)
