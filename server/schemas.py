@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -165,3 +165,99 @@ class Health(BaseModel):
         None,
         description="Live workers (with a key); a job id only when the key may see that job.",
     )
+
+
+class ModelParams(BaseModel):
+    """How a model learns (:class:`jointseg.adapt.head.AdaptParams`, within the service's
+    bounds); a field left out takes the library's default, chosen on the tuning scans."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    steps: int | None = Field(None, ge=1, le=20_000, description="Steps of the head's fit (300).")
+    lr: float | None = Field(None, gt=0, le=1, description="Learning rate (0.002).")
+    keep_weight: float | None = Field(
+        None, ge=0, le=1000, description="Weight of holding uncorrected points to the base (8)."
+    )
+    replay_rooms: int | None = Field(
+        None, ge=0, le=20, description="Generated rooms that keep the other classes' labels (4)."
+    )
+    seed: int | None = Field(None, ge=0, le=2**31 - 1)
+
+
+class ModelRequest(BaseModel):
+    """``POST /v1/models``: the corrected jobs a model learns from (their latest labels
+    versions), a name for it and how it learns."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    jobs: list[str] = Field(
+        min_length=1,
+        max_length=100,
+        description="Ids of the caller's succeeded jobs, each corrected at least once "
+        "(`PATCH /v1/jobs/{id}/labels`); their current labels versions are used.",
+    )
+    name: str | None = Field(None, max_length=200, description="A name to know it by.")
+    params: ModelParams = Field(default_factory=ModelParams)
+
+
+class ModelSource(BaseModel):
+    """One corrected job a model learns from, and the labels version it was given."""
+
+    job_id: str
+    version: int
+
+
+class ModelView(BaseModel):
+    """A model learnt from corrections, as the API shows it (built from its job row)."""
+
+    id: str = Field(description="32 hex digits.")
+    name: str | None = None
+    status: JobStatus
+    stage: str | None = Field(None, description="sources, features or adapt while it runs.")
+    progress: float = Field(0.0, ge=0, le=1)
+    error: str | None = Field(None, description="Why it failed or was cancelled.")
+    attempts: int = 0
+    sources: list[ModelSource] = Field(description="The jobs and labels versions it learns from.")
+    params: dict[str, float | int] = Field(description="The learning settings asked for.")
+    adapted: dict[str, Any] | None = Field(
+        None,
+        description="When it succeeded: the model card's `adapted` section (each scan with its "
+        "version and corrected points, the params, the seconds taken).",
+    )
+    weights: str = Field(description='What a later job names in `network.weights`: "model:<id>".')
+    created_at: datetime
+    started_at: datetime | None = None
+    finished_at: datetime | None = None
+
+    @property
+    def finished(self) -> bool:
+        """Whether the model reached a final status."""
+        return self.status in FINAL_STATUSES
+
+
+class ModelLinks(BaseModel):
+    """Where to find a model and its file."""
+
+    self: str
+    file: str
+
+
+class ModelResponse(ModelView):
+    """A model with links to itself and its file."""
+
+    links: ModelLinks
+
+    @classmethod
+    def from_view(cls, view: ModelView) -> ModelResponse:
+        """``view`` with its links (``/v1/models/<id>``, ``.../file``)."""
+        base = f"/v1/models/{view.id}"
+        return cls(**view.model_dump(), links=ModelLinks(self=base, file=f"{base}/file"))
+
+
+class ModelList(BaseModel):
+    """One page of models, newest first."""
+
+    items: list[ModelResponse]
+    total: int
+    limit: int
+    offset: int

@@ -9,6 +9,8 @@ Layout of the data directory::
                                   labels version n's user classes (int16, -1 none; n >= 1)
     jobs/<job id>/labels/v<n>/    its files (result.ply/.las/.laz, objects.json, report.json,
                                   result.ifc), made on the first request and kept
+    jobs/<model id>/model.pt      a model learnt from corrected jobs (POST /v1/models): its
+                                  id is a job row's (server.state.model_jobs)
     jobs/<job id>/tiles/<n>/      a tiled job's work folder while it runs, per attempt of its
                                   plan (spilled scan, tile results: jointseg.pipeline.tile_store);
                                   removed when the job ends
@@ -109,6 +111,10 @@ class Storage:
     def report_path(self, job_id: str) -> Path:
         """The job's report.json; it may not exist yet."""
         return self.job_dir(job_id) / "report.json"
+
+    def model_path(self, model_id: str) -> Path:
+        """A model's checkpoint (``model.pt``; it exists once the model succeeded)."""
+        return self.job_dir(model_id) / "model.pt"
 
     def labels_dir(self, job_id: str) -> Path:
         """The folder of a job's labels versions (not created)."""

@@ -4,6 +4,9 @@ Functions take a SQLAlchemy session and return :class:`server.schemas.JobView`, 
 model the API answers with, so callers never hold ORM objects. A tiled job's view carries its
 tiles' counts (from ``job_tiles``, :mod:`server.state.parts`).
 
+Models learnt from corrections are rows of the same table (:mod:`server.state.model_jobs`),
+left out of everything here: a model's id is no job's.
+
 Tenants: every lookup takes ``owned_by``, the owner whose jobs the caller may see
 (:attr:`server.api.auth.Tenant.scope`; None: every job). Another owner's job raises the same
 :class:`JobNotFound` as a job that does not exist, so its existence does not leak.
@@ -13,13 +16,13 @@ from __future__ import annotations
 
 from typing import Any
 
-from sqlalchemy import func, select, update
+from sqlalchemy import func, or_, select, update
 from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
 from server.schemas import JobStatus, JobView, TileCounts
 from server.state import labels, parts
-from server.state.models import FINAL_STATUSES, Job, utcnow
+from server.state.models import FINAL_STATUSES, MODEL_KIND, Job, utcnow
 from server.storage import check_job_id
 
 __all__ = [
@@ -54,9 +57,14 @@ def _views(session: Session, rows: list[Job]) -> list[JobView]:
     return [_view(job, counts.get(job.id), versions.get(job.id, 0)) for job in rows]
 
 
+def scan_jobs() -> Any:
+    """SQL condition on a job row: a scan's job, not a model (:data:`MODEL_KIND`)."""
+    return or_(Job.kind.is_(None), Job.kind != MODEL_KIND)
+
+
 def _row(session: Session, job_id: str, owned_by: str | None = None) -> Job:
     job = session.get(Job, check_job_id(job_id))
-    if job is None or (owned_by is not None and job.owner != owned_by):
+    if job is None or job.kind == MODEL_KIND or (owned_by is not None and job.owner != owned_by):
         raise JobNotFound(f"job {job_id} not found")
     return job
 
@@ -133,7 +141,13 @@ def list_jobs(
     owned_by: str | None = None,
 ) -> list[JobView]:
     """Jobs newest first, optionally only those with ``status`` (and of ``owned_by``)."""
-    query = select(Job).order_by(Job.created_at.desc(), Job.id.desc()).limit(limit).offset(offset)
+    query = (
+        select(Job)
+        .where(scan_jobs())
+        .order_by(Job.created_at.desc(), Job.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
     if status is not None:
         query = query.where(Job.status == status)
     if owned_by is not None:
@@ -143,7 +157,7 @@ def list_jobs(
 
 def count_jobs(session: Session, *, status: str | None = None, owned_by: str | None = None) -> int:
     """How many jobs (with ``status``, of ``owned_by``) exist, for pagination."""
-    query = select(func.count()).select_from(Job)
+    query = select(func.count()).select_from(Job).where(scan_jobs())
     if status is not None:
         query = query.where(Job.status == status)
     if owned_by is not None:

@@ -39,6 +39,8 @@ class Claim:
     format: str
     config: dict[str, Any]
     points: int | None = None
+    #: The row's kind: None for a scan, :data:`server.state.models.MODEL_KIND` for a model.
+    kind: str | None = None
 
 
 def worker_id(pid: int | None = None) -> str:
@@ -58,7 +60,9 @@ def claim_job(session: Session, job_id: str, worker: str) -> Claim | None:
         return None
     job = session.get(Job, job_id, populate_existing=True)
     assert job is not None  # just claimed
-    return Claim(job.id, job.attempts, job.filename, job.format, dict(job.config), job.points)
+    return Claim(
+        job.id, job.attempts, job.filename, job.format, dict(job.config), job.points, job.kind
+    )
 
 
 def record_progress(session: Session, claim: Claim, stage: str, progress: float) -> None:
@@ -119,8 +123,10 @@ def finish_job(
     error: str | None = None,
     points: int | None = None,
     timings: dict[str, float] | None = None,
+    summary: dict[str, Any] | None = None,
 ) -> bool:
-    """Record the end of an attempt (succeeded, failed or cancelled); False if no longer ours."""
+    """Record the end of an attempt (succeeded, failed or cancelled); False if no longer ours.
+    A model's ``summary`` is written in the same UPDATE as its success."""
     values: dict[str, Any] = {
         "status": status,
         "error": error,
@@ -133,6 +139,8 @@ def finish_job(
         values["points"] = points
     if timings is not None:
         values["timings"] = timings
+    if summary is not None:
+        values["summary"] = summary
     return transitions.move(session, Job, _attempt(claim), values)
 
 

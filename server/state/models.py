@@ -30,6 +30,9 @@ from sqlalchemy.types import TypeDecorator
 #: Every status a job can have; the last three are final.
 STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
 FINAL_STATUSES = ("succeeded", "failed", "cancelled")
+#: ``jobs.kind`` of a model learnt from corrected jobs (``POST /v1/models``); a scan's job has
+#: none (NULL), so rows from before models need no migration.
+MODEL_KIND = "model"
 
 
 def utcnow() -> datetime:
@@ -89,6 +92,11 @@ class Job(Base):
     owner: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
     #: The job this one re-runs with another frame (``POST /v1/jobs/{id}/rerun``), else None.
     rerun_of: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    #: :data:`MODEL_KIND` for a model learnt from corrections (the same queue, workers,
+    #: heartbeats and requeue as a scan's job, which is why it is a row here); None for a scan.
+    kind: Mapped[str | None] = mapped_column(String(16), nullable=True, index=True)
+    #: A finished model's summary: its card's ``adapted`` section (scans, versions, points).
+    summary: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
 
 
 class LabelVersion(Base):
