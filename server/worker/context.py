@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from jointseg.exceptions import JointsegError
 from jointseg.pipeline import PipelineConfig, load_predictor
 from server.lru import LRUCache
+from server.model_weights import model_file, model_ref
 from server.queue import JobQueue
 from server.settings import Settings
 from server.state import lifecycle, parts
@@ -54,16 +55,19 @@ class WorkerContext:
     def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
         """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""
         key = json.dumps(config.network.model_dump(mode="json"), sort_keys=True)
+        network = config.network
+        given = network.weights
+        ref = model_ref(given)
+        # a model of this service: asked again each time (it may have been deleted since)
+        model = None if ref is None else model_file(self.sessions, self.storage, ref)
         kept = self.predictors.get(key)
         if kept is not None:
             return kept, 0.0
         started = time.perf_counter()
-        network = config.network
-        given = network.weights
         if given is None:
             predictor = load_predictor(network)
-        else:  # opened only inside the weights folders
-            resolved = resolve_job_weights(given, self.settings)
+        else:  # opened only inside the weights folders, or a model of this service
+            resolved = model or resolve_job_weights(given, self.settings)
             try:
                 predictor = load_predictor(network.model_copy(update={"weights": resolved}))
             except JointsegError as exc:  # named as the job named them, not by their path here

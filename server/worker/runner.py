@@ -2,6 +2,8 @@
 
 A job whose scan has more points than its config's ``tiles.max_points`` is only planned here;
 its tiles and merge are queue tasks of their own that any worker runs (:mod:`server.worker.fanout`).
+A model learnt from corrections is a job row of its own kind: the same claim and final status,
+its work :func:`server.worker.learning.learn_model`.
 
 Loaded networks are kept between jobs in the process's :class:`server.worker.context.WorkerContext`
 (a few configurations, least recently used dropped), so a stream of jobs with the same network
@@ -12,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -23,9 +26,11 @@ from jointseg.pipeline import PipelineConfig, segment_file
 from server.limits import check_file_span
 from server.messages import one_line, public_message, without_server_paths
 from server.state import lifecycle
+from server.state.models import MODEL_KIND
 from server.worker.context import WorkerContext
 from server.worker.fanout import FanOut
-from server.worker.tokens import RowCancelToken, RowProgress
+from server.worker.learning import MODEL_WEIGHTS, learn_model
+from server.worker.tokens import STAGE_WEIGHTS, RowCancelToken, RowProgress
 
 log = logging.getLogger(__name__)
 
@@ -59,30 +64,18 @@ class JobRunner:
 
     def _run(self, claim: lifecycle.Claim) -> None:
         token = RowCancelToken(self.sessions, claim, self.stopping)
-        progress = RowProgress(self.sessions, claim)
+        model = claim.kind == MODEL_KIND
+        progress = RowProgress(self.sessions, claim, MODEL_WEIGHTS if model else STAGE_WEIGHTS)
         upload = self.storage.upload_path(claim.job_id, f".{claim.format}")
+        started = time.perf_counter()
         try:
-            config = PipelineConfig.model_validate(claim.config)
-            points = claim.points  # probed at submission; probed here only for older rows
-            if points is None:
-                points = probe_scan(
-                    upload,
-                    max_points=self.settings.max_points,
-                    max_inflation=self.settings.max_inflation,
-                ).n_points
-            # a scan spread over 1e18 units would fail deep in the pipeline (an allocation of
-            # petabytes): refused here by one streamed pass, naming the span
-            check_file_span(
-                upload,
-                claim.filename,
-                self.settings.max_span,
-                self.settings.max_points,
-                max_inflation=self.settings.max_inflation,
-            )
-            if config.tiles.needs_tiles(points):
-                self.fanout.plan(claim, config, upload, token)
+            if model:
+                summary = learn_model(self.context, claim, progress, token)
+                total = {"total": round(time.perf_counter() - started, 4)}
+                self._finish(claim, "succeeded", summary=summary, timings=total)
+                log.info("model %s succeeded in %.1f s", claim.job_id, total["total"])
                 return
-            points, timings = self._pipeline(claim, config, upload, points, progress, token)
+            done = self._segment(claim, upload, progress, token)
         except Cancelled:
             self._stopped(claim, token)
             return
@@ -96,8 +89,37 @@ class JobRunner:
             error = f"internal error: {type(exc).__name__}: {exc}"
             self._finish(claim, "failed", error=one_line(without_server_paths(error)))
             return
+        if done is None:  # planned: its tiles and merge finish it
+            return
+        points, timings = done
         self._finish(claim, "succeeded", points=points, timings=timings)
         log.info("job %s succeeded: %d points in %.1f s", claim.job_id, points, timings["total"])
+
+    def _segment(
+        self, claim: lifecycle.Claim, upload: Path, progress: RowProgress, token: RowCancelToken
+    ) -> tuple[int, dict[str, float]] | None:
+        """A scan's job: its points and timings, or None when it was only planned (tiles)."""
+        config = PipelineConfig.model_validate(claim.config)
+        points = claim.points  # probed at submission; probed here only for older rows
+        if points is None:
+            points = probe_scan(
+                upload,
+                max_points=self.settings.max_points,
+                max_inflation=self.settings.max_inflation,
+            ).n_points
+        # a scan spread over 1e18 units would fail deep in the pipeline (an allocation of
+        # petabytes): refused here by one streamed pass, naming the span
+        check_file_span(
+            upload,
+            claim.filename,
+            self.settings.max_span,
+            self.settings.max_points,
+            max_inflation=self.settings.max_inflation,
+        )
+        if config.tiles.needs_tiles(points):
+            self.fanout.plan(claim, config, upload, token)
+            return None
+        return self._pipeline(claim, config, upload, points, progress, token)
 
     def _pipeline(
         self,
