@@ -11,6 +11,7 @@ import logging
 import os
 import shutil
 import uuid
+from collections.abc import Callable
 from typing import Any
 
 from pydantic import ValidationError
@@ -22,6 +23,7 @@ from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
 from server.api.uploads import ReceivedUpload
 from server.limits import check_config_limits
+from server.model_weights import check_model_ref, model_ref
 from server.settings import Settings
 from server.state import jobs
 from server.state.lifecycle import fail_queued
@@ -34,8 +36,17 @@ def _location(loc: tuple[int | str, ...]) -> str:
     return ".".join(str(part) for part in loc) or "(root)"
 
 
-def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
+#: Checks a job's ``model:<id>`` weights for the submitting tenant (raises ConfigError).
+ModelCheck = Callable[[str], None]
+
+
+def parse_config(
+    text: str | None, settings: Settings, *, check_model: ModelCheck | None = None
+) -> PipelineConfig:
     """The job's PipelineConfig from the ``config`` form field (empty: defaults).
+
+    ``network.weights`` ``model:<id>`` names a model learnt from corrections: ``check_model``
+    decides whether the tenant may use it (without one it is refused as any unknown weights).
 
     Raises
     ------
@@ -54,7 +65,10 @@ def parse_config(text: str | None, settings: Settings) -> PipelineConfig:
             f"config.network.name: unknown network {network.name!r}; available: "
             f"{', '.join(BACKENDS)}"
         )
-    if network.weights is not None:
+    ref = model_ref(network.weights)
+    if ref is not None and check_model is not None:
+        check_model(ref)
+    elif network.weights is not None:
         resolve_job_weights(network.weights, settings)
     elif not has_weights(network.name):
         raise ConfigError(_no_weights(network.name))
@@ -94,9 +108,21 @@ def _no_weights(name: str) -> str:
     )
 
 
-def submit(services: Services, upload: ReceivedUpload, owner: str | None = None) -> jobs.JobView:
+def model_check(services: Services, owned_by: str | None) -> ModelCheck:
+    """The check of a job's ``model:<id>`` weights: a succeeded model of ``owned_by``."""
+    return lambda ref: check_model_ref(services.sessions, ref, owned_by=owned_by)
+
+
+def submit(
+    services: Services,
+    upload: ReceivedUpload,
+    owner: str | None = None,
+    *,
+    owned_by: str | None = None,
+) -> jobs.JobView:
     """Check, store and enqueue an upload (blocking: run it in a worker thread); the job
-    belongs to ``owner`` (the submitting key's hash; None in open mode).
+    belongs to ``owner`` (the submitting key's hash; None in open mode) and may use the models
+    ``owned_by`` sees (the tenant's scope).
 
     The temporary upload is removed when anything is refused.
 
@@ -108,7 +134,8 @@ def submit(services: Services, upload: ReceivedUpload, owner: str | None = None)
         When the id cannot be enqueued (the job is then marked failed).
     """
     try:
-        config = parse_config(upload.config, services.settings)
+        check = model_check(services, owned_by)
+        config = parse_config(upload.config, services.settings, check_model=check)
         # in a checking process: the API never holds a scan's points (server.api.checks)
         info = services.checker.check(upload.path, upload.filename, upload.size)
         job_id = uuid.uuid4().hex
@@ -128,13 +155,13 @@ def submit(services: Services, upload: ReceivedUpload, owner: str | None = None)
             network=config.network.name,
             owner=owner,
         )
-    _enqueue(services, job_id)
+    enqueue_new(services, job_id)
     log.info("job %s queued: %s, %d points", job_id, upload.filename, info.n_points)
     return view
 
 
-def _enqueue(services: Services, job_id: str) -> None:
-    """Put a new job's id on the queue; a queue that cannot take it fails the job.
+def enqueue_new(services: Services, job_id: str) -> None:
+    """Put a new job's (or model's) id on the queue; a queue that cannot take it fails the job.
 
     Raises
     ------
@@ -149,7 +176,11 @@ def _enqueue(services: Services, job_id: str) -> None:
 
 
 def rerun_config(
-    config: dict[str, Any], frame: dict[str, Any], settings: Settings
+    config: dict[str, Any],
+    frame: dict[str, Any],
+    settings: Settings,
+    *,
+    check_model: ModelCheck | None = None,
 ) -> PipelineConfig:
     """A job's stored config with ``frame``'s fields over its frame section, checked as a new
     job's config is.
@@ -166,7 +197,7 @@ def rerun_config(
         problem = exc.errors()[0]
         raise ConfigError(f"frame.{_location(problem['loc'])}: {problem['msg']}") from None
     merged = {**config, "frame": {**(config.get("frame") or {}), **frame}}
-    return parse_config(json.dumps(merged), settings)
+    return parse_config(json.dumps(merged), settings, check_model=check_model)
 
 
 def rerun(
@@ -196,7 +227,8 @@ def rerun(
     with services.sessions() as session:
         old = jobs.get_job(session, job_id, owned_by=owned_by)
         stored = jobs.job_config(session, job_id, owned_by=owned_by)
-    config = rerun_config(stored, frame, services.settings)
+    check = model_check(services, owned_by)
+    config = rerun_config(stored, frame, services.settings, check_model=check)
     source = services.storage.upload_path(job_id, f".{old.format}")
     if not source.is_file():
         raise JobNotFound(f"job {job_id}: its upload is gone; upload the scan again")
@@ -220,6 +252,6 @@ def rerun(
             owner=owner,
             rerun_of=job_id,
         )
-    _enqueue(services, new_id)
+    enqueue_new(services, new_id)
     log.info("job %s queued: a rerun of %s with frame %s", new_id, job_id, frame)
     return view

@@ -75,7 +75,9 @@ async def create_job(
     upload = await receive_upload(
         request, services.storage, max_bytes=services.settings.max_upload_bytes
     )
-    view = await run_in_threadpool(submit, services, upload, tenant.owner)
+    view = await run_in_threadpool(
+        lambda: submit(services, upload, tenant.owner, owned_by=tenant.scope)
+    )
     response.headers["Location"] = f"/v1/jobs/{view.id}"
     return JobResponse.from_view(view)
 
