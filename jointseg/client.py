@@ -239,3 +239,52 @@ class JobClient:
         """Cancel a queued or running job (its new state), or delete a finished one (None)."""
         response = self._request("DELETE", f"/v1/jobs/{job_id}")
         return None if response.status_code == 204 else RemoteJob.model_validate(response.json())
+
+    def adapt(
+        self,
+        jobs: list[str],
+        *,
+        name: str | None = None,
+        params: Mapping[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """Ask for a model learnt from ``jobs``' corrections (each at its current labels
+        version); the queued model (``id``, ``status``, ``weights``: what a later job's
+        ``network.weights`` names). Poll it with :meth:`model`.
+
+        Raises
+        ------
+        ServiceError
+            404 / 409 / 422 naming the job (``jobs[1]: no corrected points``).
+        """
+        body: dict[str, Any] = {"jobs": list(jobs), "params": dict(params or {})}
+        if name is not None:
+            body["name"] = name
+        model: dict[str, Any] = self._request("POST", "/v1/models", json=body).json()
+        return model
+
+    def model(self, model_id: str) -> dict[str, Any]:
+        """A model's state (and, once it succeeded, its card's ``adapted`` summary)."""
+        model: dict[str, Any] = self._request("GET", f"/v1/models/{model_id}").json()
+        return model
+
+    def models(self, *, limit: int = 50, offset: int = 0) -> list[dict[str, Any]]:
+        """This key's models, newest first (one page)."""
+        page = self._request("GET", "/v1/models", params={"limit": limit, "offset": offset})
+        items: list[dict[str, Any]] = page.json()["items"]
+        return items
+
+    def download_model(self, model_id: str, out: str | os.PathLike[str]) -> Path:
+        """Save a succeeded model's checkpoint as ``out`` (for ``jointseg segment --weights``)."""
+        out = Path(out)
+        response = self._request("GET", f"/v1/models/{model_id}/file")
+        with atomic_open(out) as fh:
+            fh.write(response.content)
+        return out
+
+    def delete_model(self, model_id: str) -> dict[str, Any] | None:
+        """Cancel a queued or learning model (its new state), or delete a finished one (None)."""
+        response = self._request("DELETE", f"/v1/models/{model_id}")
+        if response.status_code == 204:
+            return None
+        model: dict[str, Any] = response.json()
+        return model
