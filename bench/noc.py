@@ -46,6 +46,7 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from helpers.inputs import AREA6, SCANNET
@@ -54,11 +55,15 @@ from helpers.scans import Item, geometry_output, load_items, network_output, str
 from real_world import JOINTSEG, child_env
 from structure import levelled, miou
 
+from jointseg.adapt.spread import propose
 from jointseg.classes import NUM_CLASSES
 from jointseg.fusion import FusionParams, fuse
 from jointseg.io import read_scan
 from jointseg.labels.edits import apply_edits, parse_edits, version_labels
 from jointseg.metrics import confusion_matrix
+from jointseg.pipeline import load_predictor
+from jointseg.pipeline.config import PipelineConfig
+from jointseg.scan import Scan
 
 THRESHOLDS = (0.80, 0.85, 0.90)
 #: Clicks after which the mIoU is reported.
@@ -153,9 +158,26 @@ def next_click(
     return top if n and counts[top] > 0 else -1
 
 
-def simulate(item: Item, seg: np.ndarray, fused: np.ndarray, cap: int, pick: str) -> Run:
+def accept_proposal(item: Item, seg: np.ndarray, fused: np.ndarray, user: np.ndarray,
+                    predictor: Any) -> tuple[np.ndarray, int]:  # fmt: skip
+    """The user accepts what their corrections so far propose for the rest of the scan
+    (jointseg.adapt.spread, as the viewer offers it): the user classes after, points changed."""
+    result = Scan(item.scan.xyz, item.scan.rgb).with_fields(
+        segment=seg.astype(np.int32), fused_label=fused.astype(np.int32), user_label=user
+    )
+    proposal = propose(result, predictor, to_work=np.eye(4))  # the bench's scans are levelled
+    if not len(proposal.segments):
+        return user, 0
+    outcome = apply_edits(parse_edits({"edits": proposal.edits()}), machine_labels=fused,
+                          user_label=user, segment=seg, xyz=item.scan.xyz)  # fmt: skip
+    return outcome.user_label, outcome.changed
+
+
+def simulate(item: Item, seg: np.ndarray, fused: np.ndarray, cap: int, pick: str,
+             spread: int = 0, predictor: Any = None) -> Run:  # fmt: skip
     """Click segments, through jointseg.labels.edits, until the highest threshold (and the last
-    click reported) or ``cap`` clicks, or no click helps."""
+    click reported) or ``cap`` clicks, or no click helps. With ``spread``, after every
+    ``spread`` clicks the user accepts the proposal of their corrections (one more click)."""
     gt = item.scan.labels
     assert gt is not None
     gt = gt.astype(np.int64)
@@ -183,6 +205,11 @@ def simulate(item: Item, seg: np.ndarray, fused: np.ndarray, cap: int, pick: str
         current = version_labels(fused, user)
         run.changed.append(outcome.changed)
         run.curve.append(score(gt, current))
+        if spread and user is not None and len(run.changed) % (spread + 1) == spread:
+            user, changed = accept_proposal(item, seg, fused, user, predictor)
+            current = version_labels(fused, user)
+            run.changed.append(changed)
+            run.curve.append(score(gt, current))
     return run
 
 
@@ -279,6 +306,12 @@ def main() -> None:
         default="gain",
         help="the segment clicked: most points made right, or most wrong",
     )
+    parser.add_argument(
+        "--spread",
+        type=int,
+        default=0,
+        help="accept the corrections' proposal after every N clicks (counted as a click)",
+    )
     parser.add_argument("--cli", default="", help="scans to check against `jointseg segment`")
     args = parser.parse_args()
     header("Clicks to correct the fused labels (NoC)")
@@ -288,10 +321,12 @@ def main() -> None:
     items = [levelled(i) for i in load_items(folders, args.judge, (0, 0, 0))
              if i.split in SPLITS[args.scans]]  # fmt: skip
     predictors: dict = {}
+    spread_predictor = load_predictor(PipelineConfig().network) if args.spread else None
     runs, fused = [], {}
     for item in items:
         seg, fused[item.name] = fused_labels(item, args.network, predictors)
-        runs.append(simulate(item, seg, fused[item.name], args.cap, args.pick))
+        runs.append(simulate(item, seg, fused[item.name], args.cap, args.pick, args.spread,
+                             spread_predictor))  # fmt: skip
     runs.sort(key=lambda r: (r.dataset, r.split, r.scan))
     print(f"### Per dataset and split (cap {args.cap} clicks, pick {args.pick})\n")
     pooled_table(runs, args.cap)

@@ -14,6 +14,7 @@ import typer
 from rich.markup import escape
 
 from jointseg.cli import (
+    adapt_command,
     client_commands,
     fit_commands,
     geometry_command,
@@ -39,6 +40,7 @@ network_commands.register(app)
 objects_command.register(app)
 pipeline_commands.register(app)
 relabel_command.register(app)
+adapt_command.register(app)
 client_commands.register(app)
 fit_commands.register(app)
 

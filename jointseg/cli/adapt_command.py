@@ -1,0 +1,84 @@
+"""`jointseg adapt`: a model that has learnt from corrected results (issue 66), for
+``jointseg segment --weights MODEL`` on the next scans of the same site and sensor."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from jointseg.exceptions import ConfigError
+
+RESULTS_HELP = (
+    "Results of `jointseg segment` with users' corrections (the user_label field that "
+    "`jointseg relabel`, the viewer and the service's labels versions write)."
+)
+
+
+def _to_work(path: Path) -> np.ndarray:
+    """The transform to the run's work frame from its report (``frame.to_work``)."""
+    try:
+        body = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"--report {path}: no such file") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"--report {path}: not valid JSON ({exc})") from None
+    matrix = ((body or {}).get("frame") or {}).get("to_work") if isinstance(body, dict) else None
+    try:
+        out = np.asarray(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        out = np.zeros(0)
+    if out.shape != (4, 4) or not np.isfinite(out).all():
+        raise ConfigError(f"--report {path}: no frame.to_work matrix; is it a run's report?")
+    return out
+
+
+def adapt_command(
+    results: list[Path] = typer.Argument(..., help=RESULTS_HELP),
+    out: Path = typer.Option(..., "-o", "--out", help="The adapted model to write (.pt)."),
+    report: list[Path] = typer.Option(
+        [],
+        "--report",
+        help="Each result's report.json, in the results' order (their frames place the points "
+        "as the runs did; default: the frame is decided again, as the pipeline decides it).",
+    ),
+    weights: Path | None = typer.Option(
+        None, "--weights", help="The model to adapt (default: the bundled network)."
+    ),
+    steps: int | None = typer.Option(None, min=1, help="Steps of the head's fit (default 300)."),
+) -> None:
+    """Learn from corrected results: the network's head refitted to the users' classes."""
+    from jointseg.adapt.head import AdaptParams
+    from jointseg.adapt.learn import Corrected, adapt
+    from jointseg.cli.progress_bar import progress_bar
+    from jointseg.pipeline import load_predictor
+    from jointseg.pipeline.config import PipelineConfig
+
+    if out.suffix.lower() != ".pt":
+        raise ConfigError(f"--out {out}: an adapted model is a .pt file")
+    if report and len(report) != len(results):
+        raise ConfigError(f"--report given {len(report)} times for {len(results)} results")
+    for path in results:
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such file")
+    to_work = [_to_work(p) for p in report] or [None] * len(results)
+    cfg = PipelineConfig().with_network(weights=weights)
+    params = AdaptParams() if steps is None else AdaptParams(steps=steps)
+    predictor = load_predictor(cfg.network)
+    items = [Corrected(p, p.name, None, m) for p, m in zip(results, to_work, strict=True)]
+    with progress_bar() as progress:
+        done = adapt(items, out, predictor=predictor, choice=cfg.network.choice(), params=params,
+                     progress=progress)  # fmt: skip
+    info = done.card["adapted"]
+    typer.echo(
+        f"learnt from {info['corrected_points']:,} corrected points of {len(results)} results "
+        f"in {info['seconds']:.0f} s -> {out} (use: jointseg segment --weights {out})",
+        err=True,
+    )
+
+
+def register(app: typer.Typer) -> None:
+    """Add this module's commands to ``app``."""
+    app.command("adapt")(adapt_command)
