@@ -63,7 +63,7 @@ def adapt_command(
     for path in results:
         if not path.is_file():
             raise ConfigError(f"{path}: no such file")
-    to_work = [_to_work(p) for p in report] or [None] * len(results)
+    to_work: list[np.ndarray | None] = [_to_work(p) for p in report] or [None] * len(results)
     cfg = PipelineConfig().with_network(weights=weights)
     params = AdaptParams() if steps is None else AdaptParams(steps=steps)
     predictor = load_predictor(cfg.network)
