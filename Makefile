@@ -76,6 +76,7 @@ gpu-pack: setup
 		-d .gpu/wheels $(GPU_WHEELS)
 	rm -rf .gpu/data
 	$(BIN)/python -m jointseg.network.training.prepared pack --shared $(SHARED) --out .gpu/data
+	$(BIN)/python -m jointseg.network.training.pseudo_pack --shared $(SHARED) --out .gpu/data
 	du -sh .gpu
 
 gpu-train:
