@@ -1,4 +1,5 @@
-"""The *Edit labels* folder: how to select, a button per class, undo, redo, save.
+"""The *Edit labels* folder: how to select, a button per class, undo, redo, save, and a
+proposal from the corrections (:mod:`web.proposals`) to accept or discard.
 
 viser 1.1 has no keyboard events, so the number keys come through the page's JavaScript: a
 hidden element of the folder (:func:`web.view_state.script_html`, as the address and the legend
@@ -23,6 +24,7 @@ from web.view_state import script_html
 #: Shift+3 for bookcase, board and clutter.
 SHORTCUTS = tuple([*"1234567890", "⇧1", "⇧2", "⇧3"][:NUM_CLASSES])
 UNDO, REDO, APPLY, SAVE, RELOAD = "Undo", "Redo", "Apply", "Save", "Reload saved labels"
+PROPOSE, ACCEPT, DISCARD = "Propose from my corrections", "Accept proposal", "Discard proposal"
 
 
 def class_button_label(cls: int) -> str:
@@ -74,6 +76,15 @@ class EditControls:
                 SAVE, icon=viser.Icon.DEVICE_FLOPPY, hint="save the edits as a new labels version"
             )
             self.version = gui.add_markdown("No job to edit.")
+            self.propose = gui.add_button(
+                PROPOSE,
+                icon=viser.Icon.WAND,
+                disabled=True,
+                hint="relabel the segments like the ones you corrected (shown first, to accept)",
+            )
+            self.proposal = gui.add_markdown("", visible=False)
+            self.accept = gui.add_button(ACCEPT, icon=viser.Icon.CHECKS, visible=False)
+            self.discard = gui.add_button(DISCARD, icon=viser.Icon.X, visible=False)
             self.reload = gui.add_button(RELOAD, icon=viser.Icon.RELOAD, visible=False)
             self.keys = gui.add_html(script_html(key_script(), 1, "keys"))
 

@@ -14,6 +14,7 @@ tabs through :class:`web.scene.SceneCache`): another tab sees a correction once 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -80,11 +81,13 @@ def read_columns(path: Path) -> Columns:
 
 @dataclass(frozen=True, eq=False)
 class Step:
-    """One applied edit: the rows of the file whose class it changed and their classes before."""
+    """One applied step (an edit, or an accepted proposal's edits): the rows of the file whose
+    class it changed, their classes before and after."""
 
-    edit: Edit
+    edits: tuple[Edit, ...]
     rows: np.ndarray
     before: np.ndarray
+    after: np.ndarray
 
 
 def editable(data: SceneData) -> SceneData:
@@ -129,6 +132,8 @@ class LabelEdits:
         self.labels = columns.fused.astype(np.int16)
         self.done: list[Step] = []
         self.undone: list[Step] = []
+        #: Counts changes of :attr:`labels` (a proposal made over older labels is stale).
+        self.revision = 0
 
     @property
     def unsaved(self) -> int:
@@ -143,23 +148,28 @@ class LabelEdits:
         ConfigError
             For an id out of range (nothing applied).
         """
+        return self.apply_all([edit])
+
+    def apply_all(self, edits: Sequence[Edit]) -> set[int]:
+        """Apply ``edits`` in order as one step (one undo takes them all back, as a proposal
+        accepted is one decision); the classes whose points changed (new redo history)."""
         cols = self.columns
         outcome = apply_edits(
-            EditList(edits=[edit]),
+            EditList(edits=list(edits)),
             machine_labels=self.labels,
             user_label=None,
             segment=cols.segment,
             xyz=cols.xyz,
         )
-        touched = outcome.user_label >= 0
-        rows = np.flatnonzero(touched & (self.labels != edit.class_index))
-        step = Step(edit, rows, self.labels[rows].copy())
+        rows = np.flatnonzero((outcome.user_label >= 0) & (outcome.user_label != self.labels))
+        after = outcome.user_label[rows].astype(np.int16)
+        step = Step(tuple(edits), rows, self.labels[rows].copy(), after)
         self.done.append(step)
         self.undone.clear()
-        return self._set(rows, np.full(rows.size, edit.class_index, np.int16))
+        return self._set(rows, after)
 
     def undo(self) -> set[int] | None:
-        """Take back the last edit; the classes changed (None: nothing to undo)."""
+        """Take back the last step; the classes changed (None: nothing to undo)."""
         if not self.done:
             return None
         step = self.done.pop()
@@ -167,21 +177,31 @@ class LabelEdits:
         return self._set(step.rows, step.before)
 
     def redo(self) -> set[int] | None:
-        """Apply the last edit undone again; the classes changed (None: nothing to redo)."""
+        """Apply the last step undone again; the classes changed (None: nothing to redo)."""
         if not self.undone:
             return None
         step = self.undone.pop()
         self.done.append(step)
-        return self._set(step.rows, np.full(step.rows.size, step.edit.class_index, np.int16))
+        return self._set(step.rows, step.after)
+
+    def withdraw(self, undone: list[Step]) -> set[int] | None:
+        """Take back the last step as if it never was: no redo of it, the redo history it
+        replaced (``undone``) back. A proposal discarded (None: nothing to take back)."""
+        if not self.done:
+            return None
+        step = self.done.pop()
+        self.undone = list(undone)
+        return self._set(step.rows, step.before)
 
     def edit_list(self) -> EditList | None:
         """Every unsaved edit, in order, as one request (None: none)."""
-        return EditList(edits=[s.edit for s in self.done]) if self.done else None
+        return EditList(edits=[e for s in self.done for e in s.edits]) if self.done else None
 
     def _set(self, rows: np.ndarray, values: np.ndarray) -> set[int]:
         """Give ``rows`` of the file ``values``: the full labels, the counts, the sample's
         labels and change flags, the objects' classes. Returns the classes involved."""
         data = self.data
+        self.revision += 1
         before = self.labels[rows]
         counts = data.counts["fused"]
         np.subtract.at(counts, _count_index(before), 1)

@@ -7,12 +7,15 @@ the legend's counts are exact for the whole result, and an object whose shown po
 takes their commonest class (its box keeps its place, in that class's colour). *Save* sends every
 unsaved edit as one edit list with the ETag of the version shown; a save that another came
 before is refused (HTTP 412's :class:`PreconditionFailed`) and the tab offers to reload.
+*Propose from my corrections* (:mod:`web.proposal_flow`) shows what the corrections teach the
+rest of the scan as one step to accept or discard; until then the other edits wait.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Protocol
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -23,6 +26,7 @@ from web.edit_controls import EditControls
 from web.editing import LabelEdits, editable, read_columns, status_line
 from web.legend import legend_html
 from web.objects_view import objects_html
+from web.proposal_flow import PENDING, ProposalFlow
 from web.selection import (
     BOX,
     HINTS,
@@ -104,6 +108,7 @@ class LabelEditing:
         self.ui.redo.on_click(lambda _: self.step(redo=True))
         self.ui.save.on_click(lambda _: self.save())
         self.ui.reload.on_click(lambda _: self.reload())
+        self.proposals = ProposalFlow(self.ui, view.client, view._lock, self)
 
     @property
     def active(self) -> bool:
@@ -114,6 +119,7 @@ class LabelEditing:
     def show_job(self, job_id: str) -> None:
         """A job shown (anew): its version, no edits, no selection."""
         self.edits, self.selection = None, None
+        self.proposals.reset()
         try:
             self.info = self.view.source.labels(job_id)
         except (JointsegError, OSError) as exc:
@@ -125,6 +131,7 @@ class LabelEditing:
     def clear(self) -> None:
         """No job to edit."""
         self.edits, self.info, self.selection = None, None, None
+        self.proposals.reset()
         self._forget_lasso()
         self.ui.version.content = "No job to edit."
         self.ui.selection.content = HINTS[str(self.ui.mode.value)]
@@ -139,6 +146,27 @@ class LabelEditing:
             view.panels.data = copy  # this tab draws its own labels from now on
             self.edits = LabelEdits(copy, columns, self.info or LabelsInfo())
         return self.edits
+
+    def current_editor(self) -> LabelEdits | None:
+        """The tab's edits for a proposal (None: no job, or its rows cannot be read: told)."""
+        if self.view.data is None or self.view.job_id is None:
+            return None
+        try:
+            return self._editor()
+        except (JointsegError, OSError) as exc:
+            self.view.client.add_notification("No proposal", str(exc), color="red")
+            return None
+
+    def result_of_job(self) -> tuple[Path, dict[str, Any] | None] | None:
+        """The shown job's result file and report (for a proposal)."""
+        view = self.view
+        if view.job_id is None or view.data is None:
+            return None
+        try:
+            return view.source.result_path(view.job_id), view.data.report
+        except (JointsegError, OSError) as exc:
+            view.client.add_notification("No proposal", str(exc), color="red")
+            return None
 
     # ------------------------------------------------------------ selecting
     def reselect(self) -> None:
@@ -238,11 +266,16 @@ class LabelEditing:
         if info.refusal:
             line += f"  \n{info.refusal}"
         self.ui.version.content = line if self.view.data is not None else "No job to edit."
+        corrected = bool(self.edits and self.edits.unsaved) or info.version > 0
+        self.proposals.sync(corrected and self.view.data is not None)
 
     # -------------------------------------------------------------- editing
     def give(self, cls: int) -> None:
         """A class button or its key: the class of the next edits, applied to the selection."""
         self.cls = cls
+        if self.proposals.pending is not None:
+            self._tell(PENDING)
+            return
         if self.selection is None:
             self._tell("Class chosen; now select what it is for.")
             return
@@ -251,6 +284,9 @@ class LabelEditing:
     def apply(self) -> None:
         """Give the selection the chosen class (every point of the result it covers)."""
         view = self.view
+        if self.proposals.pending is not None:
+            self._tell(PENDING)
+            return
         if self.selection is None or self.cls is None or view.data is None:
             self._tell("Select something and choose a class first.")
             return
@@ -262,20 +298,26 @@ class LabelEditing:
                 return
             log.info("client %d: %s -> %s", view.client.client_id, self.selection.what, self.cls)
             self._forget_lasso()
-            self._redraw(bool(classes))
+            self.redraw(bool(classes))
 
     def step(self, *, redo: bool) -> None:
-        """Undo the last edit, or redo the last undone."""
+        """Undo the last edit, or redo the last undone (a proposal shown: Undo discards it)."""
         with self.view._lock:
+            if self.proposals.pending is not None:
+                if redo:
+                    self._tell(PENDING)
+                else:
+                    self.proposals.discard()
+                return
             if self.edits is None:
                 return
             classes = self.edits.redo() if redo else self.edits.undo()
             if classes is None:
                 self._tell(f"Nothing to {'redo' if redo else 'undo'}.")
                 return
-            self._redraw(True)
+            self.redraw(True)
 
-    def _redraw(self, changed: bool) -> None:
+    def redraw(self, changed: bool) -> None:
         """After an edit: the panels' changed groups, the legend's counts, the objects, the
         status and version lines, in one update."""
         view = self.view
@@ -298,6 +340,9 @@ class LabelEditing:
         """Send every unsaved edit as one list over the version shown (its ETag)."""
         view = self.view
         with view._lock:
+            if self.proposals.pending is not None:
+                self._tell(PENDING)
+                return
             edits, job_id = self.edits, view.job_id
             body = None if edits is None else edits.edit_list()
             if edits is None or body is None or job_id is None:
