@@ -177,6 +177,9 @@ def test_an_uncorrected_job_teaches_nothing(
 
 def test_bad_model_requests_name_the_field_and_create_nothing(locked: Service, scans: Path) -> None:
     with _client(locked, "key-one") as one:
+        # the service is shared with other tests: compare with what it held before
+        models_before = one.get("/v1/models").json()["total"]
+        jobs_before = one.get("/v1/jobs").json()["total"]
         queued = post_scan(one, scan_file(scans, ".ply", points=1000, seed=55))
         assert queued.status_code == 201, queued.text  # no worker: it stays queued
         queued_id = queued.json()["id"]
@@ -191,8 +194,10 @@ def test_bad_model_requests_name_the_field_and_create_nothing(locked: Service, s
             ({"jobs": [queued_id], "colour": True}, 422, "body.colour"),
         ):
             _refused(one.post("/v1/models", json=body), status, detail)
-        assert one.get("/v1/models").json()["total"] == 0
-        assert [j["id"] for j in one.get("/v1/jobs").json()["items"]] == [queued_id]
+        jobs_after = one.get("/v1/jobs").json()
+        assert one.get("/v1/models").json()["total"] == models_before
+        assert queued_id in [j["id"] for j in jobs_after["items"]]
+        assert jobs_before + 1 == jobs_after["total"]  # no job made by a refused request
         assert not (locked.data_dir / "jobs" / queued_id / "model.pt").exists()
 
 
