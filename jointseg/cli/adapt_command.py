@@ -48,6 +48,13 @@ def adapt_command(
         None, "--weights", help="The model to adapt (default: the bundled network)."
     ),
     steps: int | None = typer.Option(None, min=1, help="Steps of the head's fit (default 300)."),
+    replay_rooms: int | None = typer.Option(
+        None,
+        min=0,
+        max=20,
+        help="Generated rooms whose points hold the head to the base network, so classes "
+        "nobody corrected keep their labels (default 4; 0 learns from your scans alone).",
+    ),
 ) -> None:
     """Learn from corrected results: the network's head refitted to the users' classes."""
     from jointseg.adapt.head import AdaptParams
@@ -65,7 +72,8 @@ def adapt_command(
             raise ConfigError(f"{path}: no such file")
     to_work: list[np.ndarray | None] = [_to_work(p) for p in report] or [None] * len(results)
     cfg = PipelineConfig().with_network(weights=weights)
-    params = AdaptParams() if steps is None else AdaptParams(steps=steps)
+    given = {"steps": steps, "replay_rooms": replay_rooms}
+    params = AdaptParams(**{k: v for k, v in given.items() if v is not None})
     predictor = load_predictor(cfg.network)
     items = [Corrected(p, p.name, None, m) for p, m in zip(results, to_work, strict=True)]
     with progress_bar() as progress:

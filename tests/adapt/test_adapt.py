@@ -79,11 +79,12 @@ def test_results_without_corrections_or_not_results_are_refused(
 
 def test_the_command_writes_a_model_segment_uses(corrected: Path, tmp_path: Path) -> None:
     out = tmp_path / "site.pt"
-    done = run_cli("adapt", str(corrected), "-o", str(out), "--steps", "60")
+    done = run_cli("adapt", str(corrected), "-o", str(out), "--steps", "60", "--replay-rooms", "0")
     assert done.returncode == 0, done.stderr[-2000:]
     assert "corrected points of 1 results" in done.stderr
     card = load_checkpoint(out)[1]
     assert card["adapted"]["corrected_points"] > 500 and card["adapted"]["params"]["steps"] == 60
+    assert card["adapted"]["params"]["replay_rooms"] == 0
     seg = run_cli("segment", str(corrected.with_name("room.ply")), "-o", str(tmp_path / "o.ply"),
                   "--weights", str(out), "--report", str(tmp_path / "r.json"))  # fmt: skip
     assert seg.returncode == 0, seg.stderr[-2000:]
