@@ -131,6 +131,7 @@ def main() -> None:
     p.add_argument("--keep-weight", type=float, default=AdaptParams().keep_weight)
     p.add_argument("--lr", type=float, default=AdaptParams().lr)
     p.add_argument("--layers", type=int, default=AdaptParams().layers)
+    p.add_argument("--corrected-share", type=float, default=AdaptParams().corrected_share)
     p.add_argument("--replay-rooms", type=int, default=AdaptParams().replay_rooms)
     p.add_argument("--s3dis-rooms", type=int, default=3)
     p.add_argument(
@@ -150,6 +151,7 @@ def main() -> None:
         keep_weight=args.keep_weight,
         lr=args.lr,
         layers=args.layers,
+        corrected_share=args.corrected_share,
         replay_rooms=args.replay_rooms,
     )
     if args.timing:
