@@ -66,11 +66,7 @@ class Ran:
 def run_scan(scan: Scan, cfg: PipelineConfig, predictor: Any) -> Ran:
     assert scan.labels is not None, "the bench's scans are labelled"
     res = run(scan, cfg, predictor=predictor)
-    frame = res.frame
-    to_work = np.eye(4)
-    if frame is not None:
-        to_work[:3, :3] = frame.metres * np.asarray(frame.rotation)
-        to_work[:3, 3] = -to_work[:3, :3] @ np.asarray(frame.origin)
+    to_work = np.eye(4) if res.frame is None else np.asarray(res.frame.matrix(), np.float64)
     fused = res.fusion.labels.astype(np.int64)
     return Ran(scan, annotate(scan, res), res.geometry.segments.astype(np.int64), fused,
                to_work, score(scan.labels, fused))  # fmt: skip

@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import logging
+import os
 import platform
 import time
 from dataclasses import dataclass, field, replace
@@ -15,6 +16,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
+import torch
 from torch import nn
 
 from jointseg.adapt.examples import ScanExamples, scan_examples
@@ -91,7 +93,8 @@ def _card(base: dict[str, Any], seen: list[tuple[Corrected, ScanExamples]], para
             "corrected_points": sum(s["corrected_points"] for s in scans),
             "params": params.model_dump(),
             "seconds": round(seconds, 1),
-            "hardware": f"{platform.machine()} CPU, {platform.node() and 'this machine'}",
+            "hardware": f"{platform.machine()} CPU, {os.cpu_count()} cores, "
+            f"torch {torch.__version__}",
             "created": datetime.now(UTC).isoformat(timespec="seconds"),
         },
     }

@@ -73,10 +73,11 @@ def propose(
     head, _ = fit_head(predictor.model.head, ex.examples, params)
     with torch.inference_mode():
         sub = head(torch.from_numpy(ex.examples.features)).argmax(dim=-1).numpy()
-    taught = version_labels(machine_labels(result), user).astype(np.int64)  # strays: as they are
+    labels = version_labels(machine_labels(result), user).astype(np.int64)
+    taught = labels.copy()  # strays: as they are
     taught[ex.rows] = sub[ex.nearest]
     n = int(segment.max()) + 1
-    current, _ = segment_votes(segment, version_labels(machine_labels(result), user), n)
+    current, _ = segment_votes(segment, labels, n)
     new, share = segment_votes(segment, taught, n)
     touched = np.zeros(n, bool)
     touched[segment[(user >= 0) & (segment >= 0)]] = True

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -19,12 +18,9 @@ RESULTS_HELP = (
 
 def _to_work(path: Path) -> np.ndarray:
     """The transform to the run's work frame from its report (``frame.to_work``)."""
-    try:
-        body = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"--report {path}: no such file") from None
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ConfigError(f"--report {path}: not valid JSON ({exc})") from None
+    from jointseg.cli.relabel_command import read_json
+
+    body = read_json(path, "--report")
     matrix = ((body or {}).get("frame") or {}).get("to_work") if isinstance(body, dict) else None
     try:
         out = np.asarray(matrix, dtype=np.float64)

@@ -17,7 +17,9 @@ EDITS_HELP = (
 )
 
 
-def _read_json(path: Path, what: str) -> object:
+def read_json(path: Path, what: str) -> object:
+    """A JSON file an option names; a clear ConfigError naming the option when it is missing
+    or not JSON."""
     try:
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
@@ -56,8 +58,8 @@ def relabel(
 
     if out.suffix.lower() not in FIELD_EXTENSIONS:
         raise ConfigError(f"--out {out}: use one of {', '.join(FIELD_EXTENSIONS)} (keeps fields)")
-    edit_list = parse_edits(_read_json(edits, "--edits"))
-    run_report = None if report is None else _read_json(report, "--report")
+    edit_list = parse_edits(read_json(edits, "--edits"))
+    run_report = None if report is None else read_json(report, "--report")
     if run_report is not None and not isinstance(run_report, dict):
         raise ConfigError(f"--report {report}: not a report (a JSON object)")
     scan = read_scan(result)
