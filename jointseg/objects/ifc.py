@@ -26,24 +26,27 @@ from typing import Any
 import numpy as np
 
 from jointseg.exceptions import ConfigError
+from jointseg.objects.ifc_walls import (
+    WallBody,
+    connect_corners,
+    element_type,
+    placement,
+    write_opening,
+    write_walls,
+)
 from jointseg.objects.params import ObjectParams
-from jointseg.objects.records import LayoutReport, ObjectRecord, OpeningRecord, RoomRecord
+from jointseg.objects.records import (
+    LayoutReport,
+    ObjectRecord,
+    OpeningRecord,
+    RoomRecord,
+)
 
 log = logging.getLogger(__name__)
 
 FURNITURE = {"table", "chair", "sofa", "bookcase"}
 #: Height given to a room's space when its ceiling was not found, metres.
 DEFAULT_ROOM_HEIGHT = 2.5
-
-
-def _placement(origin: np.ndarray, x_axis: np.ndarray) -> np.ndarray:
-    """A 4x4 placement at ``origin`` with its x along ``x_axis`` (horizontal) and z up."""
-    x = np.array([x_axis[0], x_axis[1], 0.0])
-    x /= max(float(np.linalg.norm(x)), 1e-12)
-    z = np.array([0.0, 0.0, 1.0])
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(z, x), z, origin
-    return m
 
 
 def build_model(
@@ -55,6 +58,8 @@ def build_model(
     writer.rooms()
     writer.walls()
     writer.objects()
+    writer.wall_quantities()
+    connect_corners(writer, writer.written)
     writer.contain()
     return writer.model
 
@@ -66,11 +71,14 @@ class _Writer:
         import ifcopenshell.api
         import ifcopenshell.api.aggregate
         import ifcopenshell.api.context
+        import ifcopenshell.api.feature
         import ifcopenshell.api.geometry
+        import ifcopenshell.api.material
         import ifcopenshell.api.project
         import ifcopenshell.api.pset
         import ifcopenshell.api.root
         import ifcopenshell.api.spatial
+        import ifcopenshell.api.type
         import ifcopenshell.api.unit
 
         self.api = api = ifcopenshell.api
@@ -86,6 +94,12 @@ class _Writer:
             model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
             parent=context,
         )  # fmt: skip
+        self.axis = api.context.add_context(
+            model, context_type="Model", context_identifier="Axis", target_view="GRAPH_VIEW",
+            parent=context,
+        )  # fmt: skip
+        self.written: dict[int, WallBody] = {}
+        self.element_types: dict[str, Any] = {}
         from ifcopenshell.util.unit import calculate_unit_scale
 
         # project units per SI unit: 1000 for millimetres, 1 for square metres
@@ -105,7 +119,7 @@ class _Writer:
         aggregate(self.model, products=[building], relating_object=site)
         aggregate(self.model, products=[storey], relating_object=building)
         for product, z in ((site, 0.0), (building, 0.0), (storey, self.floor_z)):
-            matrix = _placement(np.array([0.0, 0.0, z]), np.array([1.0, 0.0]))
+            matrix = placement(np.array([0.0, 0.0, z]), np.array([1.0, 0.0]))
             self.api.geometry.edit_object_placement(self.model, product=product, matrix=matrix)
         storey.Elevation = self.length(self.floor_z)
         return storey
@@ -155,7 +169,7 @@ class _Writer:
             space = self.entity("IfcSpace", room.name)
             rep = add_slab(self.model, context=self.body, depth=height, polyline=outline)
             self.place(
-                space, rep, _placement(np.array([0.0, 0.0, self.floor_z]), np.array([1.0, 0.0]))
+                space, rep, placement(np.array([0.0, 0.0, self.floor_z]), np.array([1.0, 0.0]))
             )
             self.space_sets(space, room)
             spaces.append(space)
@@ -166,7 +180,7 @@ class _Writer:
                 slab = self.entity("IfcSlab", f"{room.name} {which}")
                 slab.PredefinedType = "FLOOR" if which == "floor" else "ROOF"
                 rep = add_slab(self.model, context=self.body, depth=slab_depth, polyline=outline)
-                self.place(slab, rep, _placement(np.array([0.0, 0.0, z]), np.array([1.0, 0.0])))
+                self.place(slab, rep, placement(np.array([0.0, 0.0, z]), np.array([1.0, 0.0])))
                 self.contained.append(slab)
         if spaces:
             self.api.aggregate.assign_object(
@@ -189,66 +203,87 @@ class _Writer:
                 "FinishCeilingHeight": room.ceiling_height,
                 "GrossPerimeter": footprint_perimeter(room.footprint),
             },
-            {"NetFloorArea": room.floor_area},
+            {
+                "NetFloorArea": footprint_area(room.footprint),
+                "GrossFloorArea": footprint_area(room.footprint),
+            },
         )
 
     def walls(self) -> None:
-        """An IfcWall per wall plane, of the default thickness, with its base quantities."""
+        """An IfcWall per wall (one for both faces of a wall seen from two rooms), of its
+        measured or declared thickness (:mod:`jointseg.objects.ifc_walls`)."""
+        self.written = write_walls(self)
+
+    def wall_quantities(self) -> None:
+        """``Qto_WallBaseQuantities`` of each wall written, from its first face's record: the
+        net side area is the gross less the openings really cut in it."""
         for wall in self.layout.walls:
-            c = self.work(wall.corners)
-            axis = c[1] - c[0]
-            entity = self.entity("IfcWall", f"Wall {wall.id + 1}")
-            rep = self.api.geometry.add_wall_representation(
-                self.model, context=self.body, length=float(np.hypot(axis[0], axis[1])),
-                height=float(wall.height), thickness=self.params.wall_thickness,
-            )  # fmt: skip
-            self.place(entity, rep, _placement(c[0], axis))
+            body = self.written.get(wall.id)
+            if body is None or body.records[0] != wall.id:
+                continue
             self.quantities(
-                entity,
+                body.entity,
                 "Qto_WallBaseQuantities",
-                {"Length": wall.length, "Height": wall.height,
-                 "Width": self.params.wall_thickness},
-                {"GrossSideArea": wall.area, "NetSideArea": wall.net_area},
-            )  # fmt: skip
-            self.contained.append(entity)
+                {"Length": wall.length, "Height": wall.height, "Width": wall.thickness},
+                {
+                    "GrossSideArea": wall.area,
+                    "NetSideArea": round(max(wall.area - body.opened, 0.0), 3),
+                },
+            )
 
     def objects(self) -> None:
-        """Doors, windows, furniture and proxies as boxes of their room-aligned size."""
-        openings = {o.object: o for wall in self.layout.walls for o in wall.openings}
+        """Doors and windows in the openings they fill; furniture and proxies as boxes of
+        their room-aligned size. A door or window in no wall, or of no door's or window's
+        size, is a proxy named as set aside (the layout's ``set_aside`` says why)."""
+        hosted = {
+            o.object: (wall, o)
+            for wall in self.layout.walls
+            if wall.id in self.written
+            for o in wall.openings
+        }
         for obj in self.layout.objects:
-            corners = self.work(obj.box)
-            x_axis, y_axis = corners[1] - corners[0], corners[3] - corners[0]
-            sx, sy = float(np.hypot(*x_axis[:2])), float(np.hypot(*y_axis[:2]))
-            sz = float(corners[4, 2] - corners[0, 2])
             ifc_class = {"door": "IfcDoor", "window": "IfcWindow"}.get(obj.cls)
             if ifc_class is None:
                 ifc_class = "IfcFurniture" if obj.cls in FURNITURE else "IfcBuildingElementProxy"
             name = f"{obj.cls} {obj.id}"
-            if not obj.plausible:  # a fragment: not a door, a window or furniture
+            if obj.id in hosted:  # fills an opening of its kind's size (a fragment may)
+                pass
+            elif not obj.plausible:  # a fragment: not a door, a window or furniture
                 ifc_class, name = "IfcBuildingElementProxy", f"{obj.cls} fragment {obj.id}"
+            elif ifc_class in ("IfcDoor", "IfcWindow"):
+                ifc_class, name = "IfcBuildingElementProxy", f"{obj.cls} set aside {obj.id}"
             entity = self.entity(ifc_class, name)
             if ifc_class in ("IfcDoor", "IfcWindow"):
-                self.opening_sizes(entity, obj, openings.get(obj.id))
-            # a box: a "wall" profile of the object's length, depth and height
-            rep = self.api.geometry.add_wall_representation(
-                self.model, context=self.body, length=max(sx, 0.01), height=max(sz, 0.01),
-                thickness=max(sy, 0.01),
-            )  # fmt: skip
-            direction = x_axis if sx > 1e-6 else np.array([1.0, 0.0])
-            # the profile runs from its axis to the left of it (local +y): start on the box's
-            # side that keeps the box there
-            left = np.array([-direction[1], direction[0]])
-            origin = corners[0] if float(y_axis[:2] @ left) >= 0 else corners[3]
-            self.place(entity, rep, _placement(origin, direction))
+                face, opening = hosted[obj.id]
+                self.opening_sizes(entity, opening)
+                element_type(self, entity, self.element_types)
+                write_opening(self, self.written[face.id], face, opening, entity)
+            else:
+                self.box(entity, obj)
             self.contained.append(entity)
 
-    def opening_sizes(self, entity: Any, obj: ObjectRecord, opening: OpeningRecord | None) -> None:
-        """A door's or window's OverallWidth/OverallHeight and base quantities: its opening
-        in the wall where it has one (the size the wall's net area lost), else its box."""
-        if opening is not None:
-            width, height = opening.width, opening.height
-        else:
-            width, height = max(obj.size[0], obj.size[1]), obj.size[2]
+    def box(self, entity: Any, obj: ObjectRecord) -> None:
+        """The body of an object that fills no opening: its room-aligned box."""
+        corners = self.work(obj.box)
+        x_axis, y_axis = corners[1] - corners[0], corners[3] - corners[0]
+        sx, sy = float(np.hypot(*x_axis[:2])), float(np.hypot(*y_axis[:2]))
+        sz = float(corners[4, 2] - corners[0, 2])
+        # a box: a "wall" profile of the object's length, depth and height
+        rep = self.api.geometry.add_wall_representation(
+            self.model, context=self.body, length=max(sx, 0.01), height=max(sz, 0.01),
+            thickness=max(sy, 0.01),
+        )  # fmt: skip
+        direction = x_axis if sx > 1e-6 else np.array([1.0, 0.0])
+        # the profile runs from its axis to the left of it (local +y): start on the box's
+        # side that keeps the box there
+        left = np.array([-direction[1], direction[0]])
+        origin = corners[0] if float(y_axis[:2] @ left) >= 0 else corners[3]
+        self.place(entity, rep, placement(origin, direction))
+
+    def opening_sizes(self, entity: Any, opening: OpeningRecord) -> None:
+        """A door's or window's OverallWidth/OverallHeight and base quantities: the opening it
+        fills in its wall (the size the wall's net area lost)."""
+        width, height = opening.width, opening.height
         entity.OverallWidth, entity.OverallHeight = self.length(width), self.length(height)
         name = "Qto_DoorBaseQuantities" if entity.is_a("IfcDoor") else "Qto_WindowBaseQuantities"
         self.quantities(entity, name, {"Width": width, "Height": height}, {"Area": width * height})
@@ -266,6 +301,15 @@ def footprint_perimeter(footprint: list[tuple[float, float]]) -> float:
     if len(xy) < 2:
         return 0.0
     return float(np.linalg.norm(np.diff(np.vstack([xy, xy[:1]]), axis=0), axis=1).sum())
+
+
+def footprint_area(footprint: list[tuple[float, float]]) -> float:
+    """The area inside a closed outline (the shoelace formula), m²."""
+    xy = np.asarray(footprint, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < 3:
+        return 0.0
+    x, y = xy[:, 0], xy[:, 1]
+    return float(abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2.0)
 
 
 def write_ifc(
@@ -295,12 +339,12 @@ def validation_errors(model: Any) -> list[str]:
     import ifcopenshell.validate
 
     logger = ifcopenshell.validate.json_logger()
-    ifcopenshell.validate.validate(model, logger)
+    ifcopenshell.validate.validate(model, logger, express_rules=True)
     return [str(s.get("message", s)) for s in logger.statements if s.get("level") == "ERROR"]
 
 
 def entity_counts(model: Any) -> dict[str, int]:
     """Entities per class of interest in an IFC model."""
-    kinds = ("IfcSpace", "IfcWall", "IfcSlab", "IfcDoor", "IfcWindow", "IfcFurniture",
-             "IfcBuildingElementProxy")  # fmt: skip
+    kinds = ("IfcSpace", "IfcWall", "IfcSlab", "IfcDoor", "IfcWindow", "IfcOpeningElement",
+             "IfcFurniture", "IfcBuildingElementProxy")  # fmt: skip
     return {k: len(model.by_type(k)) for k in kinds}

@@ -18,7 +18,15 @@ from jointseg.objects.instances import find_instances, group_order
 from jointseg.objects.openings import add_openings
 from jointseg.objects.outline import fit_to_walls, room_outline
 from jointseg.objects.params import CEILING, DOOR, WALL, ObjectParams
-from jointseg.objects.records import LayoutReport, ObjectRecord, RoomRecord, user_coords, vec
+from jointseg.objects.records import (
+    LayoutReport,
+    ObjectRecord,
+    RoomRecord,
+    SetAside,
+    WallRecord,
+    user_coords,
+    vec,
+)
 from jointseg.objects.rooms import (
     RoomGrid,
     ceiling_heights,
@@ -28,7 +36,8 @@ from jointseg.objects.rooms import (
     room_grid,
 )
 from jointseg.objects.shapes import fits_class
-from jointseg.objects.walls import join_door_pieces, wall_faces, wall_records
+from jointseg.objects.wall_shape import joined_spans
+from jointseg.objects.walls import WallFace, join_door_pieces, wall_faces, wall_records
 
 log = logging.getLogger(__name__)
 
@@ -107,11 +116,8 @@ def find_layout(
         )
         kept = [o for o in report.objects if o.id not in set(ids.tolist())]
         report.objects = sorted(kept + again, key=lambda o: o.id)
-    wall = labels == WALL
-    top = float(np.quantile(xyz[np.flatnonzero(wall), 2], 0.99)) if wall.any() else floor_z
-    report.walls = wall_records(faces, grid, floor_z, top, matrix)
-    add_openings(report.walls, faces, report.objects, instances, labels, xyz, grid, floor_z,
-                 spacing, plan=plan)  # fmt: skip
+    _walls_and_openings(report, faces, instances, labels, xyz, grid, floor_z, spacing, params,
+                        plan, matrix)  # fmt: skip
     for r in report.rooms:
         r.walls = [w.id for w in report.walls if r.id in w.rooms]
     fit_to_walls(report.rooms, grid, faces)
@@ -121,6 +127,36 @@ def find_layout(
     if not report.walls:
         report.reason = "no wall plane long enough was found"
     return Layout(instances, report)
+
+
+def _walls_and_openings(report: LayoutReport, faces: list[WallFace], instances: np.ndarray,
+                        labels: np.ndarray, xyz: np.ndarray, grid: RoomGrid, floor_z: float,
+                        spacing: float, params: ObjectParams, plan: np.ndarray,
+                        matrix: np.ndarray) -> None:  # fmt: skip
+    """The walls' records (up to their rooms' ceilings, thickness, corners) and the doors and
+    windows in them; those set aside, and why."""
+    wall = labels == WALL
+    top = float(np.quantile(xyz[np.flatnonzero(wall), 2], 0.99)) if wall.any() else floor_z
+    ceilings = {r.id: r.ceiling_height for r in report.rooms}
+    report.walls = wall_records(faces, grid, floor_z, top, matrix, ceilings=ceilings,
+                                default_thickness=params.wall_thickness)  # fmt: skip
+    report.wall_thickness = params.wall_thickness if report.walls else None
+    starts = [s.u0 for s in joined_spans(faces, [w.thickness for w in report.walls])]
+    hosted = add_openings(report.walls, faces, report.objects, instances, labels, xyz, grid,
+                          floor_z, spacing, plan=plan, starts=starts)  # fmt: skip
+    report.set_aside = fragments(report.objects, report.walls) + hosted
+
+
+def fragments(objects: list[ObjectRecord], walls: list[WallRecord]) -> list[SetAside]:
+    """The doors and windows whose box has no door's or window's shape (see
+    :mod:`jointseg.objects.shapes`) and that fill no opening in a wall."""
+    hosted = {o.object for w in walls for o in w.openings}
+    return [
+        SetAside(object=o.id, kind=o.cls, reason="a fragment: its box has no "
+                 f"{o.cls}'s shape ({o.size[2]:.2f} m high, {o.height_above_floor:.2f} m up)")
+        for o in objects
+        if o.cls in ("door", "window") and not o.plausible and o.id not in hosted
+    ]  # fmt: skip
 
 
 def _barrier_normals(

@@ -15,7 +15,7 @@ import numpy as np
 from jointseg.geometry.alignment import point_normals
 from jointseg.objects.instances import rows_by_group
 from jointseg.objects.params import DOOR, WINDOW
-from jointseg.objects.records import ObjectRecord, OpeningRecord, WallRecord
+from jointseg.objects.records import ObjectRecord, OpeningRecord, SetAside, WallRecord
 from jointseg.objects.rooms import RoomGrid
 from jointseg.objects.walls import MAX_DOOR, WallFace
 
@@ -25,6 +25,45 @@ TRIM_STEP = 0.004
 MAX_TRIM = 0.2
 #: Profile bins along the opening, m.
 STEP = 0.02
+
+
+#: A door (its opening) this narrow, wide, low or high is no door (single or double leaf), m.
+DOOR_WIDTH = (0.6, 1.8)
+DOOR_HEIGHT = (1.8, 2.6)
+#: A door's points starting at most this far above the floor (its foot hidden by furniture,
+#: or read as wall) open the wall from the floor, m.
+DOOR_REACH = 1.0
+#: A door's opening starts on the floor: a sill above this is no door's, m.
+DOOR_MAX_SILL = 0.3
+#: A window's least width and height, and the least sill that is not the floor, m.
+WINDOW_MIN = 0.2
+WINDOW_MIN_SILL = 0.1
+#: A window's top may pass its wall's top by this much (the wall's top is measured), m.
+WINDOW_TOP_SLACK = 0.05
+
+
+def opening_problem(opening: OpeningRecord, wall_height: float) -> str | None:
+    """Why ``opening`` cannot be the door or window its label says, None when it can (what a
+    BIM model may hold: a door is taller than wide, 0.6-1.8 m wide and 1.8-2.6 m high; a
+    window stands in the wall above the floor and below the wall's top)."""
+    w, h = opening.width, opening.height
+    if opening.kind == "door":
+        if w >= h:
+            return f"wider ({w:.2f} m) than high ({h:.2f} m): no door is"
+        if not DOOR_WIDTH[0] <= w <= DOOR_WIDTH[1]:
+            return f"{w:.2f} m wide: a door is {DOOR_WIDTH[0]}-{DOOR_WIDTH[1]} m"
+        if opening.sill > DOOR_MAX_SILL:
+            return f"starts {opening.sill:.2f} m above the floor: a door stands on it"
+        if not DOOR_HEIGHT[0] <= h <= DOOR_HEIGHT[1]:
+            return f"{h:.2f} m high: a door is {DOOR_HEIGHT[0]}-{DOOR_HEIGHT[1]} m"
+        return None
+    if w < WINDOW_MIN or h < WINDOW_MIN:
+        return f"{w:.2f} x {h:.2f} m: too small for a window"
+    if opening.sill < WINDOW_MIN_SILL:
+        return f"touches the floor (sill {opening.sill:.2f} m): a window stands above it"
+    if opening.sill + h > wall_height + WINDOW_TOP_SLACK:
+        return f"its top ({opening.sill + h:.2f} m) is above its wall's ({wall_height:.2f} m)"
+    return None
 
 
 def add_openings(
@@ -39,41 +78,57 @@ def add_openings(
     spacing: float,
     *,
     plan: np.ndarray | None = None,
-) -> None:
-    """Each door and window to the wall it stands in, with its width, height and sill; the
-    wall's net area loses the opening (``plan``: every point's plan coordinates, when already
-    found)."""
+    starts: list[float] | None = None,
+) -> list[SetAside]:
+    """Each door and window to the wall it stands in, with its width, height, sill and place
+    along the wall (from ``starts``: each wall's first corner along its face, the face's own
+    start when not given); the wall's net area loses the opening (``plan``: every point's plan
+    coordinates, when already found). Returns the doors and windows set aside: in no wall, or
+    of a size no door or window has (:func:`opening_problem`)."""
     rows = np.flatnonzero(((labels == DOOR) | (labels == WINDOW)) & (instances >= 0))
     if rows.size == 0:
-        return
+        return []
+    # fragments too: a door's upper half in a wall, its lower half hidden, is a door's opening
     kinds = {o.id: o.cls for o in objects if o.cls in ("door", "window")}
+    starts = [f.u0 for f in faces] if starts is None else starts
     points = np.take(xyz, rows, axis=0)
     normals = _LazyNormals(points, spacing, grid)
     plan = grid.plan_xy(points) if plan is None else np.take(plan, rows, axis=0)
+    aside: list[SetAside] = []
     for part in rows_by_group(instances[rows]):
         obj = int(instances[rows[part[0]]])
         if obj not in kinds:
             continue
         holding = [k for k, face in enumerate(faces) if face.holds(plan[part])]
-        if holding:
-            # the face nearest its points (both faces of a wall between two rooms hold it)
-            k = min(holding, key=lambda k: _offset(faces[k], plan[part]))
-            wall, face = walls[k], faces[k]
-            z = points[part, 2]
-            zlo, zhi = (float(v) for v in np.quantile(z, [0.01, 0.99]))
-            door = kinds[obj] == "door"
-            # only a door's span reads its points' normals: a window's needs none
-            part_normals = normals.of(part) if door else np.zeros((part.size, 2))
-            lo, hi = opening_span(face, plan[part], z, part_normals, door)
-            opening = OpeningRecord(
-                object=obj,
-                kind=kinds[obj],
-                width=round(hi - lo, 3),
-                height=round(zhi - zlo, 3),
-                sill=round(zlo - floor_z, 3),
-            )
-            wall.openings.append(opening)
-            wall.net_area = round(max(wall.net_area - opening.width * opening.height, 0.0), 3)
+        if not holding:
+            aside.append(SetAside(object=obj, kind=kinds[obj], reason="in no wall found"))
+            continue
+        # the face nearest its points (both faces of a wall between two rooms hold it)
+        k = min(holding, key=lambda k: _offset(faces[k], plan[part]))
+        wall, face = walls[k], faces[k]
+        z = points[part, 2]
+        zlo, zhi = (float(v) for v in np.quantile(z, [0.01, 0.99]))
+        door = kinds[obj] == "door"
+        # only a door's span reads its points' normals: a window's needs none
+        part_normals = normals.of(part) if door else np.zeros((part.size, 2))
+        lo, hi = opening_span(face, plan[part], z, part_normals, door)
+        if door and zlo - floor_z <= DOOR_REACH:
+            zlo = floor_z  # a door's opening starts at the floor, seen or hidden
+        opening = OpeningRecord(
+            object=obj,
+            kind=kinds[obj],
+            width=round(hi - lo, 3),
+            height=round(zhi - zlo, 3),
+            sill=round(zlo - floor_z, 3),
+            offset=round(lo - starts[k], 3),
+        )
+        problem = opening_problem(opening, wall.height)
+        if problem is not None:
+            aside.append(SetAside(object=obj, kind=kinds[obj], reason=problem))
+            continue
+        wall.openings.append(opening)
+        wall.net_area = round(max(wall.net_area - opening.width * opening.height, 0.0), 3)
+    return aside
 
 
 class _LazyNormals:

@@ -43,13 +43,25 @@ class ObjectRecord(BaseModel):
 
 
 class OpeningRecord(BaseModel):
-    """A door or window in a wall."""
+    """A door or window in a wall: the opening it fills, measured in the wall's plane."""
 
     object: int
     kind: str
     width: float
     height: float
     sill: float = Field(description="Bottom above the floor, metres.")
+    offset: float = Field(
+        0.0, description="Start of the opening along the wall from its first corner, metres."
+    )
+
+
+class SetAside(BaseModel):
+    """A door or window found in the labels but not modelled as one, and why (no door has
+    that size, a window touching the floor, ...)."""
+
+    object: int
+    kind: str
+    reason: str
 
 
 class WallRecord(BaseModel):
@@ -63,6 +75,28 @@ class WallRecord(BaseModel):
     net_area: float = Field(description="Area less its doors and windows, m².")
     rooms: list[int] = Field(default_factory=list)
     openings: list[OpeningRecord] = Field(default_factory=list)
+    thickness: float = Field(0.2, description="Wall thickness, metres.")
+    thickness_measured: bool = Field(
+        False,
+        description="True: measured between this face and the wall's other face (other_face); "
+        "False: the declared default (LayoutReport.wall_thickness).",
+    )
+    other_face: int | None = Field(
+        None, description="The wall record of the same wall's other face."
+    )
+    extends: tuple[float, float] = Field(
+        (0.0, 0.0),
+        description="How far the wall's body runs on beyond the face at its first and second "
+        "corner (into the body of the wall it meets there), metres.",
+    )
+    joined: tuple[int | None, int | None] = Field(
+        (None, None), description="The wall record met at the first and at the second corner."
+    )
+    body_side: int = Field(
+        1,
+        description="Which side of the face the wall's body lies on, seen from the first corner "
+        "to the second in the work frame's plan: +1 left, -1 right.",
+    )
 
 
 class RoomRecord(BaseModel):
@@ -88,6 +122,15 @@ class LayoutReport(BaseModel):
     yaw: float = Field(0.0, description="Walls' direction in the work frame, degrees.")
     to_user: list[list[float]] | None = Field(None, description="4x4 work -> user matrix.")
     reason: str | None = Field(None, description="Why a section is empty, when it is.")
+    wall_thickness: float | None = Field(
+        None,
+        description="The declared thickness (metres) of the walls whose two faces were not both "
+        "seen (ObjectParams.wall_thickness); null when no wall was found.",
+    )
+    set_aside: list[SetAside] = Field(
+        default_factory=list,
+        description="Doors and windows not modelled as such, and why.",
+    )
 
     def counts(self) -> dict[str, int]:
         """Objects per class (those of their class's shape), fragments (the rest), rooms and

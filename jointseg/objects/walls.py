@@ -15,6 +15,7 @@ from jointseg.objects.instances import rows_by_group
 from jointseg.objects.params import DOOR, FLOOR, WALL, WINDOW, ObjectParams
 from jointseg.objects.records import WallRecord, user_coords, vec
 from jointseg.objects.rooms import RoomGrid
+from jointseg.objects.wall_shape import body_side, joined_spans, thicknesses, wall_top
 
 #: A wall plane is cut where its points (and its doors and windows) leave a gap this wide, m:
 #: furniture in front of a wall hides stretches of it shorter than that.
@@ -189,24 +190,37 @@ def _pieces(
 
 
 def wall_records(
-    faces: list[WallFace], grid: RoomGrid, floor_z: float, top: float, matrix: np.ndarray
+    faces: list[WallFace],
+    grid: RoomGrid,
+    floor_z: float,
+    top: float,
+    matrix: np.ndarray,
+    *,
+    ceilings: dict[int, float | None] | None = None,
+    default_thickness: float = 0.2,
 ) -> list[WallRecord]:
-    """One record per face: its rectangle in user coordinates and the rooms on either side."""
+    """One record per face: its rectangle in user coordinates (its ends joined to the faces
+    crossing it at the corners, its top at the ceiling of the rooms beside it where one was
+    found, else at ``top``), the rooms on either side, and its wall's thickness."""
+    thick, other = thicknesses(faces, default_thickness)
+    spans = joined_spans(faces, thick)
     out = []
-    for index, face in enumerate(faces):
-        ends = np.array([_point(face, face.u0), _point(face, face.u1)])
-        work = grid.work_xy(ends)
-        corners = np.array(
-            [[*work[0], floor_z], [*work[1], floor_z], [*work[1], top], [*work[0], top]]
-        )
+    for index, (face, span) in enumerate(zip(faces, spans, strict=True)):
         # rooms on either side: probe the grid 0.25 m off the wall's middle
         probes = []
         for side in (-0.25, 0.25):
-            q = _point(face, (face.u0 + face.u1) / 2)
+            q = _point(face, (span.u0 + span.u1) / 2)
             q[face.axis] += side
             probes.append(q)
         beside = grid.room_of(np.c_[grid.work_xy(np.array(probes)), np.zeros(2)])
-        length, height = face.u1 - face.u0, top - floor_z
+        rooms = sorted({int(r) for r in beside if r >= 0})
+        wall_top_z = wall_top(rooms, ceilings or {}, floor_z, top)
+        work = grid.work_xy(np.array([_point(face, span.u0), _point(face, span.u1)]))
+        corners = np.array(
+            [[*work[0], floor_z], [*work[1], floor_z], [*work[1], wall_top_z],
+             [*work[0], wall_top_z]]
+        )  # fmt: skip
+        length, height = span.u1 - span.u0, wall_top_z - floor_z
         out.append(
             WallRecord(
                 id=index,
@@ -215,7 +229,13 @@ def wall_records(
                 height=round(height, 3),
                 area=round(length * height, 3),
                 net_area=round(length * height, 3),
-                rooms=sorted({int(r) for r in beside if r >= 0}),
+                rooms=rooms,
+                thickness=round(thick[index], 3),
+                thickness_measured=other[index] is not None,
+                other_face=other[index],
+                body_side=body_side(face),
+                extends=(round(span.extend0, 3), round(span.extend1, 3)),
+                joined=(span.joined0, span.joined1),
             )
         )
     return out
