@@ -129,7 +129,15 @@ def main() -> None:
     p.add_argument("--layers", type=int, default=AdaptParams().layers)
     p.add_argument("--corrected-share", type=float, default=AdaptParams().corrected_share)
     p.add_argument("--replay-rooms", type=int, default=AdaptParams().replay_rooms)
+    p.add_argument("--keep-base-above", type=float, default=AdaptParams().keep_base_above)
     p.add_argument("--s3dis-rooms", type=int, default=3)
+    p.add_argument(
+        "--s3dis-judged",
+        choices=("judging", "tuning"),
+        default="judging",
+        help="judge the S3DIS models on the judging rooms, or on 6 other tuning rooms (to "
+        "choose settings without looking at the judging rooms)",
+    )
     p.add_argument(
         "--timing",
         type=int,
@@ -149,6 +157,7 @@ def main() -> None:
         layers=args.layers,
         corrected_share=args.corrected_share,
         replay_rooms=args.replay_rooms,
+        keep_base_above=args.keep_base_above,
     )
     if args.timing:
         timing(args.timing, args.clicks, params)
@@ -169,7 +178,8 @@ def main() -> None:
     print("| split | judged on | pairs | mean gain (points) | adapt seconds (mean) |")
     print("|---|---|---|---|---|")
     for split in ("tuning", "judging"):
-        for what in ("re-scans", "other ScanNet rooms", "S3DIS judging rooms"):
+        for what in ("re-scans", "other ScanNet rooms", "S3DIS judging rooms",
+                     "S3DIS tuning rooms"):  # fmt: skip
             sel = [r for r in rows if r[1] == split and r[2] == what]
             if sel:
                 gain = statistics.mean(100 * (r[5] - r[4]) for r in sel)
@@ -242,18 +252,20 @@ def s3dis(folder: Path, args: argparse.Namespace, params: AdaptParams, cfg: Pipe
     all_scans = _load(AREA6)
     order = stable_order(sorted(all_scans))
     judging, tuning = order[:10], order[10:]
-    scans = {
-        n: run_scan(all_scans[n], cfg, predictor) for n in judging + tuning[: args.s3dis_rooms]
-    }
+    corrected = tuning[: args.s3dis_rooms]
+    if args.s3dis_judged == "tuning":
+        judging = tuning[args.s3dis_rooms : args.s3dis_rooms + 6]
+    what = f"S3DIS {args.s3dis_judged} rooms"
+    scans = {n: run_scan(all_scans[n], cfg, predictor) for n in judging + corrected}
     rows = []
-    for first in tuning[: args.s3dis_rooms]:
+    for first in corrected:
         model, secs = adapted_model(scans[first], args.clicks, params, folder, first,
                                     predictor, cfg)  # fmt: skip
         after = judge(model, scans, judging, cfg.seed)
         before = statistics.mean(scans[n].fused_miou for n in judging)
-        rows.append((first, "tuning", "S3DIS judging rooms", len(judging), before,
+        rows.append((first, "tuning", what, len(judging), before,
                      statistics.mean(after.values()), secs))  # fmt: skip
-        print(f"{first}: adapted in {secs:.1f} s; judging rooms {before:.3f} -> "
+        print(f"{first}: adapted in {secs:.1f} s; {what} {before:.3f} -> "
               f"{statistics.mean(after.values()):.3f}", flush=True)  # fmt: skip
     return rows
 

@@ -41,6 +41,13 @@ class AdaptParams(BaseModel):
     replay_rooms: int = Field(
         4, ge=0, le=20, description="generated rooms whose points hold the head to the base"
     )
+    keep_base_above: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="where the bundled head's top probability reaches this, its answer is "
+        "kept (None: the adapted head everywhere)",
+    )
     seed: int = 0
 
 

@@ -4,7 +4,6 @@ RandLA-Net checkpoint (the bundled network with its head refitted), so ``jointse
 
 from __future__ import annotations
 
-import copy
 import hashlib
 import logging
 import os
@@ -88,7 +87,13 @@ def _card(base: dict[str, Any], seen: list[tuple[Corrected, ScanExamples]], para
             "from": base_name,
             "what": "the head (last three point-wise layers) refitted to the users' classes, "
             "the rest of the network unchanged; points nobody corrected held to the base "
-            "network's answer",
+            "network's answer"
+            + (
+                ""
+                if params.keep_base_above is None
+                else f"; the bundled head kept beside it, its answer used where its top "
+                f"probability reaches {params.keep_base_above}"
+            ),
             "scans": scans,
             "corrected_points": sum(s["corrected_points"] for s in scans),
             "params": params.model_dump(),
@@ -146,12 +151,27 @@ def adapt(
     )
     base = cast(RandLANet, net.model)
     head, losses = fit_head(base.head, examples, params, progress=progress, cancel=cancel)
-    model = copy.deepcopy(base)
-    model.head = cast(nn.Sequential, head)
+    model = with_head(base, cast(nn.Sequential, head), params.keep_base_above)
     card = _card(net.card, seen, params, time.perf_counter() - started, _base_name(net))
     save_checkpoint(out, model, card, half=True, compress=True)
     log.info("adapted model written to %s (%d corrected points)", out, examples.corrected)
     return Adapted(out, card, losses)
+
+
+def with_head(base: RandLANet, head: nn.Sequential, keep_base_above: float | None) -> RandLANet:
+    """``base`` with ``head`` in place of its own; with a gate, the bundled head kept beside it
+    (an adapted model adapted again keeps the bundled head it started from)."""
+    config = base.config.model_copy(update={"keep_base_above": keep_base_above})
+    model = RandLANet(config)
+    state = {k: v for k, v in base.state_dict().items() if not k.startswith("head.")}
+    state |= {f"head.{k}": v for k, v in head.state_dict().items()}
+    if keep_base_above is not None:
+        kept = base.base_head if base.base_head is not None else base.head
+        state |= {f"base_head.{k}": v for k, v in kept.state_dict().items()}
+    else:
+        state = {k: v for k, v in state.items() if not k.startswith("base_head.")}
+    model.load_state_dict(state)
+    return model.eval()
 
 
 def replay(net: Any, params: AdaptParams, cancel: CancelToken | None) -> list[Examples]:

@@ -51,6 +51,14 @@ def adapt_command(
         help="Generated rooms whose points hold the head to the base network, so classes "
         "nobody corrected keep their labels (default 4; 0 learns from your scans alone).",
     ),
+    keep_base_above: float | None = typer.Option(
+        None,
+        min=0.01,
+        max=1.0,
+        help="Keep the bundled network's answer where its top probability reaches this (the "
+        "adapted head elsewhere): other buildings keep their labels, re-scans gain less "
+        "(docs/benchmarks/corrections.md; default: the adapted head everywhere).",
+    ),
 ) -> None:
     """Learn from corrected results: the network's head refitted to the users' classes."""
     from jointseg.adapt.head import AdaptParams
@@ -68,7 +76,7 @@ def adapt_command(
             raise ConfigError(f"{path}: no such file")
     to_work: list[np.ndarray | None] = [_to_work(p) for p in report] or [None] * len(results)
     cfg = PipelineConfig().with_network(weights=weights)
-    given = {"steps": steps, "replay_rooms": replay_rooms}
+    given = {"steps": steps, "replay_rooms": replay_rooms, "keep_base_above": keep_base_above}
     params = AdaptParams(**{k: v for k, v in given.items() if v is not None})
     predictor = load_predictor(cfg.network)
     items = [Corrected(p, p.name, None, m) for p, m in zip(results, to_work, strict=True)]

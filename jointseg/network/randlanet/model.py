@@ -29,6 +29,31 @@ class RandLANetConfig(BaseModel):
     k: int = Field(16, gt=0, description="neighbours per point")
     num_points: int = Field(40_960, gt=0, description="points per crop")
     grid_size: float = Field(0.04, gt=0, description="grid sub-sampling, metres")
+    keep_base_above: float | None = Field(
+        None,
+        gt=0,
+        le=1,
+        description="an adapted model's gate (jointseg.adapt): where the base head's top "
+        "probability reaches this, its answer is kept; elsewhere the adapted head's",
+    )
+
+
+def make_head(channels: int, classes: int) -> nn.Sequential:
+    """The point-wise layers that turn the last decoder layer's features into class scores."""
+    return nn.Sequential(
+        SharedMLP(channels, 64),
+        SharedMLP(64, 32),
+        nn.Dropout(0.5),
+        SharedMLP(32, classes, bn=False, slope=None),
+    )
+
+
+def gated(base: torch.Tensor, adapted: torch.Tensor, keep_above: float) -> torch.Tensor:
+    """The base head's scores where it is sure (top probability >= ``keep_above``), the
+    adapted head's elsewhere: corrections change what the bundled network was unsure of, and
+    leave alone what it already knew (a model adapted on one room must not unlearn others)."""
+    sure = torch.softmax(base, dim=-1).amax(dim=-1, keepdim=True) >= keep_above
+    return torch.where(sure, base, adapted)
 
 
 def decoder_inputs(cfg: RandLANetConfig) -> list[tuple[int, int]]:
@@ -68,11 +93,10 @@ class RandLANet(nn.Module):
         self.bottleneck = SharedMLP(d, d)
         self.decoder = nn.ModuleList(SharedMLP(skip + up, skip) for skip, up in decoder_inputs(cfg))
         d = decoder_inputs(cfg)[-1][0]
-        self.head = nn.Sequential(
-            SharedMLP(d, 64),
-            SharedMLP(64, 32),
-            nn.Dropout(0.5),
-            SharedMLP(32, cfg.num_classes, bn=False, slope=None),
+        self.head = make_head(d, cfg.num_classes)
+        #: The bundled head an adapted model keeps beside its own (see ``keep_base_above``).
+        self.base_head: nn.Sequential | None = (
+            None if cfg.keep_base_above is None else make_head(d, cfg.num_classes)
         )
 
     def forward(
@@ -95,7 +119,10 @@ class RandLANet(nn.Module):
         for i, layer in enumerate(self.decoder):
             up = nearest_upsample(x, upsamples[-i - 1])
             x = layer(torch.cat([skips[-i - 2], up], dim=2))
-        return self.head(x)
+        logits = self.head(x)
+        if self.base_head is None or self.config.keep_base_above is None:
+            return logits
+        return gated(self.base_head(x), logits, self.config.keep_base_above)
 
     def extra_repr(self) -> str:
         c = self.config
