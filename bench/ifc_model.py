@@ -107,7 +107,8 @@ def main() -> None:
     header("The IFC model on the judging scans: openings, door sizes, quantities, validity")
     cfg = PipelineConfig(seed=0)
     predictor = load_predictor(cfg.network)
-    rows, reasons = [], Counter()
+    rows: list[tuple[str, dict[str, Any]]] = []
+    reasons: Counter[str] = Counter()
     with tempfile.TemporaryDirectory() as tmp:
         folder = args.out_dir or Path(tmp)
         folder.mkdir(parents=True, exist_ok=True)

@@ -52,6 +52,10 @@ class AuthenticationError(JointsegError):
     """A request lacks a valid API key."""
 
 
+class Forbidden(JointsegError):
+    """An accepted key without the right to this request (``/metrics``: admin keys only)."""
+
+
 class QueueUnavailable(JointsegError):
     """The job queue (SQLite, PostgreSQL or Redis) cannot be reached."""
 

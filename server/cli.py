@@ -79,6 +79,9 @@ def serve(
             ctx, host=host, port=port, viewer_port=viewer_port, data_dir=data_dir, workers=workers
         )
     )
+    from server.metrics import use_folder
+
+    use_folder(settings.data_dir)  # before anything imports prometheus_client
     # deferred: the API stack (FastAPI, uvicorn, SQLAlchemy, Huey); see the module doc
     from server.serve_parts import ServeParts, load_serve_parts
     from server.service import run_service
@@ -93,6 +96,9 @@ def worker(
 ) -> None:
     """Run one worker process (any number, on any machine sharing the data directory)."""
     settings = load_settings(**given(ctx, data_dir=data_dir))
+    from server.metrics import use_folder
+
+    use_folder(settings.data_dir)  # before anything imports prometheus_client
     # deferred: the worker stack (SQLAlchemy, Huey, the pipeline); see the module doc
     from server.worker.process import worker_main
 

@@ -132,7 +132,8 @@ class _Children:
         self.stopping.set()
         if self._watch.is_alive():
             self._watch.join()
-        children = [p for p in self.workers + self.extra if p.is_alive()]
+        started = self.workers + self.extra
+        children = [p for p in started if p.is_alive()]
         for process in children:
             process.terminate()  # SIGTERM: workers re-queue a running job and exit
         deadline = time.monotonic() + STOP_GRACE_S
@@ -144,7 +145,11 @@ class _Children:
                 process.join()
         self._queue.close()
         self._engine.dispose()
-        log.info("all %d child processes stopped", len(children))
+        gone = len(started) - len(children)  # a Ctrl-C reaches the children first
+        log.info(
+            "all %d child processes stopped (%d were still running, %d had exited already)",
+            len(started), len(children), gone,
+        )  # fmt: skip
 
 
 def run_service(

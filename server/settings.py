@@ -122,7 +122,8 @@ class Settings(BaseSettings):
     torch_threads: int | None = Field(
         None,
         ge=1,
-        description="torch threads per worker; default: CPU cores / workers (at least 1).",
+        description="torch threads per worker; default: this machine's CPU cores shared among "
+        "the workers live on it, counted at each job or tile (at least 1).",
     )
     worker_nice: int = Field(
         10,
@@ -132,12 +133,16 @@ class Settings(BaseSettings):
         "machine whose cores the workers keep busy.",
     )
     heartbeat_interval_s: float = Field(
-        5.0, gt=0, description="How often a worker stamps its job and itself as alive."
+        2.0,
+        gt=0,
+        description="How often a worker's heartbeat process stamps its job (or tile) and "
+        "itself as alive, and how often each worker runs the reaper.",
     )
     heartbeat_timeout_s: float = Field(
-        60.0,
+        10.0,
         gt=0,
-        description="A running job without a heartbeat for this long is re-queued (or failed).",
+        description="A running job or tile without a heartbeat for this long is re-queued (or "
+        "failed), and its worker is no longer listed as live: the lease.",
     )
     max_attempts: int = Field(
         3, ge=1, description="Starts of one job before a lost worker fails it for good."

@@ -15,7 +15,13 @@ from fastapi import FastAPI
 from server.api.checks import UploadChecker
 from server.api.deps import Services
 from server.api.errors import install_error_handlers
-from server.api.routes import health_router, jobs_router, labels_router, models_router
+from server.api.routes import (
+    health_router,
+    jobs_router,
+    labels_router,
+    metrics_router,
+    models_router,
+)
 from server.queue import JobQueue
 from server.settings import Settings
 from server.state.db import init_db, make_engine, make_sessions
@@ -81,4 +87,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(labels_router)
     app.include_router(models_router)
     app.include_router(health_router)
+    app.include_router(metrics_router)
     return app

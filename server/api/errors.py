@@ -24,6 +24,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from jointseg.exceptions import (
     AuthenticationError,
     ConfigError,
+    Forbidden,
     JobNotFound,
     JobStateError,
     JointsegError,
@@ -42,6 +43,7 @@ log = logging.getLogger(__name__)
 #: HTTP status of each domain error; the most specific class listed first wins.
 ERROR_STATUS: tuple[tuple[type[JointsegError], int], ...] = (
     (AuthenticationError, 401),
+    (Forbidden, 403),
     (JobNotFound, 404),
     (JobStateError, 409),
     (PreconditionFailed, 412),
@@ -61,6 +63,7 @@ MAX_PROBLEMS = 5
 #: What each error status means, for OpenAPI.
 ERROR_MEANINGS: dict[int, str] = {
     401: "Missing or refused API key",
+    403: "An accepted key without the right to this request (`/metrics`: admin keys only)",
     404: "No such job, or another API key's job (the same answer: existence does not leak), "
     "or no such route",
     405: "Method not allowed on this path; `Allow` lists those that are",

@@ -23,6 +23,7 @@ from jointseg.pipeline import PipelineConfig
 from server.api.deps import Services
 from server.api.uploads import ReceivedUpload
 from server.limits import check_config_limits
+from server.metrics import upload_accepted
 from server.model_weights import check_model_ref, model_ref
 from server.settings import Settings
 from server.state import jobs
@@ -156,6 +157,7 @@ def submit(
             owner=owner,
         )
     enqueue_new(services, job_id)
+    upload_accepted(upload.size)
     log.info("job %s queued: %s, %d points", job_id, upload.filename, info.n_points)
     return view
 

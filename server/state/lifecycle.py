@@ -231,6 +231,13 @@ def live_workers(session: Session, *, timeout_s: float) -> list[Worker]:
     return list(session.scalars(select(Worker).where(Worker.seen_at >= cutoff).order_by(Worker.id)))
 
 
+def live_on_host(session: Session, host: str, *, timeout_s: float) -> int:
+    """Workers on ``host`` seen within ``timeout_s``: the machine's share of its cores."""
+    cutoff = utcnow() - timedelta(seconds=timeout_s)
+    found = select(func.count()).select_from(Worker)
+    return int(session.scalar(found.where(Worker.hostname == host, Worker.seen_at >= cutoff)) or 0)
+
+
 def queued_before(session: Session, *, timeout_s: float) -> list[str]:
     """Ids of jobs queued for longer than ``timeout_s`` (since creation or their last run).
 

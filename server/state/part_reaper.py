@@ -71,7 +71,7 @@ def reap_parts(
             JobTile.attempts == attempts,
             lost_row,
         )
-        name = "merge" if kind == "merge" else f"tile {tile + 1}"
+        name = "merge" if kind == "merge" else f"tile {tile + 1} (job_tiles.tile {tile})"
         lost = transitions.lost_worker(worker, timeout_s, dead=dead is not None)
         verdict = transitions.stale_verdict(
             stop=job_status != "running" or bool(cancel),

@@ -55,8 +55,12 @@ class PartClaim:
 
     @property
     def name(self) -> str:
-        """``tile 3/8`` (numbered from 1) or ``merge``, for messages."""
-        return f"tile {self.tile + 1}/{self.tiles}" if self.kind == "tile" else "merge"
+        """``tile 3/8 (job_tiles.tile 2)`` or ``merge``, for messages: counted from 1 for
+        people, with the table's own index (from 0) beside it, so a log line and a row of
+        ``job_tiles`` are matched without doubt."""
+        if self.kind != "tile":
+            return "merge"
+        return f"tile {self.tile + 1}/{self.tiles} (job_tiles.tile {self.tile})"
 
 
 def _part(job_id: str, kind: str, tile: int) -> Any:

@@ -8,6 +8,7 @@ Handed to both :class:`server.worker.runner.JobRunner` and
 from __future__ import annotations
 
 import json
+import logging
 import os
 import threading
 import time
@@ -26,9 +27,21 @@ from server.weights import resolve_job_weights
 
 if TYPE_CHECKING:  # only for annotations: jointseg.network imports torch
     from jointseg.network import Predictor
+    from server.worker.pulse import Pulse
 
 #: Networks kept loaded per process (one per configuration).
 MAX_PREDICTORS = 2
+
+log = logging.getLogger(__name__)
+
+
+def machine_cores() -> int:
+    """The cores this process may run on (its CPU affinity: a container's or taskset's share),
+    else every core of the machine."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 class WorkerContext:
@@ -48,9 +61,47 @@ class WorkerContext:
         self.queue = queue
         self.stopping = stopping
         self.worker = lifecycle.worker_id()
-        #: The job or tile claim being worked on: the heartbeat keeps it alive.
-        self.current: lifecycle.Claim | parts.PartClaim | None = None
+        self._current: lifecycle.Claim | parts.PartClaim | None = None
+        #: The heartbeat process (:mod:`server.worker.pulse`), told of every claim.
+        self.pulse: Pulse | None = None
         self.predictors: LRUCache[str, Predictor] = LRUCache(MAX_PREDICTORS)
+
+    @property
+    def current(self) -> lifecycle.Claim | parts.PartClaim | None:
+        """The job or tile claim being worked on: the heartbeat keeps it alive."""
+        return self._current
+
+    @current.setter
+    def current(self, claim: lifecycle.Claim | parts.PartClaim | None) -> None:
+        self._current = claim
+        if self.pulse is not None:
+            self.pulse.claim(claim)
+
+    def fit_threads(self) -> int:
+        """The torch (and OpenVINO) threads for the next job or tile: ``torch_threads`` when
+        set, else this machine's cores shared among the workers live on it (counted at each
+        claim, so workers started by hand, or later, divide the cores too). Networks loaded
+        for another count are dropped: OpenVINO fixes its threads when it compiles."""
+        import torch
+
+        wanted = self.settings.torch_threads
+        if wanted is None:
+            host = self.worker.rpartition(":")[0]
+            try:
+                with self.sessions() as session:
+                    live = lifecycle.live_on_host(
+                        session, host, timeout_s=self.settings.heartbeat_timeout_s
+                    )
+            except Exception:  # noqa: BLE001 - keep the threads it has
+                log.warning("worker %s: could not count this machine's workers", self.worker)
+                return int(torch.get_num_threads())
+            wanted = max(1, machine_cores() // max(1, live))
+        if wanted != torch.get_num_threads():
+            log.info("worker %s: %d torch threads (%s)", self.worker, wanted,
+                     "set" if self.settings.torch_threads else "this machine's share")  # fmt: skip
+            torch.set_num_threads(wanted)
+            self.predictors.clear()
+        return wanted
 
     def predictor(self, config: PipelineConfig) -> tuple[Predictor, float]:
         """The loaded network for ``config.network`` and the seconds loading took (0 if kept)."""

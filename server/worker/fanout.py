@@ -31,6 +31,7 @@ from pydantic import ValidationError
 from jointseg.exceptions import Cancelled, ConfigError, JointsegError, QueueUnavailable
 from jointseg.pipeline import PipelineConfig
 from server.messages import one_line, public_message, without_server_paths
+from server.metrics import job_finished
 from server.state import lifecycle, parts
 from server.state.models import Job, utcnow
 from server.worker.tokens import (
@@ -156,6 +157,7 @@ class FanOut:
             self._settle(job_id)
             return
         self.context.current = part
+        self.context.fit_threads()
         log.info(
             "job %s: %s attempt %d started by %s",
             job_id,
@@ -263,6 +265,7 @@ class FanOut:
         if not finished:
             log.warning("job %s: merge attempt no longer ours", part.job_id)
             return
+        job_finished("scan", "succeeded", rounded)
         log.info(
             "job %s succeeded: %d points in %d tiles, %.1f s",
             part.job_id,
@@ -294,6 +297,7 @@ class FanOut:
             failed = parts.fail_part(session, part, error)
         if failed:
             log.info("job %s failed: %s", part.job_id, error)
+            job_finished("scan", "failed", None, part.kind)
             self._settle(part.job_id)
         else:
             log.warning("job %s: %s attempt no longer ours", part.job_id, part.name)

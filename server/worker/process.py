@@ -2,8 +2,9 @@
 and the tiles and merges of tiled jobs through its :class:`server.worker.fanout.FanOut`.
 
 This module only wires the process together: settings, database, queue, the runner as the
-queue's task handlers, signals. The main thread stamps the worker as alive, runs the reaper and
-waits for SIGTERM / SIGINT, upon which the running job stops at its next cancel check and goes
+queue's task handlers, signals, and the heartbeat process (:mod:`server.worker.pulse`) that
+stamps the worker and its claim as alive. The main thread runs the reaper and waits for
+SIGTERM / SIGINT, upon which the running job stops at its next cancel check and goes
 back to the queue for another worker.
 """
 
@@ -20,11 +21,12 @@ from server.lifeline import STOP_GRACE_S, die_with_parent
 from server.logs import configure_logging
 from server.queue import MERGE_TILES, RUN_TILE, JobQueue, set_handler
 from server.settings import Settings
-from server.state import lifecycle, parts
+from server.state import lifecycle
 from server.state.db import init_db, make_engine, make_sessions
 from server.state.reaper import reap_and_requeue
 from server.storage import Storage
-from server.worker.context import WorkerContext
+from server.worker.context import WorkerContext, machine_cores
+from server.worker.pulse import Pulse
 from server.worker.runner import JobRunner
 
 log = logging.getLogger(__name__)
@@ -33,7 +35,7 @@ log = logging.getLogger(__name__)
 def _torch_threads(settings: Settings) -> int:
     if settings.torch_threads is not None:
         return settings.torch_threads
-    return max(1, (os.cpu_count() or 1) // max(1, settings.workers))
+    return max(1, machine_cores() // max(1, settings.workers))
 
 
 def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
@@ -81,7 +83,7 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
         log.info("worker %s: %s received, stopping", context.worker, signal.Signals(signum).name)
         stopping.set()
 
-    _beat(context)
+    context.pulse = Pulse(settings, context.worker)
     consumer.start()
     signal.signal(signal.SIGTERM, stop)  # replaces the consumer's handlers
     signal.signal(signal.SIGINT, stop)
@@ -93,6 +95,7 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     )
     _main_loop(context, parent_pid)
     consumer.stop(graceful=True)
+    context.pulse.stop()
     with sessions() as session:
         lifecycle.forget_worker(session, context.worker)
     queue.close()
@@ -100,23 +103,20 @@ def worker_main(settings: Settings, *, parent_pid: int | None = None) -> None:
     log.info("worker %s stopped", context.worker)
 
 
-def _beat(context: WorkerContext) -> None:
-    try:
-        current = context.current
-        with context.sessions() as session:
-            if isinstance(current, parts.PartClaim):
-                parts.heartbeat(session, current, context.worker)
-            else:
-                lifecycle.heartbeat(session, current, context.worker)
-    except Exception:  # noqa: BLE001 - the next beat may succeed
-        log.warning("worker %s: heartbeat failed", context.worker, exc_info=True)
+def _keep_pulse(context: WorkerContext) -> None:
+    """Start the heartbeat process again if it died (the worker would look dead otherwise)."""
+    if context.pulse is not None and not context.pulse.alive():
+        log.warning("worker %s: heartbeat process died; starting it again", context.worker)
+        context.pulse = Pulse(context.settings, context.worker)
+        context.pulse.claim(context.current)
 
 
 def _main_loop(context: WorkerContext, parent_pid: int | None) -> None:
-    """Heartbeats and the reaper, every ``heartbeat_interval_s``, until asked to stop."""
+    """The reaper every ``heartbeat_interval_s`` (the heartbeats are the pulse's), and the
+    pulse started again should it die, until asked to stop."""
     settings = context.settings
     tasks: list[Callable[[], object]] = [
-        lambda: _beat(context),
+        lambda: _keep_pulse(context),
         lambda: reap_and_requeue(context.sessions, context.queue, settings),
     ]
     while not context.stopping.wait(settings.heartbeat_interval_s):

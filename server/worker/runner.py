@@ -25,6 +25,7 @@ from jointseg.io import probe_scan
 from jointseg.pipeline import PipelineConfig, segment_file
 from server.limits import check_file_span
 from server.messages import one_line, public_message, without_server_paths
+from server.metrics import job_finished
 from server.state import lifecycle
 from server.state.models import MODEL_KIND
 from server.worker.context import WorkerContext
@@ -56,6 +57,7 @@ class JobRunner:
             log.info("job %s: not queued any more, skipped", job_id)
             return
         self.context.current = claim
+        self.context.fit_threads()
         log.info("job %s: attempt %d started by %s", job_id, claim.attempt, self.worker)
         try:
             self._run(claim)
@@ -82,12 +84,14 @@ class JobRunner:
         except (JointsegError, ValidationError) as exc:
             message = _failure_message(exc, upload, claim.filename)
             log.info("job %s failed: %s", claim.job_id, message)
-            self._finish(claim, "failed", error=message)
+            self._finish(claim, "failed", error=message, error_kind=type(exc).__name__)
             return
         except Exception as exc:
             log.exception("job %s: internal error", claim.job_id)
             error = f"internal error: {type(exc).__name__}: {exc}"
-            self._finish(claim, "failed", error=one_line(without_server_paths(error)))
+            self._finish(
+                claim, "failed", error=one_line(without_server_paths(error)), error_kind="internal"
+            )
             return
         if done is None:  # planned: its tiles and merge finish it
             return
@@ -165,11 +169,16 @@ class JobRunner:
         log.info("job %s cancelled", claim.job_id)
 
     def _finish(self, claim: lifecycle.Claim, status: str, **values: Any) -> None:
+        """Store how the job ended (``error_kind``: the error's class, for the metrics)."""
+        kind_of_error = values.pop("error_kind", None)
         with self.sessions() as session:
             finished = lifecycle.finish_job(session, claim, status, **values)
         if not finished:
             log.warning("job %s: attempt %d no longer ours", claim.job_id, claim.attempt)
-        elif status != "succeeded":
+            return
+        kind = "model" if claim.kind == MODEL_KIND else "scan"
+        job_finished(kind, status, values.get("timings"), kind_of_error)
+        if status != "succeeded":
             self.storage.remove_tiles(claim.job_id)  # a plan that failed or was cancelled
 
 

@@ -172,7 +172,7 @@ def test_a_tile_lost_max_attempts_times_fails_the_job(sessions) -> None:
     with sessions() as session:
         view = jobs.get_job(session, job_id)
     assert view.status == "failed"
-    assert view.error.startswith("tile 2 failed: worker w:2 stopped responding")
+    assert view.error.startswith("tile 2 (job_tiles.tile 1) failed: worker w:2 stopped responding")
     statuses = _statuses(sessions, job_id)
     assert statuses[("tile", 1)] == "failed" and statuses[("merge", 0)] == "cancelled"
     assert statuses[("tile", 0)] == "cancelled"  # queued tiles are skipped
