@@ -264,7 +264,7 @@ def test_a_tile_that_fails_fails_the_job(
         parts = _parts(url, job_id)
     assert job["status"] == "failed" and job["stage"] == "failed", job
     error = job["error"]
-    assert error.startswith(f"tile 2/{total} failed: "), error
+    assert error.startswith(f"tile 2/{total} (job_tiles.tile 1) failed: "), error
     assert error.endswith("tiles/0001/index.i64: tile index missing (folder not prepared?)"), error
     assert str(data) not in error  # no server path: "<tile folder>/tiles/0001/..."
     assert job["tiles"] == {"total": total, "done": 1, "running": 0}, job
