@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 import torch
 
 from jointseg.adapt.learn import with_head
@@ -48,3 +49,21 @@ def test_a_gated_model_keeps_both_heads_through_its_checkpoint(tmp_path: Path) -
     # without the gate the model is an ordinary one
     plain = with_head(base, head, None)
     assert plain.base_head is None and plain.config.keep_base_above is None
+
+
+def test_models_of_one_weights_and_another_gate_do_not_share_an_openvino_export(
+    tmp_path: Path,
+) -> None:
+    """The export cache is keyed by what the model computes: the same weights with another
+    gate (or none) must not reuse a gated model's export."""
+    pytest.importorskip("openvino")
+    from jointseg.network.randlanet.engine import CompiledForward
+
+    torch.manual_seed(0)
+    base = RandLANet().eval()
+    head = make_head(base.head[0].in_channels, base.config.num_classes).eval()
+    digests = {
+        gate: CompiledForward(with_head(base, head, gate), 1, tmp_path).digest
+        for gate in (None, 0.9, 0.97)
+    }
+    assert len(set(digests.values())) == 3, digests

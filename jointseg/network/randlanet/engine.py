@@ -109,6 +109,11 @@ class CompiledForward:
         _runtime_pid = os.getpid()
         self.core.set_property({"CACHE_DIR": str(self.folder / "blobs")})
         state = b"".join(t.detach().cpu().numpy().tobytes() for t in model.state_dict().values())
+        # the configuration too: two models of the same weights may compute differently (an
+        # adapted model's gate, jointseg.adapt), and must not share an export
+        config = getattr(model, "config", None)
+        if config is not None and hasattr(config, "model_dump_json"):
+            state += config.model_dump_json().encode()
         self.digest = hashlib.sha1(state).hexdigest()[:16]
         #: infer request per input shape; None for a shape that failed to compile (torch runs it)
         self.compiled: dict[tuple, Any] = {}
