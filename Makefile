@@ -32,10 +32,14 @@ run: setup
 serve: setup
 	$(BIN)/jointseg serve --port $(PORT) --data-dir $(DEMO)/data
 
+# ruff, mypy, the floors of docs/ARCHITECTURE.md (import-linter's contracts in pyproject.toml)
+# and every module the shipped packages import declared as a dependency (deptry)
 lint: setup
 	$(BIN)/ruff check jointseg server web tests bench docs/hooks scripts
 	$(BIN)/ruff format --check jointseg server web tests bench docs/hooks scripts
 	$(BIN)/mypy
+	$(BIN)/lint-imports --no-logo
+	$(BIN)/deptry jointseg server web
 
 # the whole suite in two runs (docs/contributing.md): the library, CLI and unit tests on two
 # xdist workers, one test file to a worker (a module's fixtures are built once); then the

@@ -5,7 +5,7 @@ building), delivered every way a user delivers it, goes through the frame stage'
 as the pipeline makes it: the file's word, the capture and the geometry weighed, and the
 pipeline's network (the colour-free one for a scan without colour) judging the likeliest
 candidates whenever ``weigh.needs_judge`` asks it. Deliveries: those of
-``jointseg.frame.fit_cases`` (z up as is and as LAS, y up as a plain export, a GLB and a phone
+``jointseg.fitting.up_axis_cases`` (z up as is and as LAS, y up as a plain export, a GLB and a phone
 app's PLY, upside down, x up, tilted 5-20 degrees, a 1.2 m floor slice, a wall-side half room,
 ``--views`` camera frames) and five more of ``bench/helpers/deliveries.py`` (no colour, z up and
 y up; millimetres, y up; international feet; 0.3 % stray points).
@@ -43,22 +43,22 @@ from helpers.inputs import AREA6, BENCH, CACHE, FRAGMENT, SCANNET
 from helpers.report import header
 
 from jointseg.fitting.scans import scan_files
-from jointseg.frame import gravity, weigh
-from jointseg.frame.colour import decide_colour
-from jointseg.frame.decide import decide_frame, gather, judge_candidates, up_warnings
-from jointseg.frame.fit import read_plan
-from jointseg.frame.fit_cases import (
+from jointseg.fitting.up_axis import read_plan
+from jointseg.fitting.up_axis_cases import (
     DELIVERIES,
     Case,
     evidence_record,
     room_cases,
     verdict_record,
 )
-from jointseg.frame.judge import LabelFn
+from jointseg.frame import gravity, weigh
+from jointseg.frame.colour import decide_colour
+from jointseg.frame.decide import decide_frame, gather, judge_candidates, up_warnings
 from jointseg.frame.model import MODEL_FILE
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES
 from jointseg.io import read_scan
+from jointseg.labeller import LabelFn
 from jointseg.scan import Scan
 
 log = logging.getLogger("frame_calibration")
@@ -68,7 +68,7 @@ PLAN = BENCH.parent / "fit" / "up_axis.json"
 VERSION = 1
 #: Reliability bins of the stated confidence.
 EDGES = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0001)
-#: Deliveries made here beyond fit_cases's: (name, truth, steps of helpers.deliveries).
+#: Deliveries made here beyond up_axis_cases's: (name, truth, steps of helpers.deliveries).
 EXTRA: tuple[tuple[str, str, tuple[Any, ...]], ...] = (
     ("z up, no colour", "+z", (no_colour,)),
     ("y up, no colour", "+y", (y_up, no_colour)),
@@ -76,7 +76,7 @@ EXTRA: tuple[tuple[str, str, tuple[Any, ...]], ...] = (
     ("z up, feet", "+z", (feet,)),
     ("z up, stray points", "+z", (strays,)),
 )
-#: The deliveries run by default (``--all``: every one of fit_cases and EXTRA): the judging
+#: The deliveries run by default (``--all``: every one of up_axis_cases and EXTRA): the judging
 #: network costs seconds a case on a shared CPU, so the LAS, GLB and phone-app deliveries
 #: (whose file says its axis strongly) and two of the extra ones are left to ``--all``.
 DEFAULT = (

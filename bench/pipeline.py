@@ -105,7 +105,7 @@ def one_shot(scan_path: Path, weights: str, folder: Path) -> dict[str, float]:
 def random_weights(folder: Path) -> str:
     import torch
 
-    from jointseg.network.checkpoint import save_checkpoint
+    from jointseg.network.randlanet.checkpoint import save_checkpoint
     from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
     torch.manual_seed(0)

@@ -6,7 +6,7 @@ per source, on the tuning cases of a fit plan and on the judging rooms it leaves
     .venv/bin/python bench/up_axis.py --fit                 # weights fitted here, in memory
     .venv/bin/python bench/up_axis.py --part miou           # z-up scans: kept +z? fused mIoU
 
-Cases (made by jointseg.frame.fit_cases, as `jointseg fit up-axis` makes them): every S3DIS
+Cases (made by jointseg.fitting.up_axis_cases, as `jointseg fit up-axis` makes them): every S3DIS
 and ScanNet room delivered z up as it is, as LAS, y up (a plain export, a GLB, a phone app's
 PLY), upside down, x up, tilted 5-20 degrees, cut to a 1.2 m slice or half a room, and cut into
 camera frames; and the real captures of ../shared/data. The rooms and captures the plan
@@ -30,10 +30,10 @@ from helpers.scans import DATASET_NAMES
 
 from jointseg.fitting.outputs import network_spec
 from jointseg.fitting.scans import scan_files
+from jointseg.fitting.up_axis import UpPlan, fit_weights, gather_all, read_plan
+from jointseg.fitting.up_axis_cases import Case, Gathered, room_cases
 from jointseg.frame import gravity, weigh
 from jointseg.frame.decide import UP_UNSURE as UNSURE
-from jointseg.frame.fit import UpPlan, fit_weights, gather_all, read_plan
-from jointseg.frame.fit_cases import Case, Gathered, room_cases
 from jointseg.frame.model import MODEL_FILE, read_up_model, weight_vector
 from jointseg.frame.sources import SIGNED_AXES
 from jointseg.io import read_scan
@@ -47,7 +47,7 @@ UNKNOWN_UP = DATA / "other_sensors" / "pcldata_region_growing_tutorial.pcd"
 
 def all_cases(plan: UpPlan, base: Path) -> list[Case]:
     """The plan's tuning cases, and the same deliveries of every other room as judging ones."""
-    from jointseg.frame.fit import plan_cases
+    from jointseg.fitting.up_axis import plan_cases
 
     tuning, _ = plan_cases(plan, base)
     tuned = {c.name for c in tuning}

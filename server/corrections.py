@@ -35,7 +35,7 @@ from jointseg.exceptions import (
 )
 from jointseg.io.atomic import atomic_open
 from jointseg.labels.edits import EditList
-from server.api.results import convert_result, layout_from, layout_of, lock_for, result_file
+from server.results import convert_result, layout_from, layout_of, lock_for, result_file
 from server.schemas import JobView, LabelsState, LabelsVersion
 from server.state import jobs, labels
 from server.state.db import SessionFactory
@@ -43,7 +43,7 @@ from server.storage import Storage
 
 log = logging.getLogger(__name__)
 
-#: What a version offers to download (as :data:`server.api.results.DOWNLOADS`).
+#: What a version offers to download (as :data:`server.results.DOWNLOADS`).
 VersionKind = Literal["ply", "las", "laz", "ifc", "objects", "report"]
 VERSION_KINDS: tuple[VersionKind, ...] = ("ply", "las", "laz", "ifc", "objects", "report")
 #: A version's files in its folder (``labels/v<N>/``); the report is written last, so its
@@ -252,7 +252,7 @@ def correct(
 def version_file(storage: Storage, job_id: str, version: int, kind: VersionKind) -> Path:
     """A labels version's ``kind`` file, made on the first request and kept (blocking).
 
-    Version 0 is the run's own files (:func:`server.api.results.result_file`, its report and
+    Version 0 is the run's own files (:func:`server.results.result_file`, its report and
     its objects). A later version's scan carries ``fused_label`` = the version's labels and
     ``user_label`` (LAS: classification 64 + the class where corrected); its objects, IFC and
     report are made from its labels. The caller checks that the job succeeded, is the tenant's

@@ -5,14 +5,18 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from jointseg.frame.params import FrameParams
-from server.state.models import FINAL_STATUSES
 
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+#: Every status a job can have (the job table's ``status`` column, :mod:`server.state.models`),
+#: and the final ones. Here, below the job table: its functions answer with these models, so
+#: the table's package imports this module and never the other way round.
+STATUSES: tuple[JobStatus, ...] = get_args(JobStatus)
+FINAL_STATUSES: tuple[JobStatus, ...] = ("succeeded", "failed", "cancelled")
 
 
 class TileCounts(BaseModel):

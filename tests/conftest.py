@@ -9,8 +9,8 @@ from typing import Any
 import pytest
 import torch
 
-from jointseg.network.checkpoint import save_checkpoint
 from jointseg.network.dgcnn.model import DGCNN
+from jointseg.network.randlanet.checkpoint import save_checkpoint
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.training.loop import TrainConfig
 

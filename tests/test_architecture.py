@@ -1,14 +1,22 @@
 """The house rules of issue 24, checked on the source: no import cycle (counting imports inside
-functions and under TYPE_CHECKING), no upward import, no function over 80 lines."""
+functions and under TYPE_CHECKING), no upward import, no function over 80 lines; and the floors
+of docs/ARCHITECTURE.md (issue 69): import-linter's contracts in pyproject.toml hold on the
+tree, and fail on a copy of it with an import that runs up a floor."""
 
 from __future__ import annotations
 
 import ast
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+#: import-linter's command, beside this interpreter (the dev extra installs it)
+LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
 PACKAGES = ("jointseg", "server", "web")
 LAYER = {"jointseg": 0, "server": 1, "web": 2}
 MAX_FUNCTION_LINES = 80
@@ -150,3 +158,61 @@ def test_every_package_is_on_the_architecture_map(package: str) -> None:
     subpackages = sorted(_module_name(p.parent) for p in inits if p.parent != ROOT / package)
     missing = [s for s in subpackages if f"{s.split('.', 1)[1].replace('.', '/')}/" not in text]
     assert not missing, f"ARCHITECTURE.md does not name {missing}"
+
+
+def _lint_imports(root: Path) -> subprocess.CompletedProcess[str]:
+    """import-linter's contracts (``root``'s pyproject.toml) checked on the packages under
+    ``root``: they come first on the path, before the checkout's editable install."""
+    if not LINT_IMPORTS.is_file():
+        pytest.fail(f"no {LINT_IMPORTS}: pip install -e '.[dev]' installs import-linter")
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    command = [str(LINT_IMPORTS), "--no-cache", "--no-logo"]
+    return subprocess.run(command, cwd=root, env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_the_floors_of_the_architecture_map_hold() -> None:
+    done = _lint_imports(ROOT)
+    assert done.returncode == 0, f"lint-imports:\n{done.stdout[-6000:]}{done.stderr[-2000:]}"
+    assert "0 broken" in done.stdout and "BROKEN" not in done.stdout
+
+
+#: Imports that run against a floor, each written into a copy of the tree (inside a function,
+#: where grimp sees it too), and what lint-imports says of each.
+UPWARD = (
+    ("jointseg/io/units.py", "jointseg.pipeline"),
+    ("jointseg/network/judge.py", "jointseg.frame.judge"),
+    ("server/schemas.py", "server.state.models"),
+    ("jointseg/scan.py", "server.settings"),
+    ("jointseg/network/randlanet/predict.py", "jointseg.network.checkpoint"),
+)
+SAID = (
+    "jointseg.io is not allowed to import jointseg.pipeline",
+    "jointseg.network is not allowed to import jointseg.frame",
+    "server.schemas is not allowed to import server.state",
+    "jointseg is not allowed to import server",
+    # the checkpoint module above RandLA-Net's folder, which imports it back
+    "No cycles are allowed in jointseg.network",
+)
+
+
+def test_the_floor_contracts_fail_on_an_import_up_a_floor(tmp_path: Path) -> None:
+    for package in PACKAGES:
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=_not_python)
+    shutil.copy2(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    for path, target in UPWARD:
+        with (tmp_path / path).open("a") as fh:
+            fh.write(f"\n\ndef _upward() -> None:\n    import {target}  # noqa: F401\n")
+    done = _lint_imports(tmp_path)
+    assert done.returncode != 0, done.stdout[-4000:]
+    for said in SAID:
+        assert said in done.stdout, f"{said!r} not in:\n{done.stdout[-6000:]}"
+
+
+def _not_python(folder: str, names: list[str]) -> list[str]:
+    """What a copy of the packages for the import graph leaves out: data files (the bundled
+    weights), caches."""
+    return [
+        n
+        for n in names
+        if n == "__pycache__" or (Path(folder, n).is_file() and not n.endswith(".py"))
+    ]

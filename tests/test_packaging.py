@@ -4,12 +4,17 @@ and the installed package segments a scan as the checkout does.
 
 A file left out is no error at install time: before issue 46 the up-axis weighing fell back to
 zero and placeholder weights when ``up_model.json`` was missing, and turned scans by chance.
+
+And what the packages need is declared (issue 69): every module they import is a dependency of
+their own (deptry; a module that only comes with another package goes when that package stops
+needing it), and the model cards they ship name no folder of the machine they were made on.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -23,9 +28,6 @@ from typing import Any
 import numpy as np
 import pytest
 from plyfile import PlyData, PlyElement
-
-#: a wheel built and installed into a fresh environment: minutes, not for `make test-fast`
-pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("jointseg", "server", "web")
@@ -76,6 +78,7 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return built
 
 
+@pytest.mark.slow  # a wheel built and installed: minutes, not for `make test-fast`
 def test_the_wheel_holds_every_data_file_of_the_packages(wheel: Path) -> None:
     data = [f for f in _source_files(*PACKAGES) if not f.endswith(".py")]
     assert "jointseg/frame/up_model.json" in data  # the list is the real one
@@ -146,6 +149,7 @@ def _segmented(
     return json.loads(report.read_text())["frame"], PlyData.read(str(out))["vertex"].data
 
 
+@pytest.mark.slow  # a wheel built and installed: minutes, not for `make test-fast`
 def test_the_installed_wheel_segments_a_y_up_room_as_the_checkout_does(
     wheel: Path, tmp_path: Path
 ) -> None:
@@ -195,3 +199,94 @@ def _check_missing_files_are_named(
         done = _call([python, "-c", code], cwd, env)
         assert done.returncode != 0 and "ConfigError" in done.stderr, code
         assert str(path) in done.stderr and "installation is incomplete" in done.stderr, code
+
+
+#: What deptry scans: the packages the wheel ships (bench/, tests/ and scripts/ run in the dev
+#: environment), as `make lint` runs it.
+DEPTRY = [str(Path(sys.executable).with_name("deptry")), *PACKAGES]
+ANSI = re.compile(r"\x1b\[[0-9;]*m")
+
+
+def _deptry(root: Path) -> tuple[int, str]:
+    """deptry's exit status and report on the packages under ``root`` (checked against its
+    pyproject.toml's dependencies and ``[tool.deptry]``), without colours."""
+    done = subprocess.run(DEPTRY, cwd=root, capture_output=True, text=True, timeout=300)
+    return done.returncode, ANSI.sub("", done.stdout + done.stderr)
+
+
+def test_every_module_the_packages_import_is_declared() -> None:
+    status, said = _deptry(ROOT)
+    assert status == 0 and "No dependency issues found" in said, said[-4000:]
+
+
+def test_the_dependency_check_fails_on_a_module_imported_but_not_declared(tmp_path: Path) -> None:
+    """A copy of the packages and pyproject.toml with shapely's line taken out of the
+    dependencies (it still comes with ifcopenshell) and a module no package provides imported:
+    deptry names both."""
+    for package in PACKAGES:
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=_no_data)
+    settings = (ROOT / "pyproject.toml").read_text()
+    declared = re.search(r'^ +"shapely[^"]*",\n', settings, re.M)
+    assert declared, "pyproject.toml no longer declares shapely: pick another dependency here"
+    (tmp_path / "pyproject.toml").write_text(settings.replace(declared.group(0), ""))
+    with (tmp_path / "jointseg" / "scan.py").open("a") as fh:
+        fh.write("\n\ndef _undeclared() -> None:\n    import no_such_dependency  # noqa: F401\n")
+    status, said = _deptry(tmp_path)
+    assert status != 0, said[-4000:]
+    assert "DEP003 'shapely' imported but it is a transitive dependency" in said, said[-4000:]
+    assert "DEP001 'no_such_dependency' imported but missing" in said, said[-4000:]
+
+
+def _no_data(folder: str, names: list[str]) -> list[str]:
+    """What a copy of the packages for deptry leaves out: data files, caches."""
+    return [
+        n
+        for n in names
+        if n == "__pycache__" or (Path(folder, n).is_file() and not n.endswith(".py"))
+    ]
+
+
+#: Weights files and fitted models the packages ship with a model card.
+CARDS = ("jointseg/network/weights/*.pt", "jointseg/fusion/vote_model.json")
+
+
+def _shipped_cards() -> dict[str, Any]:
+    """The model card of every shipped file that has one, by its path in the project."""
+    from jointseg.network.torch_files import read_torch_file
+
+    cards = {}
+    for pattern in CARDS:
+        for path in sorted(ROOT.glob(pattern)):
+            name = str(path.relative_to(ROOT))
+            body = read_torch_file(path) if path.suffix == ".pt" else json.loads(path.read_text())
+            cards[name] = body["card"]
+    return cards
+
+
+def _strings(value: Any) -> list[str]:
+    """Every string in a card, keys included."""
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for k, v in value.items() for s in (*_strings(k), *_strings(v))]
+    if isinstance(value, list | tuple):
+        return [s for v in value for s in _strings(v)]
+    return []
+
+
+def test_no_shipped_card_names_a_folder_of_the_machine_it_was_made_on() -> None:
+    from jointseg.network.cards import machine_paths
+
+    cards = _shipped_cards()
+    assert {
+        "jointseg/network/weights/randlanet_indoor.pt",
+        "jointseg/fusion/vote_model.json",
+    } <= set(cards)
+    found = {name: machine_paths(card) for name, card in cards.items() if machine_paths(card)}
+    assert not found, f"cards with machine paths (write them with portable_card): {found}"
+    climbing = [
+        s for c in cards.values() for s in _strings(c) if re.search(r"(^|[/\s=])\.\.[/\\]", s)
+    ]
+    assert not climbing, climbing
+    # the data sets are still named, by their folders' names
+    assert "s3dis_area6" in cards["jointseg/network/weights/randlanet_indoor.pt"]["data"]

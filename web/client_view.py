@@ -32,7 +32,7 @@ import numpy as np
 import viser
 
 from jointseg.exceptions import JointsegError
-from server.api.results import Download
+from server.results import Download
 from web.address import AddressBar, PageElement
 from web.camera import FIT_ALL, CameraFollow
 from web.controls import GONE, Controls

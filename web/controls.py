@@ -14,7 +14,7 @@ from typing import Any
 import viser
 
 from jointseg.classes import NUM_CLASSES, PALETTE, UNLABELLED, UNLABELLED_COLOUR
-from server.api.results import Download
+from server.results import Download
 from web.camera import FIT_ALL
 from web.clipping import ClipControls
 from web.downloads import LABELS, NEEDS_LAYOUT, has_layout

@@ -14,8 +14,8 @@ import logging
 import viser
 
 from jointseg.exceptions import JobNotFound, JointsegError
-from server.api.results import Download, download_name, layout_from
 from server.messages import public_report_bytes, without_server_paths
+from server.results import Download, download_name, layout_from
 from web.sources import JobSource
 
 log = logging.getLogger(__name__)

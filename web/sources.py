@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Protocol
 from pydantic import BaseModel, ConfigDict
 
 from jointseg.exceptions import JobNotFound, JobStateError
-from server.api.results import convert_result
+from server.results import convert_result
 from server.storage import ResultFormat
 
 if TYPE_CHECKING:

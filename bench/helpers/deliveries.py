@@ -31,8 +31,8 @@ import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
 from jointseg.frame.decide import rotation_about
-from jointseg.frame.units import UNITS
 from jointseg.io import write_scan
+from jointseg.io.units import UNITS
 from jointseg.scan import Scan
 from jointseg.synth.views import camera_view
 

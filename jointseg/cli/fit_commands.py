@@ -83,7 +83,7 @@ def up_axis(
     cache: Path | None = typer.Option(None, "--cache", help=CACHE_HELP),
 ) -> None:
     """Fit the up-axis weighing (jointseg/frame/up_model.json) on the plan's rooms, captures."""
-    from jointseg.frame.fit import fit_up_axis, read_plan
+    from jointseg.fitting.up_axis import fit_up_axis, read_plan
 
     command = _command("up-axis", plan, out, cache)
     record = fit_up_axis(read_plan(plan), plan.parent, out, command=command, cache=cache)

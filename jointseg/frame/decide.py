@@ -20,11 +20,13 @@ from jointseg.exceptions import ConfigError
 from jointseg.frame import gravity, weigh
 from jointseg.frame.capture import Capture, capture_kind
 from jointseg.frame.colour import ColourDecision, apply_gains, decide_colour
-from jointseg.frame.judge import LabelFn, judge_frames
+from jointseg.frame.judge import judge_frames
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES, FileEvidence, file_evidence
 from jointseg.frame.strays import strays_of_columns, work_columns
-from jointseg.frame.units import UNITS, UnitsDecision, units_from_scale
+from jointseg.frame.units import UnitsDecision, units_from_scale
+from jointseg.io.units import UNITS
+from jointseg.labeller import LabelFn
 from jointseg.scan import Scan
 
 log = logging.getLogger(__name__)

@@ -7,19 +7,15 @@ its confidence drops, furniture turns to clutter, and a floor (which nearly ever
 has, unlike a ceiling) goes missing. The features below measure that; how much each counts is
 fitted with the other evidence in :mod:`jointseg.frame.weigh`.
 
-The frame stage never imports the network: the caller passes a :data:`LabelFn` (see
-:func:`jointseg.network.judge.crop_labeller`).
+The frame stage never imports the network: the caller passes a
+:data:`~jointseg.labeller.LabelFn` (see :func:`jointseg.network.judge.crop_labeller`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
-#: ``label(xyz, rgb) -> (xyz_judged, probs)``: class probabilities (M, 13) of M of the points
-#: given (in a z-up metric frame), with their coordinates.
-LabelFn = Callable[[np.ndarray, np.ndarray | None], tuple[np.ndarray, np.ndarray]]
+from jointseg.labeller import LabelFn
 
 #: The features of one candidate frame, in order.
 FEATURES: tuple[str, ...] = (

@@ -21,7 +21,7 @@ import numpy as np
 from jointseg.exceptions import ConfigError
 
 #: The model shipped with the library: written by `jointseg fit up-axis`
-#: (:mod:`jointseg.frame.fit`) with its provenance beside it, declared as package data in
+#: (:mod:`jointseg.fitting.up_axis`) with its provenance beside it, declared as package data in
 #: pyproject.toml.
 MODEL_FILE = Path(__file__).with_name("up_model.json")
 

@@ -6,7 +6,7 @@ file's own prior (:mod:`jointseg.frame.sources`), the scan's geometry (the fitte
 slices, whose extremes are not floor and ceiling), the camera convention of a single view
 (:mod:`jointseg.frame.capture`) and, for the few most likely candidates, the network's verdict
 (:mod:`jointseg.frame.judge`). A conditional logit over the candidates, fitted by `jointseg fit
-up-axis` (:mod:`jointseg.frame.fit`) on tuning scans, turns them into probabilities; the
+up-axis` (:mod:`jointseg.fitting.up_axis`) on tuning scans, turns them into probabilities; the
 decision's confidence is its probability, so a threshold on it means a share of right
 decisions.
 """

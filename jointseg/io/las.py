@@ -52,6 +52,7 @@ from jointseg.io.limits import (
     check_inflation,
     check_max_points,
 )
+from jointseg.io.units import unit_from_geokeys, unit_from_wkt
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -374,8 +375,6 @@ _WKT_RECORD, _GEOKEYS_RECORD = 2112, 34735
 def las_meta(header: laspy.LasHeader) -> dict[str, Any]:
     """What a LAS header says about the whole scan: its CRS records, scales and offsets (an
     output keeps them) and the linear unit its CRS names (the frame stage reads it)."""
-    from jointseg.frame.units import unit_from_geokeys, unit_from_wkt
-
     records = [
         v
         for v in [*header.vlrs, *(getattr(header, "evlrs", None) or [])]

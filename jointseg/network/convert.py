@@ -27,8 +27,8 @@ import torch
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
-from jointseg.network.checkpoint import FORMAT, save_checkpoint
 from jointseg.network.digest import file_sha256
+from jointseg.network.randlanet.checkpoint import FORMAT, save_checkpoint
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
 log = logging.getLogger(__name__)

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from jointseg.frame.judge import LabelFn
+from jointseg.labeller import LabelFn
 from jointseg.network.anchored import CropPlan, anchored_cloud
 from jointseg.scan import Scan
 
@@ -28,7 +28,7 @@ def _cropping(predictor: Any) -> Any:
 
 
 def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> LabelFn | None:
-    """A :data:`~jointseg.frame.judge.LabelFn` from a loaded predictor; None for one that is
+    """A :data:`~jointseg.labeller.LabelFn` from a loaded predictor; None for one that is
     no loaded network (no ``model``: a remote or stand-in predictor), which the frame stage
     cannot ask cheaply and without a way to cancel it."""
     net = _cropping(predictor)

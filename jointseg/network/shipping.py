@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from jointseg.exceptions import ConfigError
-from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.training.config import TrainConfig
 from jointseg.network.training.loop import card_facts

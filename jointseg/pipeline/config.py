@@ -19,7 +19,7 @@ from jointseg.network.devices import DEVICE_NAMES, check_device_name
 from jointseg.network.registry import BACKENDS, DEFAULT_BACKEND, REGISTRY
 from jointseg.objects.params import ObjectParams
 from jointseg.pipeline.quality import Quality, with_preset
-from jointseg.pipeline.tiled.grid import TileParams
+from jointseg.pipeline.tile_params import TileParams
 
 
 class NetworkSettings(BaseModel):

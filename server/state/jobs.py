@@ -20,9 +20,9 @@ from sqlalchemy import func, or_, select, update
 from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
-from server.schemas import JobStatus, JobView, TileCounts
+from server.schemas import FINAL_STATUSES, JobStatus, JobView, TileCounts
 from server.state import labels, parts
-from server.state.models import FINAL_STATUSES, MODEL_KIND, Job, utcnow
+from server.state.models import MODEL_KIND, Job, utcnow
 from server.storage import check_job_id
 
 __all__ = [

@@ -19,8 +19,8 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session
 
 from jointseg.exceptions import JobNotFound, JobStateError
-from server.schemas import ModelSource, ModelView
-from server.state.models import FINAL_STATUSES, MODEL_KIND, Job, utcnow
+from server.schemas import FINAL_STATUSES, ModelSource, ModelView
+from server.state.models import MODEL_KIND, Job, utcnow
 from server.storage import check_job_id
 
 #: What a later job names in ``network.weights`` to use a model: ``model:<id>``.

@@ -27,9 +27,6 @@ from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 from sqlalchemy.types import TypeDecorator
 
-#: Every status a job can have; the last three are final.
-STATUSES = ("queued", "running", "succeeded", "failed", "cancelled")
-FINAL_STATUSES = ("succeeded", "failed", "cancelled")
 #: ``jobs.kind`` of a model learnt from corrected jobs (``POST /v1/models``); a scan's job has
 #: none (NULL), so rows from before models need no migration.
 MODEL_KIND = "model"

@@ -25,9 +25,9 @@ from typing import Any
 from sqlalchemy import case, delete, func, select, update
 from sqlalchemy.orm import Session
 
-from server.schemas import TileCounts
+from server.schemas import FINAL_STATUSES, TileCounts
 from server.state import lifecycle, transitions
-from server.state.models import FINAL_STATUSES, Job, JobTile, utcnow
+from server.state.models import Job, JobTile, utcnow
 
 log = logging.getLogger(__name__)
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from jointseg.io import read_scan, write_scan
-from jointseg.network.checkpoint import save_checkpoint
+from jointseg.network.randlanet.checkpoint import save_checkpoint
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.synth import make_room
 from tests.support.cli import run_cli
@@ -60,7 +60,7 @@ def test_models_list_shows_randlanet() -> None:
 
 @pytest.mark.slow
 def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:
-    from jointseg.network.checkpoint import load_checkpoint
+    from jointseg.network.randlanet.checkpoint import load_checkpoint
     from jointseg.network.training.loop import train
 
     source = train(tiny_training(out=tmp_path / "train.pt", steps_per_epoch=1))

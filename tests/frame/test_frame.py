@@ -15,8 +15,9 @@ from jointseg.frame import gravity
 from jointseg.frame.decide import decide_frame, rotation_about, rotation_to_z
 from jointseg.frame.params import FrameParams
 from jointseg.frame.strays import find_strays
-from jointseg.frame.units import UNITS, unit_from_geokeys, unit_from_wkt, units_from_scale
+from jointseg.frame.units import units_from_scale
 from jointseg.io import read_scan, write_scan
+from jointseg.io.units import UNITS, unit_from_geokeys, unit_from_wkt
 from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 from jointseg.network.registry import REGISTRY
 from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file

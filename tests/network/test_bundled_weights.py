@@ -8,7 +8,7 @@ import pytest
 
 from jointseg.metrics import evaluate
 from jointseg.network import load
-from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.registry import REGISTRY
 from jointseg.synth import make_room
 

@@ -12,16 +12,12 @@ import numpy as np
 import pytest
 import torch
 
-from jointseg.network import checkpoint
-from jointseg.network.checkpoint import (
-    load_checkpoint,
-    read_torch_file,
-    save_checkpoint,
-    unpacked_path,
-)
+from jointseg.network.randlanet import checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint, save_checkpoint, unpacked_path
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.randlanet.predict import load_randlanet
 from jointseg.network.registry import REGISTRY
+from jointseg.network.torch_files import read_torch_file
 from jointseg.synth import make_room
 
 CARD = {"data": "random initialisation (tests)", "history": [{"epoch": 1, "val_miou": 0.1}]}
@@ -122,7 +118,7 @@ def test_a_broken_copy_is_ignored_and_written_again(
     good = copy.read_bytes()
     broken = {"garbage": b"not a torch file" * 100, "truncated": good[: len(good) // 2]}
     copy.write_bytes(broken.get(damage, b""))
-    with caplog.at_level(logging.INFO, logger="jointseg.network.checkpoint"):
+    with caplog.at_level(logging.INFO, logger="jointseg.network.randlanet.checkpoint"):
         model, _, _ = load_checkpoint(path)
     _same_state(model, reference)
     assert "ignored the unpacked copy" in caplog.text
@@ -149,7 +145,7 @@ def test_a_cache_that_cannot_be_written_still_loads(
     blocker.write_text("the cache folder cannot be made under a file")
     monkeypatch.setenv("JOINTSEG_CACHE", str(blocker / "cache"))
     path = _packed(tmp_path / "net.pt")
-    with caplog.at_level(logging.INFO, logger="jointseg.network.checkpoint"):
+    with caplog.at_level(logging.INFO, logger="jointseg.network.randlanet.checkpoint"):
         model, card, _ = load_checkpoint(path)
     _same_state(model, _reference(path))
     assert card["data"] == CARD["data"]

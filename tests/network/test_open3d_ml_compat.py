@@ -20,13 +20,13 @@ except ImportError as exc:
     )
 
 from jointseg.exceptions import ConfigError  # noqa: E402
-from jointseg.network.checkpoint import load_checkpoint  # noqa: E402
 from jointseg.network.convert import (  # noqa: E402
     ZOO_FILE,
     convert_open3d_ml_state,
     import_open3d_ml,
     open3d_ml_config,
 )
+from jointseg.network.randlanet.checkpoint import load_checkpoint  # noqa: E402
 from jointseg.network.randlanet.crops import Batch, build_batch, crop_indices, grid_subsample  # noqa: E402
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig  # noqa: E402
 from jointseg.synth import make_room  # noqa: E402

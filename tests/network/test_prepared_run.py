@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from jointseg.io import read_scan
-from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.slicing import channel_maps, sliced_init

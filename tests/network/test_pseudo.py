@@ -163,7 +163,7 @@ def test_training_on_pseudo_labels_ignores_the_unsure_points(
 ) -> None:
     data = tmp_path / "data"
     write_pseudo(data, unlabelled_files, PseudoRule(), predictor)
-    from jointseg.network.checkpoint import load_checkpoint
+    from jointseg.network.randlanet.checkpoint import load_checkpoint
 
     cfg = tiny_training(data=[f"pseudo={data / PSEUDO}:0.5", "synth:0.5"], val_count=1)
     _, card, _ = load_checkpoint(train(cfg))

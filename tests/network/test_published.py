@@ -187,8 +187,8 @@ def test_open3d_ml_checkpoint_is_converted_on_arrival(
 ) -> None:
     import torch
 
-    from jointseg.network.checkpoint import load_checkpoint
     from jointseg.network.convert import ZOO_FILE, to_open3d_ml_state
+    from jointseg.network.randlanet.checkpoint import load_checkpoint
     from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 
     torch.manual_seed(0)

@@ -8,7 +8,7 @@ import pytest
 
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
-from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.training.data import (
     centre_weights,
     labelled_scan_files,

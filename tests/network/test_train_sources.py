@@ -9,7 +9,7 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
-from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.training.batches import BatchMaker, batch_stream
 from jointseg.network.training.config import training_data
 from jointseg.network.training.loop import best_path, train

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from jointseg.exceptions import ConfigError
-from jointseg.network.checkpoint import load_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.training.augment import augment
 from jointseg.network.training.config import class_weights
 from jointseg.network.training.loop import train
@@ -160,7 +160,7 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
     assert card["terms"] == SYNTH_TERMS and card["synthetic_share"] == 1.0
     # a card written without these facts (older runs) gets them when packed
     model, _, _ = load_checkpoint(path)
-    from jointseg.network.checkpoint import save_checkpoint
+    from jointseg.network.randlanet.checkpoint import save_checkpoint
 
     old = {k: v for k, v in card.items() if k not in ("hardware", "command", "terms")}
     old["train_config"] = {**old["train_config"], "data": "s3dis_rooms/", "command": None}

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from jointseg.exceptions import ConfigError
-from jointseg.pipeline.tiled.grid import TileParams, core_tile, plan_tiles
+from jointseg.pipeline.tile_params import TileParams
+from jointseg.pipeline.tiled.grid import core_tile, plan_tiles
 
 
 def floor_sample(rng: np.random.Generator, n: int = 200_000) -> np.ndarray:

@@ -86,7 +86,7 @@ def _refused(answer: httpx.Response, status: int, detail: str) -> None:
 def test_a_model_learns_from_corrections_and_a_later_job_uses_it(
     two_keys: Service, scans: Path, job_config: dict[str, Any], tmp_path: Path
 ) -> None:
-    from jointseg.network.checkpoint import load_checkpoint
+    from jointseg.network.randlanet.checkpoint import load_checkpoint
 
     with _client(two_keys, "key-one") as one, _client(two_keys, "key-two") as two:
         job_id = _corrected_job(one, scans, job_config, seed=51)

@@ -49,7 +49,7 @@ def test_directory_source_converts_downloads_away_from_the_results(
 
 
 def test_download_names_follow_the_upload_and_survive_any_characters() -> None:
-    from server.api.results import DOWNLOADS, content_disposition, download_name
+    from server.results import DOWNLOADS, content_disposition, download_name
 
     names = [download_name("hall 2.e57", kind) for kind in DOWNLOADS]
     assert names == [

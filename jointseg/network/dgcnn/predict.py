@@ -20,7 +20,6 @@ import torch
 from jointseg.exceptions import ConfigError, library_reason
 from jointseg.network.backends import Predictor
 from jointseg.network.base import NetworkPredictor
-from jointseg.network.checkpoint import read_torch_file, state_mismatch
 from jointseg.network.dgcnn.blocks import (
     block_features,
     column_blocks,
@@ -32,6 +31,7 @@ from jointseg.network.dgcnn.model import DGCNN
 from jointseg.network.dgcnn.params import DGCNNParams
 from jointseg.network.dgcnn.room_frame import RoomFrame, room_frame, scan_frame
 from jointseg.network.results import NetworkResult
+from jointseg.network.torch_files import read_torch_file, state_mismatch
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
 

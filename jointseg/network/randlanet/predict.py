@@ -33,10 +33,10 @@ from jointseg.network.anchored import (
 from jointseg.network.backends import Predictor, card_summary
 from jointseg.network.base import NetworkPredictor, synchronize
 from jointseg.network.batches import Prefetcher
-from jointseg.network.checkpoint import load_checkpoint
 from jointseg.network.device_crops import device_plan_crops
 from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
+from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.randlanet.crops import Batch, build_batch
 from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
 from jointseg.network.randlanet.engine import (

@@ -29,7 +29,7 @@ from jointseg.exceptions import ConfigError
 from jointseg.metrics import evaluate
 from jointseg.network.base import pick_device
 from jointseg.network.batches import Prefetcher
-from jointseg.network.checkpoint import load_checkpoint, save_checkpoint
+from jointseg.network.randlanet.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.randlanet.crops import (
     MIN_CROP,
     Batch,

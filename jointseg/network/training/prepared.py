@@ -323,7 +323,7 @@ def _manifest(data: Path) -> dict:
 
 def _summary(out: Path, name: str, code: int) -> dict:
     """What one network reached: its exit code, epochs, steps and validation."""
-    from jointseg.network.checkpoint import load_checkpoint
+    from jointseg.network.randlanet.checkpoint import load_checkpoint
 
     entry: dict[str, object] = {"exit_code": code}
     path = out / f"{name}.pt"

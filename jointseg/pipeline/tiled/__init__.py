@@ -13,13 +13,13 @@ from typing import TYPE_CHECKING
 from jointseg.lazy import lazy_attributes
 
 if TYPE_CHECKING:
-    from jointseg.pipeline.tiled.grid import TileParams
+    from jointseg.pipeline.tile_params import TileParams
     from jointseg.pipeline.tiled.run import run_tile
     from jointseg.pipeline.tiled.steps import TiledRun, TileProgress, finish, plan
     from jointseg.pipeline.tiled.store import TilePlan
 
 _LAZY = {
-    "TileParams": "jointseg.pipeline.tiled.grid",
+    "TileParams": "jointseg.pipeline.tile_params",
     "TilePlan": "jointseg.pipeline.tiled.store",
     "TiledRun": "jointseg.pipeline.tiled.steps",
     "TileProgress": "jointseg.pipeline.tiled.steps",

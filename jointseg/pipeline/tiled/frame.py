@@ -18,10 +18,10 @@ from scipy.spatial import cKDTree
 
 from jointseg.frame.colour import apply_gains, decide_colour
 from jointseg.frame.decide import decide_frame
-from jointseg.frame.judge import LabelFn
 from jointseg.frame.params import FrameParams
 from jointseg.frame.strays import find_strays
 from jointseg.io.stream import open_chunks
+from jointseg.labeller import LabelFn
 from jointseg.scan import Scan
 
 #: Points of the sample the decision is made on.

@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 
 from jointseg.exceptions import ConfigError
-from jointseg.frame.judge import LabelFn
 from jointseg.io.stream import ScanChunks, open_chunks, open_writer
+from jointseg.labeller import LabelFn
 from jointseg.network.backends import Predictor
 from jointseg.network.choice import network_for
 from jointseg.network.judge import crop_labeller

@@ -30,7 +30,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
-from jointseg.pipeline.tiled.grid import Tile, TileParams, plan_tiles
+from jointseg.pipeline.tile_params import TileParams
+from jointseg.pipeline.tiled.grid import Tile, plan_tiles
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
 

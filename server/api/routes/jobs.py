@@ -19,14 +19,13 @@ from jointseg.objects.records import LayoutReport
 from server.api.auth import Tenant, TenantDep, require_api_key
 from server.api.deps import Services, ServicesDep, SessionDep
 from server.api.errors import ERROR_RESPONSES, error_responses
-from server.api.results import content_disposition, download_name, layout_from
 from server.api.submissions import submit
 from server.api.uploads import UPLOAD_OPENAPI, receive_upload
 from server.corrections import resolve_version, version_file
 from server.messages import public_report_bytes
-from server.schemas import JobList, JobResponse, JobStatus, JobView
+from server.results import content_disposition, download_name, layout_from
+from server.schemas import FINAL_STATUSES, JobList, JobResponse, JobStatus, JobView
 from server.state import jobs
-from server.state.models import FINAL_STATUSES
 from server.storage import ResultFormat
 
 JobId = Annotated[

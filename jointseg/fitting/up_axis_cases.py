@@ -23,9 +23,9 @@ import numpy as np
 from jointseg.frame import gravity, weigh
 from jointseg.frame.colour import decide_colour
 from jointseg.frame.decide import gather, judge_candidates, rotation_about
-from jointseg.frame.judge import LabelFn
 from jointseg.frame.params import FrameParams
 from jointseg.frame.sources import SIGNED_AXES
+from jointseg.labeller import LabelFn
 from jointseg.scan import Scan
 
 #: Part of every cached case's key: bump it when gathering changes what it computes.

@@ -16,9 +16,9 @@ import pytest
 from jointseg.cli import main
 from jointseg.exceptions import ConfigError
 from jointseg.fitting.provenance import file_sha256, read_provenance
+from jointseg.fitting.up_axis import fit_up_axis, fit_weights, read_plan
+from jointseg.fitting.up_axis_cases import Case, Gathered
 from jointseg.frame import gravity, weigh
-from jointseg.frame.fit import fit_up_axis, fit_weights, read_plan
-from jointseg.frame.fit_cases import Case, Gathered
 from jointseg.frame.model import MODEL_FILE
 from jointseg.frame.sources import SIGNED_AXES
 from jointseg.io import write_scan

@@ -31,8 +31,7 @@ from jointseg.fitting.provenance import (
     write_model,
 )
 from jointseg.fitting.scans import named_scan_files
-from jointseg.frame import gravity, weigh
-from jointseg.frame.fit_cases import (
+from jointseg.fitting.up_axis_cases import (
     DELIVERIES,
     DELIVERY_WEIGHT,
     Case,
@@ -40,9 +39,10 @@ from jointseg.frame.fit_cases import (
     gather_case,
     room_cases,
 )
-from jointseg.frame.judge import LabelFn
+from jointseg.frame import gravity, weigh
 from jointseg.frame.model import MODEL_FILE, read_up_model, weight_vector
 from jointseg.frame.sources import SIGNED_AXES
+from jointseg.labeller import LabelFn
 
 log = logging.getLogger(__name__)
 
