@@ -19,8 +19,8 @@ import numpy as np
 
 from jointseg.classes import NUM_CLASSES, UNLABELLED, colourise
 from jointseg.grouping import cell_keys
+from jointseg.lru import LRUCache
 from jointseg.spacing import estimate_spacing
-from server.lru import LRUCache
 from web.result_reader import read_sample
 
 log = logging.getLogger(__name__)

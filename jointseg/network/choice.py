@@ -11,13 +11,12 @@ end.
 from __future__ import annotations
 
 import logging
-import threading
-from collections import OrderedDict
-from collections.abc import Callable, Hashable, Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from jointseg.lru import LRUCache
 from jointseg.network.backends import Predictor
 from jointseg.network.registry import REGISTRY, installed_backends, load
 
@@ -41,37 +40,8 @@ class Choice:
     params: Mapping[str, Any] = field(default_factory=dict)
 
 
-class LoadedNetworks:
-    """Networks loaded on demand, the least recently used dropped beyond ``size``."""
-
-    def __init__(self, size: int = CACHE_SIZE) -> None:
-        self.size = size
-        self._items: OrderedDict[Hashable, Predictor] = OrderedDict()
-        self._lock = threading.Lock()
-
-    def get(self, key: Hashable, loader: Callable[[], Predictor]) -> Predictor:
-        """The network under ``key``, loaded by ``loader`` when not held."""
-        with self._lock:
-            if key in self._items:
-                self._items.move_to_end(key)
-                return self._items[key]
-        predictor = loader()  # outside the lock: loading takes seconds
-        with self._lock:
-            self._items[key] = predictor
-            self._items.move_to_end(key)
-            while len(self._items) > self.size:
-                self._items.popitem(last=False)
-        return predictor
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def clear(self) -> None:
-        with self._lock:
-            self._items.clear()
-
-
-LOADED = LoadedNetworks()
+#: The extra networks loaded in this process (:mod:`jointseg.lru`: bounded, shared by threads).
+LOADED: LRUCache[Hashable, Predictor] = LRUCache(CACHE_SIZE)
 
 
 def _where(predictor: Predictor) -> str:
@@ -98,7 +68,7 @@ def colour_free_if_needed(predictor: Predictor, choice: Choice, usable_colour: b
         return load("randlanet", COLOUR_FREE_WEIGHTS, device=where, batch_size=batch, params=params)
 
     log.info("no usable colour: using the colour-free network %s", COLOUR_FREE_WEIGHTS.name)
-    return LOADED.get(("colour-free", where, batch or 0), loader)
+    return LOADED.get_or_load(("colour-free", where, batch or 0), loader)
 
 
 def ensemble_of(predictor: Predictor, choice: Choice, usable_colour: bool = True) -> Predictor:
@@ -115,7 +85,7 @@ def ensemble_of(predictor: Predictor, choice: Choice, usable_colour: bool = True
         if name == predictor.name:
             continue
         params = choice.params.get(name) if REGISTRY[name].params is not None else None
-        member = LOADED.get(
+        member = LOADED.get_or_load(
             ("member", name, where),
             lambda name=name, params=params: load(  # type: ignore[misc]
                 name, None, device=where, batch_size=None, params=params

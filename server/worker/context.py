@@ -15,8 +15,8 @@ import time
 from typing import TYPE_CHECKING
 
 from jointseg.exceptions import JointsegError
+from jointseg.lru import LRUCache
 from jointseg.pipeline import PipelineConfig, load_predictor
-from server.lru import LRUCache
 from server.model_weights import model_file, model_ref
 from server.queue import JobQueue
 from server.settings import Settings

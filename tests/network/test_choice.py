@@ -1,37 +1,12 @@
 """Choosing the network for a scan (jointseg.network.choice): the colour-free one for a scan
-without colour, extra networks loaded once and kept in a bounded cache."""
+without colour, loaded once per process (the bounded cache itself: tests/test_lru.py)."""
 
 from __future__ import annotations
 
 import pytest
 
-from jointseg.network.choice import Choice, LoadedNetworks, colour_free_if_needed
+from jointseg.network.choice import Choice, colour_free_if_needed
 from jointseg.network.registry import load, resolve_weights
-
-
-class Counting:
-    """Loaders that count their calls and hand out a distinct object each time."""
-
-    def __init__(self) -> None:
-        self.calls = 0
-
-    def __call__(self) -> object:
-        self.calls += 1
-        return object()
-
-
-def test_a_loaded_network_is_reused_and_the_oldest_dropped_beyond_the_size() -> None:
-    cache = LoadedNetworks(size=2)
-    loader = Counting()
-    a = cache.get("a", loader)  # type: ignore[arg-type]
-    assert cache.get("a", loader) is a and loader.calls == 1  # type: ignore[arg-type]
-    cache.get("b", loader)  # type: ignore[arg-type]
-    cache.get("a", loader)  # type: ignore[arg-type]  # a is now the most recent
-    cache.get("c", loader)  # type: ignore[arg-type]  # b, the least recent, goes
-    assert len(cache) == 2 and loader.calls == 3
-    assert cache.get("a", loader) is a and loader.calls == 3  # type: ignore[arg-type]
-    cache.get("b", loader)  # type: ignore[arg-type]
-    assert loader.calls == 4  # b was loaded again
 
 
 @pytest.mark.parametrize(
