@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import TypedDict
 
 import httpx
+import psutil
 from helpers.report import header
 from helpers.service import start_service
 
@@ -35,11 +36,11 @@ from jointseg.synth import make_room
 
 
 def rss_mib(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as fh:
-        for line in fh:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
+    """The process's resident memory in MiB (NaN once it is gone)."""
+    try:
+        return float(psutil.Process(pid).memory_info().rss) / 2**20
+    except psutil.Error:
+        return float("nan")
 
 
 def percentile(values: list[float], q: float) -> float:

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
+import psutil
 import pytest
 
 from jointseg.memory import release_memory
 
 
 def _resident_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+    return float(psutil.Process().memory_info().rss) / 2**20
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim: Linux")
