@@ -1,7 +1,7 @@
 """Cross-validate the learned vote's fit: held-out mIoU gains per dataset x labeller.
 
 The scans, labellers, weights and tree settings are a fit plan's (default fit/vote.json, the
-shipped model's); the rooms come from the package (`jointseg.fusion.fit`), with the networks'
+shipped model's); the rooms come from the package (`jointseg.fitting.vote`), with the networks'
 and geometry's outputs cached under bench/_cache. Rooms are left out in --cv N folds (every scan
 and labelling of a room in one), or with --cv-datasets a whole dataset at a time; every fold's
 rule is fitted as `jointseg fit vote` fits, and the held-out rooms' gains are printed at each
@@ -32,10 +32,12 @@ from helpers.inputs import BENCH, CACHE
 from helpers.report import LOSS_BAR, header, metric_iou_value
 
 from jointseg.fitting import outputs
-from jointseg.fusion.fit import Room, Sources, VotePlan, load_rooms, read_plan
-from jointseg.fusion.fit_trees import features, fit_trees
-from jointseg.fusion.learned import FEATURES, best_offers, offer_thresholds, seen_fixtures
+from jointseg.fitting.vote import Room, Sources, VotePlan, load_rooms, read_plan
+from jointseg.fitting.vote_trees import features, fit_trees
+from jointseg.fusion.learned import best_offers, seen_fixtures
+from jointseg.fusion.offers import FEATURES
 from jointseg.fusion.params import FusionParams
+from jointseg.fusion.thresholds import offer_thresholds
 from jointseg.metrics import evaluate
 from jointseg.network.training.data import stable_order
 
@@ -204,7 +206,7 @@ def main() -> None:
     header("learned vote, cross-validated")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     logging.getLogger("jointseg").setLevel(logging.WARNING)
-    logging.getLogger("jointseg.fusion.fit").setLevel(logging.INFO)
+    logging.getLogger("jointseg.fitting.vote").setLevel(logging.INFO)
     overrides = {
         "trees": args.trees,
         "depth": args.depth,

@@ -32,7 +32,7 @@ from scipy.spatial import cKDTree
 from jointseg.fusion import FusionParams, fuse
 from jointseg.fusion.evidence import EPS
 from jointseg.fusion.guard import segment_cells
-from jointseg.fusion.learned import segment_label_sums
+from jointseg.fusion.offers import segment_label_sums
 from jointseg.metrics import evaluate
 
 #: Neighbours looked up per cell centroid (the graph's degree bound).

@@ -58,7 +58,8 @@ from jointseg.frame.decide import decide_frame
 from jointseg.frame.params import FrameParams
 from jointseg.fusion import FusionParams, fuse
 from jointseg.fusion.evidence import point_probs
-from jointseg.fusion.learned import TreeEnsemble, learned_labels
+from jointseg.fusion.learned import learned_labels
+from jointseg.fusion.tree_runtime import TreeEnsemble
 from jointseg.metrics import confusion_matrix
 from jointseg.objects.layout import find_layout
 from jointseg.scan import Scan

@@ -17,7 +17,7 @@ import pytest
 from jointseg.exceptions import ConfigError
 from jointseg.frame import gravity, weigh
 from jointseg.frame.model import MODEL_FILE, read_up_model
-from jointseg.fusion.learned import MODEL_PATH, TreeEnsemble
+from jointseg.fusion.tree_runtime import MODEL_PATH, TreeEnsemble
 from jointseg.network.backends import WEIGHTS_DIR
 from jointseg.network.registry import load
 

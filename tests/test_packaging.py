@@ -41,7 +41,7 @@ PURELIB = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
 SHIPPED = ("frame/up_model.json", "fusion/vote_model.json", "network/weights/randlanet_indoor.pt")
 LOADERS = (
     "from jointseg.frame import gravity; gravity.model_weights()",
-    "from jointseg.fusion.learned import shipped_model; shipped_model()",
+    "from jointseg.fusion.tree_runtime import shipped_model; shipped_model()",
     "from jointseg.network.registry import load; load('randlanet')",
 )
 

@@ -10,6 +10,11 @@ which clean point each new point is (``source``, -1 for an added point) and what
 (up axis in the file's axes, tilt, units, stray count); :func:`write_delivery` writes the file
 and :func:`file_xyz` reads its coordinates back without jointseg, in the file's own units.
 
+The up-axis fit's own deliveries (axis conventions, tilt, a slice, half a room, camera views,
+made in memory) are :mod:`jointseg.fitting.up_axis_cases`'s, which ``bench/up_axis.py`` and
+``bench/frame_calibration.py`` use; this module adds what only a written file shows (units,
+georeferenced offsets and CRS in LAS, stray points, colour) and names the truth as they do.
+
 Nothing here knows where scans live, so the test suite can use the makers on synthetic rooms:
 
 >>> rng = np.random.default_rng(0)                                       # doctest: +SKIP
@@ -30,6 +35,7 @@ import laspy
 import numpy as np
 from laspy.vlrs.known import WktCoordinateSystemVlr
 
+from jointseg.fitting.up_axis_cases import nearest_axis as fit_nearest_axis
 from jointseg.frame.decide import rotation_about
 from jointseg.io import write_scan
 from jointseg.io.units import UNITS
@@ -271,11 +277,12 @@ AXIS_NAMES = ("x", "y", "z")
 
 
 def nearest_axis(up: np.ndarray) -> tuple[str, float]:
-    """The signed file axis nearest to ``up`` ('+z', '-y', ...) and the angle to it (deg)."""
+    """The signed file axis nearest to ``up`` ('+z', '-y', ...), named as the up-axis fit's
+    cases name it (:func:`jointseg.fitting.up_axis_cases.nearest_axis`), and the angle to it
+    (deg)."""
     i = int(np.argmax(np.abs(up)))
-    sign = "+" if up[i] > 0 else "-"
     cos = min(1.0, abs(float(up[i])) / float(np.linalg.norm(up)))
-    return f"{sign}{AXIS_NAMES[i]}", float(np.degrees(np.arccos(cos)))
+    return fit_nearest_axis(up), float(np.degrees(np.arccos(cos)))
 
 
 def camera_frame(xyz: np.ndarray, rgb: np.ndarray | None, rng: np.random.Generator) -> Delivery:

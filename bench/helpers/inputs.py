@@ -1,5 +1,5 @@
 """Where the benchmarks find their inputs: real scans and models in ../shared (beside the
-checkout, read-only), the bench's own checkpoints, and cached synthetic floors."""
+checkout, read-only), the synthetic-only network in fit/inputs, and cached synthetic floors."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ SCANNET = DATA / "scannet"
 CACHE = BENCH / "_cache"
 #: DGCNN's published S3DIS weights trained without Area_6, as a network spec.
 M6 = f"dgcnn:{MODELS / 'dgcnn_s3dis' / 'model_6.t7'}"
-#: A weak network: the synthetic-only RandLA-Net (bench/checkpoints).
-WEAK = f"randlanet:{BENCH / 'checkpoints' / 'randlanet_synth.pt'}"
+#: A weak network: the synthetic-only RandLA-Net (fit/inputs, where the vote's fit reads it).
+WEAK = f"randlanet:{BENCH.parent / 'fit' / 'inputs' / 'randlanet_synth.pt'}"
 #: Points per synthetic room of a cached floor (a 20 M-point floor has about 28 rooms).
 POINTS_PER_ROOM = 700_000
 

@@ -21,7 +21,7 @@ from jointseg.fitting.outputs import INFERENCE_VERSION, STRUCTURE_VERSION, cache
 from jointseg.fitting.outputs import weights_fingerprint as weights_fingerprint
 from jointseg.fitting.scans import THIN, colourless, content_key, room_of, synthetic_rooms, thinned
 from jointseg.fitting.scans import TuningScan as Item
-from jointseg.fusion.fit import structure_hint
+from jointseg.fitting.vote import structure_hint
 from jointseg.geometry import GeometryParams
 from jointseg.io import read_scan
 from jointseg.network.training.data import stable_order

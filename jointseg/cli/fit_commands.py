@@ -54,8 +54,8 @@ def vote(
     structure: bool | None = typer.Option(None, help="Offer the geometry's structure reading."),
 ) -> None:
     """Fit the learned vote (jointseg/fusion/vote_model.json) on the plan's labelled scans."""
-    from jointseg.fusion.fit import read_plan
-    from jointseg.fusion.fit_trees import fit_vote
+    from jointseg.fitting.vote import read_plan
+    from jointseg.fitting.vote_trees import fit_vote
 
     options = {
         "trees": trees,

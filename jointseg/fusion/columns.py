@@ -65,7 +65,7 @@ class ClassColumns:
 
     def entropy(self) -> np.ndarray:
         """Entropy of every point divided by log C:
-        :func:`jointseg.fusion.learned.normalised_entropy` of the row-major array, to the
+        :func:`jointseg.fusion.offers.normalised_entropy` of the row-major array, to the
         bit."""
         n_classes, n = self.values.shape
         runs = _runs(self.live)

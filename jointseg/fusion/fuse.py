@@ -17,8 +17,9 @@ import numpy as np
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.fusion import evidence, guard, learned
-from jointseg.fusion.learned import ClassTally, StructureHint
+from jointseg.fusion.offers import StructureHint
 from jointseg.fusion.params import GUARDED_MODES, SOFT_MODES, FusionParams
+from jointseg.fusion.thresholds import ClassTally
 from jointseg.fusion.transfer import transfer_labels
 from jointseg.grouping import compact_ids, group_sums, label_histogram
 
@@ -36,13 +37,13 @@ class ScanTotals:
         Points in the whole scan (segment sizes are judged as shares of it).
     mean_entropy : float
         Mean normalised entropy of the network's probabilities over the whole scan
-        (:func:`jointseg.fusion.learned.normalised_entropy`).
+        (:func:`jointseg.fusion.offers.normalised_entropy`).
     disagreement : float
         Share of the whole scan's points whose network label is not their segment's most
-        common label (:func:`jointseg.fusion.learned.disagreement_share`).
+        common label (:func:`jointseg.fusion.offers.disagreement_share`).
     classes : ClassTally, optional
         The whole scan's network output per class (the learned vote's thresholds,
-        :func:`jointseg.fusion.learned.offer_thresholds`); tallied in the part when not given.
+        :func:`jointseg.fusion.thresholds.offer_thresholds`); tallied in the part when not given.
     """
 
     points: int

@@ -36,8 +36,9 @@ PLANS_KEPT = 8
 
 
 class TreeArrays(Protocol):
-    """The arrays of a gradient-boosted ensemble (:class:`jointseg.fusion.learned.TreeEnsemble`):
-    per tree, node 0 the root; a row goes left where ``x[feature] <= threshold``."""
+    """The arrays of a gradient-boosted ensemble
+    (:class:`jointseg.fusion.tree_runtime.TreeEnsemble`): per tree, node 0 the root; a row goes
+    left where ``x[feature] <= threshold``."""
 
     @property
     def base(self) -> float: ...

@@ -20,7 +20,7 @@ from jointseg.fitting.provenance import (
     stable_json,
 )
 from jointseg.frame.model import MODEL_FILE as UP_MODEL
-from jointseg.fusion.learned import MODEL_PATH as VOTE_MODEL
+from jointseg.fusion.tree_runtime import MODEL_PATH as VOTE_MODEL
 
 ROOT = Path(__file__).resolve().parents[2]
 REFIT = {

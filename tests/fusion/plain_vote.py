@@ -15,16 +15,10 @@ from scipy.spatial import cKDTree
 
 from jointseg.classes import NUM_CLASSES
 from jointseg.fusion import fixtures
-from jointseg.fusion.learned import (
-    FIXTURE,
-    STRUCTURAL,
-    ClassTally,
-    StructureHint,
-    TreeEnsemble,
-    _logit,
-    offer_thresholds,
-    seen_fixtures,
-)
+from jointseg.fusion.learned import seen_fixtures
+from jointseg.fusion.offers import FIXTURE, STRUCTURAL, StructureHint, _logit
+from jointseg.fusion.thresholds import ClassTally, offer_thresholds
+from jointseg.fusion.tree_runtime import TreeEnsemble
 from jointseg.geometry.structure import floor_level
 
 

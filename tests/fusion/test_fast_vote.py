@@ -12,21 +12,15 @@ import numpy as np
 import pytest
 
 from jointseg.classes import CLASS_INDEX, NUM_CLASSES
-from jointseg.fusion import FusionParams, StructureHint, fixtures, fuse, learned, trees
+from jointseg.fusion import FusionParams, StructureHint, fixtures, fuse, trees
+from jointseg.fusion import offers as offers_module
 from jointseg.fusion.columns import ClassColumns, rows_entropy
 from jointseg.fusion.columns import _pairwise_matches_numpy as pairwise_matches_numpy
 from jointseg.fusion.guard import aligned_cell_keys, segment_cells
-from jointseg.fusion.learned import (
-    FEATURES,
-    POINT_FEATURES,
-    ClassTally,
-    TreeEnsemble,
-    best_offers,
-    learned_labels,
-    normalised_entropy,
-    shipped_model,
-    vote_offers,
-)
+from jointseg.fusion.learned import best_offers, learned_labels
+from jointseg.fusion.offers import FEATURES, POINT_FEATURES, normalised_entropy, vote_offers
+from jointseg.fusion.thresholds import ClassTally
+from jointseg.fusion.tree_runtime import TreeEnsemble, shipped_model
 from jointseg.grouping import cell_keys, compact_ids, group_sums
 from jointseg.synth import make_room
 from jointseg.synth.label_noise import corrupt_labels
@@ -134,7 +128,7 @@ def test_an_ensemble_of_deep_trees_or_no_trees_is_scored(tmp_path: Path) -> None
 
 def test_the_ensemble_agrees_with_scikit_learns_prediction(tmp_path: Path) -> None:
     ensemble = pytest.importorskip("sklearn.ensemble")
-    from jointseg.fusion.fit_trees import export
+    from jointseg.fitting.vote_trees import export
 
     rng = np.random.default_rng(4)
     x, context = rows_with_contexts(rng, 4000, 60)
@@ -272,7 +266,7 @@ def test_the_fast_vote_is_the_plain_vote(
     metric_iou: float | str,
     workers: int,
 ) -> None:
-    monkeypatch.setattr(learned, "WORKERS", workers)
+    monkeypatch.setattr(offers_module, "WORKERS", workers)
     given = room_inputs(seed, 25_000, dead)
     hint = given["structure"] if structure else None
     n_seg = int(given["seg"].max()) + 1
@@ -310,9 +304,9 @@ def test_a_failure_beside_the_vote_reaches_the_caller(monkeypatch: pytest.Monkey
     def broken(*args: object, **kwargs: object) -> np.ndarray:
         raise RuntimeError("door sizes failed")
 
-    monkeypatch.setattr(learned, "implausible_doors", broken)
+    monkeypatch.setattr(offers_module, "implausible_doors", broken)
     for workers in (0, 1):
-        monkeypatch.setattr(learned, "WORKERS", workers)
+        monkeypatch.setattr(offers_module, "WORKERS", workers)
         with pytest.raises(RuntimeError, match="door sizes failed"):
             fuse(given["xyz"], given["seg"], given["labels"], given["probs"])
 

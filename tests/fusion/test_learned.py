@@ -12,20 +12,15 @@ import pytest
 
 from jointseg.exceptions import ConfigError
 from jointseg.fusion import FusionParams, StructureHint, fuse
-from jointseg.fusion.learned import (
-    FEATURES,
+from jointseg.fusion.learned import learned_labels, seen_fixtures
+from jointseg.fusion.offers import FEATURES, disagreement_share, vote_offers
+from jointseg.fusion.thresholds import (
     MIN_CLASS_SHARE,
     MIN_EXPECTED_IOU,
-    MODEL_PATH,
     ClassTally,
-    TreeEnsemble,
-    disagreement_share,
-    learned_labels,
     offer_thresholds,
-    seen_fixtures,
-    shipped_model,
-    vote_offers,
 )
+from jointseg.fusion.tree_runtime import MODEL_PATH, TreeEnsemble, shipped_model
 from jointseg.network.training.data import stable_order
 from tests.support.probs import probs_for
 

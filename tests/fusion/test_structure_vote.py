@@ -92,7 +92,7 @@ def test_a_wall_stretch_called_door_comes_back(monkeypatch: pytest.MonkeyPatch) 
     assert np.mean(vote(labels, probs)[stretch] == WALL) >= 0.8
     # believed as a door, the stretch keeps the network's label
     monkeypatch.setattr(
-        "jointseg.fusion.learned.implausible_doors",
+        "jointseg.fusion.offers.implausible_doors",
         lambda xyz, lab, floor_z=None: np.zeros(len(lab), bool),
     )
     assert np.mean(vote(labels, probs)[stretch] == WALL) <= 0.2

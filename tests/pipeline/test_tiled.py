@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jointseg.exceptions import Cancelled
-from jointseg.fusion.learned import ClassTally
+from jointseg.fusion.thresholds import ClassTally
 from jointseg.io import read_scan, write_scan
 from jointseg.pipeline import PipelineConfig, load_predictor, run, segment_file
 from jointseg.pipeline.tiled.merge import (

@@ -26,7 +26,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from jointseg.fusion import ScanTotals, StructureHint, fuse
-from jointseg.fusion.learned import ClassTally, disagreement_share, normalised_entropy
+from jointseg.fusion.offers import disagreement_share, normalised_entropy
+from jointseg.fusion.thresholds import ClassTally
 from jointseg.grouping import compact_ids
 from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.presence import drop_absent

@@ -26,7 +26,7 @@ from typing import Any, BinaryIO, cast
 import numpy as np
 
 from jointseg.exceptions import ConfigError
-from jointseg.fusion.learned import normalised_entropy
+from jointseg.fusion.offers import normalised_entropy
 from jointseg.geometry import GeometryResult
 from jointseg.network.anchored import CropPlan, crops_inside
 from jointseg.network.backends import Predictor, TilePredictor

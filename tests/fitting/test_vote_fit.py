@@ -19,16 +19,12 @@ from jointseg.cli import main
 from jointseg.exceptions import ConfigError
 from jointseg.fitting.provenance import arrays_sha256, file_sha256, read_provenance
 from jointseg.fitting.scans import TuningScan, content_key
-from jointseg.fusion.fit import read_plan
-from jointseg.fusion.fit_trees import fit_vote
-from jointseg.fusion.learned import (
-    ClassTally,
-    TreeEnsemble,
-    best_offers,
-    learned_labels,
-    offer_thresholds,
-    vote_offers,
-)
+from jointseg.fitting.vote import read_plan
+from jointseg.fitting.vote_trees import fit_vote
+from jointseg.fusion.learned import best_offers, learned_labels
+from jointseg.fusion.offers import vote_offers
+from jointseg.fusion.thresholds import ClassTally, offer_thresholds
+from jointseg.fusion.tree_runtime import TreeEnsemble
 from jointseg.geometry import segment
 from jointseg.io import write_scan
 from jointseg.metrics import evaluate
@@ -111,8 +107,8 @@ def _numpy_has(feature: str) -> bool:
 FEATURES_OF_A_SCENE = """
 import sys
 import numpy as np
-from jointseg.fusion.fit_trees import rounded
-from jointseg.fusion.learned import StructureHint, vote_offers
+from jointseg.fitting.vote_trees import rounded
+from jointseg.fusion.offers import StructureHint, vote_offers
 rng = np.random.default_rng(7)
 n = 20_000
 xyz = rng.uniform(0, 4, (n, 3))
@@ -294,7 +290,7 @@ def test_the_lost_distortion_takes_the_shell_for_objects_stretch_by_stretch() ->
     """'lost' (a network on a sensor it never saw) moves walls, floor and ceiling to classes
     they are confused with, the same class over a whole plan cell and other classes alike in
     other cells, the same way every time; what is not structure keeps its label."""
-    from jointseg.fusion.fit import LOST, LOST_CELL, distort
+    from jointseg.fitting.vote import LOST, LOST_CELL, distort
 
     rng = np.random.default_rng(0)
     xyz = rng.uniform(0, 40, (20_000, 3))  # 64 plan cells

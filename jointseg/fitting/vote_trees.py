@@ -1,4 +1,4 @@
-"""The learned vote's trees fitted on the offers of :mod:`jointseg.fusion.fit`, and the model
+"""The learned vote's trees fitted on the offers of :mod:`jointseg.fitting.vote`, and the model
 file they are written as.
 
 Why these choices: scikit-learn's histogram gradient boosting with a fixed seed, on one OpenMP
@@ -17,7 +17,7 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError
 from jointseg.fitting.provenance import Provenance, fit_record, write_model
-from jointseg.fusion.fit import (
+from jointseg.fitting.vote import (
     BIAS,
     LOST,
     LOST_CELL,
@@ -29,7 +29,7 @@ from jointseg.fusion.fit import (
     VotePlan,
     load_rooms,
 )
-from jointseg.fusion.learned import FEATURES
+from jointseg.fusion.offers import FEATURES
 
 #: OpenMP threads the trees are fitted on: one, so that no sum depends on the machine.
 FIT_THREADS = 1
@@ -116,7 +116,7 @@ def fit_trees(rooms: list[Room], params: TreeParams, weights: dict[str, float]) 
 
 
 def export(clf: Any) -> dict[str, Any]:
-    """The fitted ensemble as plain arrays (see jointseg.fusion.learned.TreeEnsemble)."""
+    """The fitted ensemble as plain arrays (see jointseg.fusion.tree_runtime.TreeEnsemble)."""
     trees = []
     for (predictor,) in clf._predictors:
         nodes = predictor.nodes

@@ -4,9 +4,9 @@ and the model file with its provenance.
 
 Why a plan file: the inputs of a shipped model must be named, not implied by a script's
 defaults, so that `jointseg fit vote --plan PLAN` on the same scans writes the same file. The
-trees themselves are fitted in :mod:`jointseg.fusion.fit_trees` (scikit-learn, the ``fit``
+trees themselves are fitted in :mod:`jointseg.fitting.vote_trees` (scikit-learn, the ``fit``
 extra); nothing here is needed at run time, where the model is plain JSON read by
-:class:`jointseg.fusion.learned.TreeEnsemble`.
+:class:`jointseg.fusion.tree_runtime.TreeEnsemble`.
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ from jointseg.fitting.scans import (
     synthetic_rooms,
     variant,
 )
-from jointseg.fusion.learned import (
+from jointseg.fusion.offers import (
     DEFAULT_CELL_SIZE,
     FEATURES,
-    ClassTally,
     Offers,
     StructureHint,
     vote_offers,
 )
+from jointseg.fusion.thresholds import ClassTally
 
 log = logging.getLogger(__name__)
 
@@ -123,7 +123,7 @@ class TreeParams(BaseModel):
     min_leaf: int = Field(200, ge=1)
     l2: float = Field(1.0, ge=0)
     learning_rate: float = Field(0.1, gt=0)
-    #: monotone in the support of the offer and of the point's own label (see fit_trees)
+    #: monotone in the support of the offer and of the point's own label (see vote_trees)
     monotonic: bool = True
     #: offer the geometry's structure reading (False: the vote before issue 43)
     structure: bool = True
