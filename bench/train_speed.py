@@ -48,18 +48,11 @@ from helpers.report import header
 
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
 from jointseg.network.training.batches import BatchMaker, batch_stream
-from jointseg.network.training.loop import (
-    TrainConfig,
-    TrainingRun,
-    _bank_stream,
-    _crop_stream,
-    _start,
-    _step,
-    device_batch,
-    train,
-    train_mode,
-    training_data,
-)
+from jointseg.network.training.config import TrainConfig, training_data
+from jointseg.network.training.loop import train
+from jointseg.network.training.run_state import TrainingRun, start_run
+from jointseg.network.training.step import device_batch, train_mode, train_step
+from jointseg.network.training.streams import bank_stream, crop_stream
 
 
 def default_data() -> list[str]:
@@ -145,10 +138,10 @@ def points_rate(cfg: TrainConfig, steps: int, warmup: int) -> tuple[float, float
     batch stream and step (validation left out)."""
     if cfg.threads:
         torch.set_num_threads(cfg.threads)
-    run = _start(cfg)
+    run = start_run(cfg)
     data = training_data(cfg, run.model.config.grid_size)
     cfg = cfg.model_copy(update={"epochs": 1, "steps_per_epoch": steps + warmup})
-    stream = _bank_stream(cfg, run, data) if cfg.bank else _crop_stream(cfg, run, data)
+    stream = bank_stream(cfg, run, data) if cfg.bank else crop_stream(cfg, run, data)
     loss_fn = torch.nn.CrossEntropyLoss(weight=data.loss_weights, ignore_index=-1)
     train_mode(run.model, cfg)
     points = 0
@@ -157,7 +150,7 @@ def points_rate(cfg: TrainConfig, steps: int, warmup: int) -> tuple[float, float
             if i == warmup:
                 started = time.perf_counter()
             batch = device_batch(next(batches), run)
-            _step(run, loss_fn, batch, cfg)
+            train_step(run, loss_fn, batch, cfg)
             points += batch.features.shape[0] * batch.features.shape[1] if i >= warmup else 0
     seconds = time.perf_counter() - started
     return points / seconds, steps / seconds

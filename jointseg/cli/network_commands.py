@@ -231,9 +231,10 @@ def train(
 def _run_train(**o: Any) -> None:
     """Body of ``jointseg train``, apart from its long option list so both stay readable."""
     from jointseg.network.training.augment import AugmentParams
+    from jointseg.network.training.checkpoints import best_path
     from jointseg.network.training.config import TrainConfig
-    from jointseg.network.training.loop import best_path, default_workers
     from jointseg.network.training.loop import train as run_training
+    from jointseg.network.training.streams import default_workers
 
     num_points = o["num_points"]
     if num_points is None:

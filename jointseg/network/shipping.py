@@ -10,8 +10,8 @@ from pathlib import Path
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.randlanet.model import RandLANet
+from jointseg.network.training.checkpoints import card_facts
 from jointseg.network.training.config import TrainConfig
-from jointseg.network.training.loop import card_facts
 
 
 def pack_checkpoint(

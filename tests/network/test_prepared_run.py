@@ -22,7 +22,7 @@ from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.slicing import channel_maps, sliced_init
 from jointseg.network.training.config import model_config
-from jointseg.network.training.loop import distillation_loss, train
+from jointseg.network.training.loop import train
 from jointseg.network.training.prepared import (
     COLOUR_WEIGHTS,
     DEFAULT_RUN,
@@ -32,6 +32,7 @@ from jointseg.network.training.prepared import (
     train_config,
     write_arrays,
 )
+from jointseg.network.training.step import distillation_loss
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -11,8 +11,9 @@ from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
 from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.training.batches import BatchMaker, batch_stream
+from jointseg.network.training.checkpoints import best_path
 from jointseg.network.training.config import training_data
-from jointseg.network.training.loop import best_path, train
+from jointseg.network.training.loop import train
 from jointseg.network.training.sources import (
     S3DIS_TERMS,
     SCANNET_TERMS,

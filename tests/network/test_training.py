@@ -148,7 +148,7 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
 def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
     from jointseg.network.backends import card_summary
     from jointseg.network.shipping import pack_checkpoint
-    from jointseg.network.training.loop import S3DIS_TERMS, SYNTH_TERMS
+    from jointseg.network.training.sources import S3DIS_TERMS, SYNTH_TERMS
 
     path = train(tiny_training(epochs=2, command="jointseg train --data synth --out m.pt"))
     _, card, _ = load_checkpoint(path)

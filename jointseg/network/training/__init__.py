@@ -1,2 +1,3 @@
-"""Training RandLA-Net: the loop (:mod:`~jointseg.network.training.loop`), its data sources,
-crop batches and augmentation. Imported only by `jointseg train` and the tests (torch)."""
+"""Training RandLA-Net: the loop (:mod:`~jointseg.network.training.loop`) and what it calls
+(its step, validation, checkpoints), its data sources, crop batches and augmentation. Imported
+only by `jointseg train` and the tests (torch)."""

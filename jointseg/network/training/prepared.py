@@ -194,7 +194,7 @@ class RunOptions:
 
 
 def train_config(name: str, opts: RunOptions) -> TrainConfig:
-    """The :class:`~jointseg.network.training.loop.TrainConfig` of one network of the run: the
+    """The :class:`~jointseg.network.training.config.TrainConfig` of one network of the run: the
     packed checkpoints in ``opts.out``, the full ones (with optimiser state) in
     :func:`work_dir`, from which ``opts.resume`` continues."""
     from jointseg.network.training.config import TrainConfig
