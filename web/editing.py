@@ -3,7 +3,7 @@
 The viewer draws an even sample of a result's rows, but an edit is about the whole result: a
 segment is every point of it, a region every point inside. So the first edit of a job reads the
 columns an edit needs (xyz, ``segment``, ``fused_label``, ``instance``) of every row, block by
-block (:mod:`jointseg.io.ply_blocks`), and applies each edit to them with the library's own
+block (:mod:`jointseg.io.formats.ply.blocks`), and applies each edit to them with the library's own
 :func:`jointseg.labels.edits.apply_edits`: the legend's counts stay exact, and what is saved is
 what was seen. Memory: 30 bytes a point while a tab edits (a 10 M point result: 300 MB).
 
@@ -23,7 +23,7 @@ import numpy as np
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import JobStateError
 from jointseg.io import read_scan
-from jointseg.io.ply_blocks import open_vertex_blocks
+from jointseg.io.formats.ply.blocks import open_vertex_blocks
 from jointseg.labels.edits import Edit, EditList, apply_edits
 from web.objects_view import objects_of
 from web.scene import SceneData

@@ -4,8 +4,8 @@ The viewer shows at most a few million points per panel, but its legend counts e
 20 M-point result PLY is 1.3 GB (double xyz and a dozen other properties); reading it whole, as
 :func:`jointseg.io.read_scan` does, takes seconds and gigabytes for columns the viewer never
 looks at. So a binary PLY (what ``jointseg segment`` and the service write) is read block by
-block into one reused buffer (:mod:`jointseg.io.ply_blocks`): each block adds its labels to the
-counts and hands over the sample rows that fall in it. Memory is one block plus the sample,
+block into one reused buffer (:mod:`jointseg.io.formats.ply.blocks`): each block adds its labels to
+the counts and hands over the sample rows that fall in it. Memory is one block plus the sample,
 whatever the size of the file. Any other file (ASCII PLY, LAS, colour that is not 8-bit, ...) is
 read whole with ``read_scan`` and sampled in the same way.
 
@@ -28,7 +28,7 @@ from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import read_scan
 from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
-from jointseg.io.ply_blocks import VertexBlock, open_vertex_blocks
+from jointseg.io.formats.ply.blocks import VertexBlock, open_vertex_blocks
 
 #: Result fields the viewer needs (written by jointseg.pipeline.outputs.annotate).
 REQUIRED_FIELDS = ("network_label", "segment", "fused_label")

@@ -2,11 +2,11 @@
 
 :class:`ScanChunks` and :class:`ScanWriter` are what :func:`jointseg.io.stream.open_chunks` and
 :func:`jointseg.io.stream.open_writer` return; a format that streams subclasses them in its own
-module (:mod:`jointseg.io.las_stream`, :mod:`jointseg.io.ply_stream`) and names its openers,
-:class:`ChunkOpener` and :class:`WriterOpener`, in its :class:`~jointseg.io.formats.Format`
-record. Kept apart from :mod:`jointseg.io.stream` (which reads the formats without an opener
-through :func:`jointseg.io.read_scan`) so that the format table can import the openers without
-an import cycle.
+module (:mod:`jointseg.io.formats.las.stream`, :mod:`jointseg.io.formats.ply.stream`) and
+names its openers, :class:`ChunkOpener` and :class:`WriterOpener`, in its
+:class:`~jointseg.io.formats.Format` record. Kept apart from :mod:`jointseg.io.stream` (which reads
+the formats without an opener through :func:`jointseg.io.read_scan`) so that the format table can
+import the openers without an import cycle.
 """
 
 from __future__ import annotations

@@ -17,9 +17,9 @@ way is the one ``write_scan`` would write from the concatenated chunks.
 
 Where it lives: :func:`open_chunks` and :func:`open_writer` dispatch through the
 :class:`~jointseg.io.formats.Format` table, whose records name a format's streaming openers
-(:mod:`jointseg.io.las_stream`, :mod:`jointseg.io.ply_stream`); :mod:`jointseg.io.chunks` holds
-the types they return and the protocols they follow; this module holds the fallback for formats
-without an opener.
+(:mod:`jointseg.io.formats.las.stream`, :mod:`jointseg.io.formats.ply.stream`);
+:mod:`jointseg.io.chunks` holds the types they return and the protocols they follow; this module
+holds the fallback for formats without an opener.
 
 Examples
 --------
@@ -226,16 +226,17 @@ def open_writer(
 
     The file is the one :func:`jointseg.io.write_scan` would write from all chunks together:
 
-    - **LAS/LAZ**: the header :func:`jointseg.io.las.las_layout` builds for ``write_las``
-      (point format 7/6, scale, offsets at ``bounds``' minimum, extra bytes per field, the
-      labels VLR), then laspy's writer, one ``write_points`` per chunk (lazrs for LAZ).
+    - **LAS/LAZ**: the header :func:`jointseg.io.formats.las.core.las_layout` builds for
+      ``write_las`` (point format 7/6, scale, offsets at ``bounds``' minimum, extra bytes per
+      field, the labels VLR), then laspy's writer, one ``write_points`` per chunk (lazrs for LAZ).
       ``write_las`` puts a field ``intensity`` (``classification``) into LAS's standard
       dimension when it holds whole numbers in 0..65535 (0..255); here ``like``'s values make
       that choice, and a later chunk that does not fit it is refused (uint16 intensity and
       uint8 classification always fit).
-    - **PLY**: binary little-endian, the header :func:`jointseg.io.ply.write_ply` writes (the
-      vertex count is ``count``), then each chunk's records. 64-bit integer fields take the
-      property type ``like``'s values give; a chunk whose values do not fit it is refused.
+    - **PLY**: binary little-endian, the header :func:`jointseg.io.formats.ply.core.write_ply`
+      writes (the vertex count is ``count``), then each chunk's records. 64-bit integer fields
+      take the property type ``like``'s values give; a chunk whose values do not fit it is
+      refused.
     - **Any other format**: the chunks are collected and written by ``write_scan`` at the end,
       so memory is not bounded there (``streams`` is False).
 

@@ -23,7 +23,7 @@ from pydantic import BaseModel, ConfigDict
 
 from jointseg.exceptions import JointsegError, ScanFormatError
 from jointseg.io import ScanInfo, probe_scan
-from jointseg.io.mesh import check_single_file
+from jointseg.io.formats.mesh.core import check_single_file
 from server.lifeline import die_with_parent
 from server.limits import check_file_span
 from server.messages import public_message

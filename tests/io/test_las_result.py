@@ -15,7 +15,7 @@ import pytest
 
 from jointseg.classes import CLASS_NAMES
 from jointseg.io import ScanFormatError, probe_scan, read_scan, write_scan
-from jointseg.io.las_result import check_full_byte, result_classification
+from jointseg.io.formats.las.result import check_full_byte, result_classification
 from jointseg.io.stream import open_chunks
 from jointseg.scan import Scan
 from tests.support.scans import random_scan
@@ -87,7 +87,7 @@ def test_the_lookup_vlr_names_every_class(tmp_path: Path, ext: str) -> None:
 def test_a_result_read_back_has_the_inputs_labels_not_the_result(tmp_path, ext, caplog) -> None:
     scan = _result(random_scan(500, seed=5))
     path = write_scan(scan, tmp_path / f"result{ext}")
-    with caplog.at_level(logging.INFO, logger="jointseg.io.las"):
+    with caplog.at_level(logging.INFO, logger="jointseg.io.formats.las.core"):
         back = read_scan(path)
     assert back.labels is not None
     np.testing.assert_array_equal(back.labels, scan.labels)
@@ -130,7 +130,7 @@ def test_an_unlabelled_result_is_read_back_unlabelled(tmp_path: Path, caplog) ->
     las = laspy.read(path)
     assert "input_classification" not in las.point_format.extra_dimension_names
     assert (las.classification >= 64).sum() > 300  # the result, which is no ground truth
-    with caplog.at_level(logging.INFO, logger="jointseg.io.las"):
+    with caplog.at_level(logging.INFO, logger="jointseg.io.formats.las.core"):
         back = read_scan(path)
     assert back.labels is None and "classification" not in back.fields
     assert "read unlabelled" in caplog.text

@@ -18,8 +18,8 @@ from plyfile import PlyData, PlyElement
 from jointseg.client import JobClient
 from jointseg.exceptions import ScanFormatError
 from jointseg.io import READ_EXTENSIONS, probe_scan, read_scan
-from jointseg.io.mesh import check_single_file
-from jointseg.io.mesh_sample import SAMPLE_SPACING
+from jointseg.io.formats.mesh.core import check_single_file
+from jointseg.io.formats.mesh.sample import SAMPLE_SPACING
 from jointseg.io.stream import open_chunks
 from tests.support.cli import run_cli
 

@@ -7,7 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from jointseg.io import ScanFormatError, lzf, probe_scan, read_scan
+from jointseg.io import ScanFormatError, probe_scan, read_scan
+from jointseg.io.formats.pcd import lzf
 
 
 def _header(fields, sizes, types, counts, width, height=1, points=None, data="ascii"):

@@ -7,7 +7,7 @@ import pytest
 from plyfile import PlyData, PlyElement
 
 from jointseg.io import ScanFormatError
-from jointseg.io.ply_blocks import open_vertex_blocks
+from jointseg.io.formats.ply.blocks import open_vertex_blocks
 
 
 def _write(path, n, *, text=False, byte_order="<", faces_first=False):

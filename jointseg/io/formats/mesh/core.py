@@ -3,15 +3,16 @@
 Phone scanning apps (Polycam, Scaniverse, 3D Scanner App, Record3D, ARKit exports) deliver
 textured triangle meshes more often than point clouds. The network needs points at a real
 scan's density, so each mesh is flattened to one frame (node transforms applied, several
-meshes joined) and sampled on its triangles (:mod:`jointseg.io.mesh_sample`), coloured by its
-vertex colours, face colours, texture or material. The points stay in the file's own
+meshes joined) and sampled on its triangles (:mod:`jointseg.io.formats.mesh.sample`), coloured by
+its vertex colours, face colours, texture or material. The points stay in the file's own
 coordinates: glTF's y-up convention and metre unit are recorded in ``Scan.meta`` for the frame
 stage, never applied here.
 
 A PLY mesh whose vertex element has labels (``label``, ``class``, ... as :func:`read_ply
-<jointseg.io.ply.read_ply>` recognises them; e.g. ScanNet's ``*_vh_clean_2.labels.ply``) keeps
-them: each sampled point takes the label of its triangle's nearest vertex, and so the values
-of the vertex's other scalar properties as fields (coordinates, colours and normals aside).
+<jointseg.io.formats.ply.core.read_ply>` recognises them; e.g. ScanNet's
+``*_vh_clean_2.labels.ply``) keeps them: each sampled point takes the label of its triangle's
+nearest vertex, and so the values of the vertex's other scalar properties as fields (coordinates,
+colours and normals aside).
 
 ``Scan.meta`` of a mesh holds ``comments`` (PLY ``comment``/``obj_info`` lines, the OBJ's
 leading ``#`` lines, glTF's ``generator``/``copyright``), ``mesh`` (vertices, faces, area,
@@ -32,9 +33,8 @@ import numpy as np
 
 from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.build import build_scan
-from jointseg.io.gltf import GltfFacts, check_neighbours, embedded_only, gltf_facts
-from jointseg.io.limits import ScanInfo, check_input_file, check_max_points
-from jointseg.io.mesh_sample import (
+from jointseg.io.formats.mesh.gltf import GltfFacts, check_neighbours, embedded_only, gltf_facts
+from jointseg.io.formats.mesh.sample import (
     MeshPiece,
     MeshSamples,
     PieceColour,
@@ -44,14 +44,11 @@ from jointseg.io.mesh_sample import (
     plan_samples,
     sample_pieces,
 )
-from jointseg.io.ply import (
-    probe_header,
-    probe_ply,
-    read_ply,
+from jointseg.io.formats.ply.core import (
     split_vertex,
     vertex_columns,
-    vertex_element,
 )
+from jointseg.io.limits import ScanInfo, check_input_file, check_max_points
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 
@@ -246,9 +243,9 @@ def _carried_names(names: list[str]) -> list[str]:
 def _with_vertex_values(path: Path, piece: MeshPiece, geometry: Any) -> MeshPiece:
     """``piece`` with the labels and other scalar numeric properties of its PLY vertices.
 
-    Read as :func:`jointseg.io.ply.read_ply` reads a point cloud's (labels as S3DIS classes,
-    the raw values kept as field ``raw_label`` when some are no class). A piece whose vertex
-    element has no label property is returned as it is.
+    Read as :func:`jointseg.io.formats.ply.core.read_ply` reads a point cloud's (labels as S3DIS
+    classes, the raw values kept as field ``raw_label`` when some are no class). A piece whose
+    vertex element has no label property is returned as it is.
     """
     records = _ply_records(geometry)
     if records is None:
@@ -601,7 +598,7 @@ def probe_obj(path: Path, *, max_points: int) -> ScanInfo:
     return mesh_info(path, "obj", mesh, max_points)
 
 
-# --- PLY with faces (called by jointseg.io.ply, which parsed the header) ------------------------
+# --- PLY with faces (the table calls these when the header, parsed by ply.core, declares faces) -
 
 
 def read_ply_mesh(
@@ -619,7 +616,8 @@ def read_ply_mesh(
     ----------
     path : Path
     comments : list of str
-        The header's ``comment`` and ``obj_info`` lines (parsed by :mod:`jointseg.io.ply`).
+        The header's ``comment`` and ``obj_info`` lines (parsed by
+        :mod:`jointseg.io.formats.ply.core`).
     vertices, faces : int
         The header's counts, checked against ``max_points`` before the body is read.
     max_points : int
@@ -632,8 +630,8 @@ def read_ply_mesh(
         When the vertex element has labels, each point takes the label of its triangle's
         nearest vertex, and that vertex's other scalar numeric properties as fields
         (coordinates, colours, alpha and normals aside; ``raw_label`` when some label values
-        are no S3DIS class, as :func:`jointseg.io.ply.read_ply` does); ``meta["mesh"]`` then
-        says ``"labels": "nearest vertex"``. Without labels, no vertex property is carried.
+        are no S3DIS class, as :func:`jointseg.io.formats.ply.core.read_ply` does); ``meta["mesh"]``
+        then says ``"labels": "nearest vertex"``. Without labels, no vertex property is carried.
 
     Raises
     ------
@@ -653,28 +651,3 @@ def probe_ply_mesh(path: Path, *, vertices: int, faces: int, max_points: int) ->
     """How many points reading a PLY mesh gives (the mesh read, nothing sampled)."""
     check_mesh_size(path, vertices, faces, max_points)
     return mesh_info(path, "ply", load_mesh(path, "ply"), max_points)
-
-
-def read_ply_file(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
-    """Read any PLY: a mesh (its header declares faces) as points sampled on its faces, a point
-    cloud as :func:`jointseg.io.ply.read_ply` reads it."""
-    header = probe_header(path)
-    if not header.faces:
-        return read_ply(path, max_points=max_points, progress=progress)
-    return read_ply_mesh(
-        path,
-        comments=header.comments,
-        vertices=vertex_element(header, path).count,
-        faces=header.faces,
-        max_points=max_points,
-        progress=progress,
-    )
-
-
-def probe_ply_file(path: Path, *, max_points: int) -> ScanInfo:
-    """Probe any PLY (see :func:`read_ply_file`)."""
-    header = probe_header(path)
-    if not header.faces:
-        return probe_ply(path, max_points=max_points)
-    count = vertex_element(header, path).count
-    return probe_ply_mesh(path, vertices=count, faces=header.faces, max_points=max_points)

@@ -1,8 +1,9 @@
 """Binary PLY read and written chunk by chunk: vertex records mapped or written in place.
 
-The vertex layout and conversions are :mod:`jointseg.io.ply`'s, shared with ``read_ply`` and
-``write_ply``; this module adds the chunked reader (memory maps of one chunk of vertices, with a
-first pass where whole-file facts decide) and the chunked writer. :func:`open_ply_chunks` and
+The vertex layout and conversions are :mod:`jointseg.io.formats.ply.core`'s, shared with
+``read_ply`` and ``write_ply``; this module adds the chunked reader (memory maps of one chunk of
+vertices, with a first pass where whole-file facts decide) and the chunked writer.
+:func:`open_ply_chunks` and
 :class:`PlyChunkWriter` are the PLY record's openers in :mod:`jointseg.io.formats`.
 """
 
@@ -21,9 +22,7 @@ from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.chunks import Bounds, FileChunks, ScanChunks, ScanWriter, first_pass
 from jointseg.io.colour import check_colour_range
-from jointseg.io.labels import log_outside_labels
-from jointseg.io.limits import check_max_points
-from jointseg.io.ply import (
+from jointseg.io.formats.ply.core import (
     PlyLayout,
     VertexFacts,
     binary_vertex_block,
@@ -34,6 +33,8 @@ from jointseg.io.ply import (
     vertex_element,
     vertex_facts,
 )
+from jointseg.io.labels import log_outside_labels
+from jointseg.io.limits import check_max_points
 from jointseg.scan import Scan
 
 __all__ = ["PlyChunkWriter", "open_ply_chunks"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from jointseg.exceptions import ScanFormatError
-from jointseg.io.ply import probe_header, vertex_element, vertex_offset
+from jointseg.io.formats.ply.core import probe_header, vertex_element, vertex_offset
 
 
 @dataclass(frozen=True, eq=False)

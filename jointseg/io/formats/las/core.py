@@ -16,8 +16,8 @@ and a small VLR saying so; every field as an extra-bytes dimension of its own dt
 into the standard intensity dimension; a field whose name is another standard dimension (or a
 float intensity) is stored as ``extra_<name>``, which reads back as ``<name>`` from files written
 by jointseg. A result (a scan with ``fused_label``) has the fused classes in classification
-(64 + class, :mod:`jointseg.io.las_result`) and what classification would hold otherwise in the
-extra dimension ``input_classification``.
+(64 + class, :mod:`jointseg.io.formats.las.result`) and what classification would hold otherwise in
+the extra dimension ``input_classification``.
 """
 
 from __future__ import annotations
@@ -36,8 +36,7 @@ from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import ColourRange, merge_colour_ranges, to_rgb8
 from jointseg.io.fields import FieldColumn, field_columns
-from jointseg.io.labels import LabelSummary, label_summary, log_outside_labels, normalise_labels
-from jointseg.io.las_result import (
+from jointseg.io.formats.las.result import (
     INPUT_CLASSIFICATION,
     RESULT_BASE,
     RESULT_FIELD,
@@ -46,6 +45,7 @@ from jointseg.io.las_result import (
     lookup_vlr,
     result_classification,
 )
+from jointseg.io.labels import LabelSummary, label_summary, log_outside_labels, normalise_labels
 from jointseg.io.limits import (
     DEFAULT_MAX_INFLATION,
     ScanInfo,
@@ -538,7 +538,7 @@ class LasLayout:
         Every other column: its extra-bytes dimension name and dtype.
     result : bool
         The scan is a result (it has ``fused_label``): classification holds the fused classes
-        (:mod:`jointseg.io.las_result`).
+        (:mod:`jointseg.io.formats.las.result`).
     input_classification : bool
         In a result, what classification would hold otherwise (the labels, or a raw
         classification field) goes into the extra dimension ``input_classification``.
@@ -564,7 +564,7 @@ def las_layout(like: Scan, lo: np.ndarray, hi: np.ndarray, path: Path) -> LasLay
     ``intensity`` (``classification``) goes into the standard dimension when ``like``'s values
     are whole numbers in 0..65535 (0..255). A result (``like`` has ``fused_label``) has its
     fused classes in classification, the input's in ``input_classification``, the result and
-    Classification Lookup VLRs (:mod:`jointseg.io.las_result`).
+    Classification Lookup VLRs (:mod:`jointseg.io.formats.las.result`).
 
     Parameters
     ----------

@@ -5,7 +5,7 @@ Reading takes the ``vertex`` element: ``x y z``; colour from ``red green blue``,
 float 0–1 scaled); labels from ``label``, ``class``, ``classification``,
 ``scalar_Classification`` or ``scalar_label`` (case-insensitive); every other vertex property
 becomes a field of the same name and dtype. Other elements are ignored here; a PLY whose header
-declares faces is a mesh, which :func:`jointseg.io.mesh.read_ply_file` reads as points sampled
+declares faces is a mesh, which :func:`jointseg.io.formats.read_ply_file` reads as points sampled
 on its faces. The header's ``comment`` and ``obj_info`` lines go to
 ``Scan.meta["comments"]``.
 
@@ -532,7 +532,7 @@ def read_ply(path: Path, *, max_points: int, progress: ProgressFn | None = None)
     -------
     Scan
         ``meta["comments"]`` holds the header's comments. The vertices only: a PLY with faces
-        is read as a mesh by :func:`jointseg.io.mesh.read_ply_file`, which
+        is read as a mesh by :func:`jointseg.io.formats.read_ply_file`, which
         :func:`jointseg.io.read_scan` calls.
 
     Raises
@@ -572,7 +572,7 @@ def probe_ply(path: Path, *, max_points: int) -> ScanInfo:
     Returns
     -------
     ScanInfo
-        Of the vertices (:func:`jointseg.io.mesh.probe_ply_file` probes a mesh).
+        Of the vertices (:func:`jointseg.io.formats.probe_ply_file` probes a mesh).
 
     Raises
     ------

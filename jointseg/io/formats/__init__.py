@@ -1,7 +1,16 @@
 """Which file extensions name which format, and which module reads, probes and writes it.
 
 Kept in one table so the CLI's help, the upload API's checks and the dispatch in
-:mod:`jointseg.io` and :mod:`jointseg.io.stream` cannot disagree.
+:mod:`jointseg.io` and :mod:`jointseg.io.stream` cannot disagree. Every format lives below this
+package, one module or one small package each, whole-file, probing and chunked reading and
+writing together: :mod:`.ply` (and :mod:`.ply.stream`, :mod:`.ply.blocks`), :mod:`.las` (and
+:mod:`.las.stream`, :mod:`.las.result`), :mod:`.pcd` (with its :mod:`.pcd.lzf`), :mod:`.e57`,
+:mod:`.text`, :mod:`.arrays` (NPY/NPZ), :mod:`.s3dis` and :mod:`.mesh` (GLB/glTF, OBJ, PLY with
+faces, through trimesh). What several formats share (limits, columns, colour, labels, fields,
+numeric tables, atomic writes, chunk types) stays one level up, in :mod:`jointseg.io`.
+
+A PLY is a point cloud or a mesh by its header; :func:`read_ply_file` makes that choice here, so
+the PLY and mesh packages never import each other's readers.
 """
 
 from __future__ import annotations
@@ -12,8 +21,14 @@ from functools import partial
 from pathlib import Path
 
 from jointseg.exceptions import ScanFormatError, UnsupportedFormatError
-from jointseg.io import arrays, e57, las, las_stream, mesh, pcd, ply, ply_stream, s3dis, text
 from jointseg.io.chunks import ChunkOpener, WriterOpener
+from jointseg.io.formats import arrays, e57, s3dis, text
+from jointseg.io.formats.las import core as las
+from jointseg.io.formats.las import stream as las_stream
+from jointseg.io.formats.mesh import core as mesh
+from jointseg.io.formats.pcd import core as pcd
+from jointseg.io.formats.ply import core as ply
+from jointseg.io.formats.ply import stream as ply_stream
 from jointseg.io.limits import ScanInfo
 from jointseg.progress import ProgressFn
 from jointseg.scan import Scan
@@ -49,6 +64,32 @@ class Format:
         return {"max_points": max_points}
 
 
+def read_ply_file(path: Path, *, max_points: int, progress: ProgressFn | None = None) -> Scan:
+    """Read any PLY: a mesh (its header declares faces) as points sampled on its faces, a point
+    cloud as :func:`jointseg.io.formats.ply.core.read_ply` reads it;
+    which of the two is the table's choice, so neither format imports the other's reader."""
+    header = ply.probe_header(path)
+    if not header.faces:
+        return ply.read_ply(path, max_points=max_points, progress=progress)
+    return mesh.read_ply_mesh(
+        path,
+        comments=header.comments,
+        vertices=ply.vertex_element(header, path).count,
+        faces=header.faces,
+        max_points=max_points,
+        progress=progress,
+    )
+
+
+def probe_ply_file(path: Path, *, max_points: int) -> ScanInfo:
+    """Probe any PLY (see :func:`read_ply_file`)."""
+    header = ply.probe_header(path)
+    if not header.faces:
+        return ply.probe_ply(path, max_points=max_points)
+    count = ply.vertex_element(header, path).count
+    return mesh.probe_ply_mesh(path, vertices=count, faces=header.faces, max_points=max_points)
+
+
 def _las_format(name: str, *, compress: bool) -> Format:
     """LAS and LAZ: one reader and streaming for both; the writer compresses for LAZ."""
     return Format(
@@ -65,8 +106,8 @@ def _las_format(name: str, *, compress: bool) -> Format:
 FORMATS: dict[str, Format] = {
     "ply": Format(
         "ply",
-        mesh.read_ply_file,
-        mesh.probe_ply_file,
+        read_ply_file,
+        probe_ply_file,
         ply.write_ply,
         open_chunks=ply_stream.open_ply_chunks,
         open_writer=ply_stream.PlyChunkWriter,

@@ -20,9 +20,9 @@ from jointseg.classes import CLASS_INDEX, CLASS_NAMES
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
+from jointseg.io.formats.text import read_text_table, sniff_text
 from jointseg.io.limits import ScanInfo, check_max_points
 from jointseg.io.tabular import count_lines
-from jointseg.io.text import read_text_table, sniff_text
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 

@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from jointseg.exceptions import ScanFormatError, library_reason
-from jointseg.io import lzf
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
 from jointseg.io.columns import LABEL_NAMES, pick_colour_names, pick_name
 from jointseg.io.fields import narrow_dtype, safe_field_name
+from jointseg.io.formats.pcd import lzf
 from jointseg.io.labels import normalise_labels
 from jointseg.io.limits import (
     DEFAULT_MAX_INFLATION,

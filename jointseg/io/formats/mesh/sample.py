@@ -7,7 +7,7 @@ mesh is turned into points clearly finer than that grid: a mean spacing of
 of the points give or take one) and seeded, so the same file always gives the same points.
 A piece whose vertices carry labels or other values (a PLY mesh's vertex properties) hands
 each point those of its triangle's nearest corner (the largest barycentric weight). Pure
-numpy: the trimesh side (reading files, materials) is in :mod:`jointseg.io.mesh`.
+numpy: the trimesh side (reading files, materials) is in :mod:`jointseg.io.formats.mesh.core`.
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ from jointseg.exceptions import ScanFormatError, library_reason
 from jointseg.io.atomic import atomic_open
 from jointseg.io.build import build_scan
 from jointseg.io.colour import to_rgb8
+from jointseg.io.formats.text import POSITIONAL_COLUMNS, columns_to_parts
 from jointseg.io.labels import normalise_labels
 from jointseg.io.limits import (
     DEFAULT_MAX_INFLATION,
@@ -28,7 +29,6 @@ from jointseg.io.limits import (
     check_inflation,
     check_max_points,
 )
-from jointseg.io.text import POSITIONAL_COLUMNS, columns_to_parts
 from jointseg.progress import ProgressFn, report
 from jointseg.scan import Scan
 

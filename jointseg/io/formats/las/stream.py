@@ -1,6 +1,6 @@
 """LAS/LAZ read and written chunk by chunk through laspy (LAZ with lazrs), for big scans.
 
-The per-point conversions are :mod:`jointseg.io.las`'s, shared with ``read_las`` and
+The per-point conversions are :mod:`jointseg.io.formats.las.core`'s, shared with ``read_las`` and
 ``write_las``; this module adds the chunked reader with its first pass over the whole file and
 the chunked writer. :func:`open_las_chunks` and :class:`LasChunkWriter` are the LAS and LAZ
 records' openers in :mod:`jointseg.io.formats`.
@@ -19,7 +19,7 @@ import laspy
 from jointseg.exceptions import ScanFormatError
 from jointseg.io.atomic import atomic_open
 from jointseg.io.chunks import Bounds, FileChunks, ScanChunks, ScanWriter, first_pass
-from jointseg.io.las import (
+from jointseg.io.formats.las.core import (
     LASPY_ERRORS,
     LasFacts,
     LasLayout,
