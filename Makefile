@@ -79,8 +79,8 @@ gpu-pack: setup
 		--implementation cp --platform manylinux_2_28_x86_64 --platform manylinux2014_x86_64 \
 		-d .gpu/wheels $(GPU_WHEELS)
 	rm -rf .gpu/data
-	$(BIN)/python -m jointseg.network.training.prepared pack --shared $(SHARED) --out .gpu/data
-	$(BIN)/python -m jointseg.network.training.pseudo_pack --shared $(SHARED) --out .gpu/data
+	$(BIN)/python -m jointseg.training.prepared pack --shared $(SHARED) --out .gpu/data
+	$(BIN)/python -m jointseg.training.pseudo_pack --shared $(SHARED) --out .gpu/data
 	du -sh .gpu
 
 gpu-train:

@@ -41,11 +41,11 @@ from jointseg.adapt.head import AdaptParams
 from jointseg.adapt.learn import Corrected, adapt
 from jointseg.io import read_scan, write_scan
 from jointseg.labels.version import version_scan
-from jointseg.network.training.data import stable_order
 from jointseg.pipeline import load_predictor, run
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.outputs import annotate
 from jointseg.scan import Scan
+from jointseg.training.data import stable_order
 
 log = logging.getLogger("bench.adapt")
 

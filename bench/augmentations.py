@@ -19,10 +19,10 @@ from scipy.spatial import cKDTree
 
 from jointseg.io import read_scan
 from jointseg.network.randlanet.crops import GridCloud, grid_subsample
-from jointseg.network.training.augment import AugmentParams
-from jointseg.network.training.batches import region_crop, training_crop
-from jointseg.network.training.sources import BASE_GRID
 from jointseg.synth import make_room
+from jointseg.training.augment import AugmentParams
+from jointseg.training.batches import region_crop, training_crop
+from jointseg.training.sources import BASE_GRID
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 #: Every augmentation off: the baseline each row is compared with.

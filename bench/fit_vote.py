@@ -39,7 +39,7 @@ from jointseg.fusion.offers import FEATURES
 from jointseg.fusion.params import FusionParams
 from jointseg.fusion.thresholds import offer_thresholds
 from jointseg.metrics import evaluate
-from jointseg.network.training.data import stable_order
+from jointseg.training.data import stable_order
 
 #: The shipped vote's plan.
 PLAN = BENCH.parent / "fit" / "vote.json"

@@ -27,10 +27,10 @@ from helpers.report import header
 from helpers.scans import SCANNET_JUDGES
 
 from jointseg.io import read_scan
-from jointseg.network.training.data import stable_order
 from jointseg.objects.ifc import validation_errors, write_ifc
 from jointseg.pipeline import load_predictor, run
 from jointseg.pipeline.config import PipelineConfig
+from jointseg.training.data import stable_order
 
 
 def judging_scans(datasets: list[str]) -> list[Path]:

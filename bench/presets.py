@@ -109,7 +109,7 @@ def _engine_config(folder: Path, engine: str) -> Path | None:
 
 
 def _scans(split: str) -> dict[str, list[Path]]:
-    from jointseg.network.training.data import stable_order
+    from jointseg.training.data import stable_order
 
     out: dict[str, list[Path]] = {}
     area6 = sorted((DATA / "s3dis_area6").glob("*.ply"))

@@ -31,10 +31,10 @@ from helpers.scans import load_items
 
 from jointseg.classes import CLASS_NAMES, NUM_CLASSES
 from jointseg.network import load
-from jointseg.network.training.prepared import JUDGING, VALIDATION
-from jointseg.network.training.pseudo import Evidence, PseudoRule, keep_labels, pseudo_label
-from jointseg.network.training.sources import matches
 from jointseg.synth.views import camera_view
+from jointseg.training.prepared import JUDGING, VALIDATION
+from jointseg.training.pseudo import Evidence, PseudoRule, keep_labels, pseudo_label
+from jointseg.training.sources import matches
 
 #: Rules compared (the default, PseudoRule(), is the one the pack uses).
 RULES: dict[str, PseudoRule] = {

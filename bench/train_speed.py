@@ -47,12 +47,12 @@ from helpers.inputs import AREA6, SCANNET
 from helpers.report import header
 
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
-from jointseg.network.training.batches import BatchMaker, batch_stream
-from jointseg.network.training.config import TrainConfig, training_data
-from jointseg.network.training.loop import train
-from jointseg.network.training.run_state import TrainingRun, start_run
-from jointseg.network.training.step import device_batch, train_mode, train_step
-from jointseg.network.training.streams import bank_stream, crop_stream
+from jointseg.training.batches import BatchMaker, batch_stream
+from jointseg.training.config import TrainConfig, training_data
+from jointseg.training.loop import train
+from jointseg.training.run_state import TrainingRun, start_run
+from jointseg.training.step import device_batch, train_mode, train_step
+from jointseg.training.streams import bank_stream, crop_stream
 
 
 def default_data() -> list[str]:
@@ -173,8 +173,8 @@ def points_run(cfg: TrainConfig, minutes: float) -> tuple[float, int]:
 
 def points_table(args: argparse.Namespace) -> None:
     """Today's CPU recipe against training from a crop bank, points trained per second."""
-    from jointseg.network.training import prepared
-    from jointseg.network.training.bank import SHARD_CROPS
+    from jointseg.training import prepared
+    from jointseg.training.bank import SHARD_CROPS
 
     scratch = Path(tempfile.mkdtemp(prefix="train-speed-"))
     os.environ["JOINTSEG_GPU_WORK"] = str(scratch / "work")

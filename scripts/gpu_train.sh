@@ -24,5 +24,5 @@ if ! "$PY" -c "import pydantic, laspy, plyfile" 2>/dev/null; then
   export PYTHONPATH="/tmp/site:${PYTHONPATH:-}"
 fi
 export PYTHONPATH="$PWD:${PYTHONPATH:-}"
-exec "$PY" -m jointseg.network.training.prepared run --data "$DATA" --out "$DEST" \
+exec "$PY" -m jointseg.training.prepared run --data "$DATA" --out "$DEST" \
   --minutes "$MINUTES" --save-minutes "$SAVE"

@@ -12,7 +12,7 @@ import torch
 from jointseg.network.dgcnn.model import DGCNN
 from jointseg.network.randlanet.checkpoint import save_checkpoint
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
-from jointseg.network.training.config import TrainConfig
+from jointseg.training.config import TrainConfig
 
 #: Real scans and published weights shared between checkouts (never copied into the repository).
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

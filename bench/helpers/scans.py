@@ -24,9 +24,9 @@ from jointseg.fitting.scans import TuningScan as Item
 from jointseg.fitting.vote import structure_hint
 from jointseg.geometry import GeometryParams
 from jointseg.io import read_scan
-from jointseg.network.training.data import stable_order
 from jointseg.scan import Scan
 from jointseg.synth import make_floor, make_room
+from jointseg.training.data import stable_order
 
 __all__ = [
     "CACHE",

@@ -230,17 +230,17 @@ def train(
 
 def _run_train(**o: Any) -> None:
     """Body of ``jointseg train``, apart from its long option list so both stay readable."""
-    from jointseg.network.training.augment import AugmentParams
-    from jointseg.network.training.checkpoints import best_path
-    from jointseg.network.training.config import TrainConfig
-    from jointseg.network.training.loop import train as run_training
-    from jointseg.network.training.streams import default_workers
+    from jointseg.training.augment import AugmentParams
+    from jointseg.training.checkpoints import best_path
+    from jointseg.training.config import TrainConfig
+    from jointseg.training.loop import train as run_training
+    from jointseg.training.streams import default_workers
 
     num_points = o["num_points"]
     if num_points is None:
         num_points = 16_384
         if o["bank"] is not None and o["bank_crops"] is None:
-            from jointseg.network.training.bank import read_manifest
+            from jointseg.training.bank import read_manifest
 
             manifest = read_manifest(o["bank"])
             num_points = manifest.spec.num_points if manifest else num_points
@@ -371,7 +371,7 @@ def pack_weights(
     ),
 ) -> None:
     """Strip optimiser state from a training checkpoint and store its weights compactly."""
-    from jointseg.network.shipping import pack_checkpoint
+    from jointseg.training.shipping import pack_checkpoint
 
     path = pack_checkpoint(source, output, half=half, command=command)
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)
@@ -385,7 +385,7 @@ def blend_weights(
     output: Path = typer.Option(..., "-o", "--output", help="Checkpoint to ship."),
 ) -> None:
     """Blend a network with its fine-tuned copy in weight space (packed like `models pack`)."""
-    from jointseg.network.shipping import blend_checkpoints
+    from jointseg.training.shipping import blend_checkpoints
 
     path = blend_checkpoints(base, tuned, weight, output)
     typer.echo(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB)", err=True)

@@ -61,7 +61,7 @@ def test_models_list_shows_randlanet() -> None:
 @pytest.mark.slow
 def test_models_pack_strips_optimiser_and_halves_the_size(tmp_path: Path, tiny_training) -> None:
     from jointseg.network.randlanet.checkpoint import load_checkpoint
-    from jointseg.network.training.loop import train
+    from jointseg.training.loop import train
 
     source = train(tiny_training(out=tmp_path / "train.pt", steps_per_epoch=1))
     packed = tmp_path / "ship.pt"

@@ -21,7 +21,7 @@ from jointseg.fusion.thresholds import (
     offer_thresholds,
 )
 from jointseg.fusion.tree_runtime import MODEL_PATH, TreeEnsemble, shipped_model
-from jointseg.network.training.data import stable_order
+from jointseg.training.data import stable_order
 from tests.support.probs import probs_for
 
 LEARNED = FusionParams(mode="learned")

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from jointseg.network.randlanet.crops import grid_subsample
-from jointseg.network.training.augment import (
+from jointseg.synth import make_room
+from jointseg.training.augment import (
     AugmentParams,
     augment_colour,
     cut_region,
@@ -14,9 +15,8 @@ from jointseg.network.training.augment import (
     sensor_gaps,
     tilt_matrix,
 )
-from jointseg.network.training.batches import region_crop
-from jointseg.network.training.sources import BASE_GRID
-from jointseg.synth import make_room
+from jointseg.training.batches import region_crop
+from jointseg.training.sources import BASE_GRID
 
 
 def test_density_sampling_thins_to_one_point_per_cell() -> None:

@@ -13,9 +13,9 @@ from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.randlanet.crops import build_batch
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training import bank as bank_module
-from jointseg.network.training.augment import StepAugment
-from jointseg.network.training.bank import (
+from jointseg.training import bank as bank_module
+from jointseg.training.augment import StepAugment
+from jointseg.training.bank import (
     CropBank,
     _Drawer,
     bank_spec,
@@ -23,9 +23,9 @@ from jointseg.network.training.bank import (
     layer_sizes,
     read_manifest,
 )
-from jointseg.network.training.bank_batches import BankBatches, augment_xyz, bank_batch
-from jointseg.network.training.config import TrainConfig, training_data
-from jointseg.network.training.loop import train
+from jointseg.training.bank_batches import BankBatches, augment_xyz, bank_batch
+from jointseg.training.config import TrainConfig, training_data
+from jointseg.training.loop import train
 from tests.support.cli import run_cli
 
 POINTS = 2048
@@ -227,7 +227,7 @@ def test_jointseg_train_builds_a_bank_and_trains_from_it(tmp_path) -> None:
 
 @pytest.mark.slow
 def test_the_prepared_run_trains_the_colour_free_network_from_a_colour_bank(tmp_path) -> None:
-    from jointseg.network.training import prepared
+    from jointseg.training import prepared
 
     data = tmp_path / "data"
     prepared.pack(data, None, synth_rooms=2, synth_points=40_000)

@@ -235,7 +235,7 @@ def test_the_torch_engine_never_loads_openvino(tmp_path: Path) -> None:
 
 
 def test_training_batches_stay_in_process_once_openvino_is_loaded(monkeypatch) -> None:
-    from jointseg.network.training.batches import batch_stream
+    from jointseg.training.batches import batch_stream
 
     class Maker:
         def __len__(self) -> int:

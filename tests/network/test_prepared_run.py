@@ -21,9 +21,9 @@ from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.slicing import channel_maps, sliced_init
-from jointseg.network.training.config import model_config
-from jointseg.network.training.loop import train
-from jointseg.network.training.prepared import (
+from jointseg.training.config import model_config
+from jointseg.training.loop import train
+from jointseg.training.prepared import (
     COLOUR_WEIGHTS,
     DEFAULT_RUN,
     LATTICE,
@@ -32,7 +32,7 @@ from jointseg.network.training.prepared import (
     train_config,
     write_arrays,
 )
-from jointseg.network.training.step import distillation_loss
+from jointseg.training.step import distillation_loss
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -197,7 +197,7 @@ def test_frozen_norms_keep_their_statistics_while_the_weights_learn(tiny_trainin
 def test_the_carried_folders_name_their_datasets_terms(tmp_path: Path) -> None:
     """The cards of the run's checkpoints name S3DIS's and ScanNet's terms of use: the carried
     folders are named as the datasets (a folder called 'a6' read as user data)."""
-    from jointseg.network.training.sources import (
+    from jointseg.training.sources import (
         S3DIS_TERMS,
         SCANNET_TERMS,
         parse_source,

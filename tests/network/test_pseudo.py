@@ -15,20 +15,20 @@ from jointseg.classes import CLASS_INDEX
 from jointseg.exceptions import ConfigError
 from jointseg.io import read_scan, write_scan
 from jointseg.network import load
-from jointseg.network.training.loop import train
-from jointseg.network.training.prepared import SHARES, RunOptions, pack, train_config
-from jointseg.network.training.pseudo import (
+from jointseg.scan import Scan
+from jointseg.synth import make_room
+from jointseg.synth.views import camera_view
+from jointseg.training.loop import train
+from jointseg.training.prepared import SHARES, RunOptions, pack, train_config
+from jointseg.training.pseudo import (
     Evidence,
     PseudoRule,
     keep_labels,
     pseudo_label,
     segment_share,
 )
-from jointseg.network.training.pseudo_pack import PSEUDO, write_pseudo
-from jointseg.network.training.sources import PSEUDO_TERMS, parse_source, terms_for
-from jointseg.scan import Scan
-from jointseg.synth import make_room
-from jointseg.synth.views import camera_view
+from jointseg.training.pseudo_pack import PSEUDO, write_pseudo
+from jointseg.training.sources import PSEUDO_TERMS, parse_source, terms_for
 
 RULES = [PseudoRule(structure=s, share=a, prob=p) for s in (0.0, 0.5, 0.9)
          for a in (0.0, 0.8, 0.95) for p in (0.0, 0.7, 0.95)]  # fmt: skip

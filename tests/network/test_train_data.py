@@ -9,14 +9,14 @@ import pytest
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
 from jointseg.network.randlanet.checkpoint import load_checkpoint
-from jointseg.network.training.data import (
+from jointseg.synth import make_room
+from jointseg.training.data import (
     centre_weights,
     labelled_scan_files,
     split_validation,
     stable_order,
 )
-from jointseg.network.training.loop import train
-from jointseg.synth import make_room
+from jointseg.training.loop import train
 
 
 @pytest.fixture(scope="module")

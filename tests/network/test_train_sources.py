@@ -10,11 +10,12 @@ import torch
 from jointseg.exceptions import ConfigError
 from jointseg.io import write_scan
 from jointseg.network.randlanet.checkpoint import load_checkpoint
-from jointseg.network.training.batches import BatchMaker, batch_stream
-from jointseg.network.training.checkpoints import best_path
-from jointseg.network.training.config import training_data
-from jointseg.network.training.loop import train
-from jointseg.network.training.sources import (
+from jointseg.synth import make_room
+from jointseg.training.batches import BatchMaker, batch_stream
+from jointseg.training.checkpoints import best_path
+from jointseg.training.config import training_data
+from jointseg.training.loop import train
+from jointseg.training.sources import (
     S3DIS_TERMS,
     SCANNET_TERMS,
     SYNTH_TERMS,
@@ -22,7 +23,6 @@ from jointseg.network.training.sources import (
     resolve_shares,
     terms_for,
 )
-from jointseg.synth import make_room
 
 
 @pytest.fixture(scope="module")

@@ -7,9 +7,9 @@ import torch
 
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.checkpoint import load_checkpoint
-from jointseg.network.training.augment import augment
-from jointseg.network.training.config import class_weights
-from jointseg.network.training.loop import train
+from jointseg.training.augment import augment
+from jointseg.training.config import class_weights
+from jointseg.training.loop import train
 
 
 @pytest.mark.slow
@@ -77,7 +77,7 @@ def test_s3dis_folder_without_rooms_is_a_clear_error(tmp_path, tiny_training) ->
 
 @pytest.mark.slow
 def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
-    from jointseg.network.shipping import pack_checkpoint
+    from jointseg.training.shipping import pack_checkpoint
 
     first = train(tiny_training())
     packed = pack_checkpoint(first, tmp_path / "packed.pt")
@@ -89,7 +89,7 @@ def test_training_resumes_from_packed_weights(tmp_path, tiny_training) -> None:
 def test_elastic_distortion_is_smooth_and_small() -> None:
     import numpy as np
 
-    from jointseg.network.training.augment import ELASTIC_MAGNITUDE, elastic_distortion
+    from jointseg.training.augment import ELASTIC_MAGNITUDE, elastic_distortion
 
     rng = np.random.default_rng(0)
     xyz = rng.uniform(0, 3, (20_000, 3)).astype(np.float32)
@@ -147,8 +147,8 @@ def test_prefetcher_raises_where_the_batch_failed_and_stops_its_thread() -> None
 @pytest.mark.slow
 def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training) -> None:
     from jointseg.network.backends import card_summary
-    from jointseg.network.shipping import pack_checkpoint
-    from jointseg.network.training.sources import S3DIS_TERMS, SYNTH_TERMS
+    from jointseg.training.shipping import pack_checkpoint
+    from jointseg.training.sources import S3DIS_TERMS, SYNTH_TERMS
 
     path = train(tiny_training(epochs=2, command="jointseg train --data synth --out m.pt"))
     _, card, _ = load_checkpoint(path)
@@ -176,7 +176,7 @@ def test_card_says_hardware_command_validation_and_terms(tmp_path, tiny_training
 @pytest.mark.slow
 def test_blending_two_checkpoints_interpolates_the_weights(tmp_path, tiny_training) -> None:
     from jointseg.exceptions import ConfigError
-    from jointseg.network.shipping import blend_checkpoints
+    from jointseg.training.shipping import blend_checkpoints
 
     a = train(tiny_training(out=tmp_path / "a.pt", seed=1))
     b = train(tiny_training(out=tmp_path / "b.pt", seed=2))

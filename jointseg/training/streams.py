@@ -1,6 +1,6 @@
 """Where a run's batches come from: crops drawn from the sources as the run goes (worker
-processes, :mod:`jointseg.network.training.batches`) or read from a crop bank
-(:mod:`jointseg.network.training.bank`), started at the run's first step."""
+processes, :mod:`jointseg.training.batches`) or read from a crop bank
+(:mod:`jointseg.training.bank`), started at the run's first step."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ from contextlib import AbstractContextManager, nullcontext
 
 from jointseg.network.batches import Prefetcher
 from jointseg.network.randlanet.crops import Batch
-from jointseg.network.training.bank_batches import BankBatches, check_bank
-from jointseg.network.training.batches import BatchMaker, CropBatch, batch_stream
-from jointseg.network.training.config import TrainConfig, TrainingData
-from jointseg.network.training.run_state import TrainingRun
+from jointseg.training.bank_batches import BankBatches, check_bank
+from jointseg.training.batches import BatchMaker, CropBatch, batch_stream
+from jointseg.training.config import TrainConfig, TrainingData
+from jointseg.training.run_state import TrainingRun
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ def bank_stream(
 ) -> AbstractContextManager[Iterator[Batch]]:
     """Batches read from the crop bank (built or extended first when ``cfg.bank_crops``);
     reading is cheap, so in this process, a step ahead in a thread."""
-    from jointseg.network.training.bank import CropBank, build_bank
+    from jointseg.training.bank import CropBank, build_bank
 
     assert cfg.bank is not None
     if cfg.bank_crops is not None:

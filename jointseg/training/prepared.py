@@ -11,17 +11,17 @@ writing ``NAME.pt`` (the latest, packed) every ``save_minutes`` and ``NAME.best.
 by validation) into the output folder, and at the end ``train.log`` and a ``summary.json`` of
 the three: eight files, the most a lease hands back.
 
-    python -m jointseg.network.training.prepared pack --shared ../shared/data --out .gpu/data
-    python -m jointseg.network.training.pseudo_pack --shared ../shared/data --out .gpu/data
-    python -m jointseg.network.training.prepared run --data .gpu/data --out $OUT --minutes 8
+    python -m jointseg.training.prepared pack --shared ../shared/data --out .gpu/data
+    python -m jointseg.training.pseudo_pack --shared ../shared/data --out .gpu/data
+    python -m jointseg.training.prepared run --data .gpu/data --out $OUT --minutes 8
 
 (The second line is optional: self-training on unlabelled scans the pipeline labelled.)
 
-On a CPU, a crop bank (:mod:`jointseg.network.training.bank`) drawn once from the same data
+On a CPU, a crop bank (:mod:`jointseg.training.bank`) drawn once from the same data
 keeps both cores on the steps: ``bank`` builds one, ``run --bank DIR`` trains from it.
 
-    python -m jointseg.network.training.prepared bank --data .gpu/data --out runs/bank --crops 4000
-    python -m jointseg.network.training.prepared run --only colour --device cpu --data .gpu/data \
+    python -m jointseg.training.prepared bank --data .gpu/data --out runs/bank --crops 4000
+    python -m jointseg.training.prepared run --only colour --device cpu --data .gpu/data \
         --out runs/cpu --bank runs/bank
 """
 
@@ -43,16 +43,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from jointseg.io.atomic import atomic_open
+from jointseg.network.backends import WEIGHTS_DIR
 
 if TYPE_CHECKING:
-    from jointseg.network.training.config import TrainConfig
+    from jointseg.training.config import TrainConfig
 
 log = logging.getLogger(__name__)
-MODULE = "jointseg.network.training.prepared"
+MODULE = "jointseg.training.prepared"
 
-WEIGHTS = Path(__file__).resolve().parents[1] / "weights"
-COLOUR_WEIGHTS = WEIGHTS / "randlanet_indoor.pt"
-NOCOLOUR_WEIGHTS = WEIGHTS / "randlanet_indoor_nocolour.pt"
+COLOUR_WEIGHTS = WEIGHTS_DIR / "randlanet_indoor.pt"
+NOCOLOUR_WEIGHTS = WEIGHTS_DIR / "randlanet_indoor_nocolour.pt"
 #: The student's channel widths, as a share of the full network's.
 STUDENT_CHANNELS = 0.5
 #: Scans kept out of the carried data: the judging scans the networks are compared on.
@@ -62,7 +62,7 @@ VALIDATION = ("area6_office_4", "scene0005_*", "synth_000")
 #: Each source's share of the training crops (renormalised over the sources carried).
 #: (Folders named as the datasets, so that the cards name the datasets' terms of use.)
 #: ``pseudo``: unlabelled real scans labelled by the pipeline where it is sure
-#: (:mod:`jointseg.network.training.pseudo_pack`; few scans, labels ~93 % right, so a small share).
+#: (:mod:`jointseg.training.pseudo_pack`; few scans, labels ~93 % right, so a small share).
 SHARES = {"s3dis_area6": 0.5, "scannet": 0.35, "synth": 0.15, "pseudo": 0.15}
 #: Coordinates are stored on a binary lattice (1/128 m) so that they compress well.
 LATTICE = 128.0
@@ -159,7 +159,7 @@ def pack(out: Path, shared: Path | None, synth_rooms: int, synth_points: int) ->
 
 def source_terms(name: str) -> str:
     """The terms of use a packed source folder carries (as the model card names them)."""
-    from jointseg.network.training.sources import SYNTH_TERMS, SourceSpec, terms_for
+    from jointseg.training.sources import SYNTH_TERMS, SourceSpec, terms_for
 
     return SYNTH_TERMS if name == "synth" else terms_for(SourceSpec(name, name, None))
 
@@ -194,10 +194,10 @@ class RunOptions:
 
 
 def train_config(name: str, opts: RunOptions) -> TrainConfig:
-    """The :class:`~jointseg.network.training.config.TrainConfig` of one network of the run: the
+    """The :class:`~jointseg.training.config.TrainConfig` of one network of the run: the
     packed checkpoints in ``opts.out``, the full ones (with optimiser state) in
     :func:`work_dir`, from which ``opts.resume`` continues."""
-    from jointseg.network.training.config import TrainConfig
+    from jointseg.training.config import TrainConfig
 
     work = work_dir(opts.out)
     full = work / f"{name}.pt"
@@ -213,7 +213,7 @@ def train_config(name: str, opts: RunOptions) -> TrainConfig:
         "workers": max(1, (cores - 2) // opts.alongside) if opts.gpu else 0,
     }
     if opts.bank is not None:
-        from jointseg.network.training.bank import read_manifest
+        from jointseg.training.bank import read_manifest
 
         manifest = read_manifest(opts.bank)
         if manifest is None:
@@ -257,8 +257,8 @@ def data_fields(data: Path) -> dict[str, object]:
 def build(data: Path, out: Path, crops: int, *, gb: float, workers: int, num_points: int) -> dict:
     """Build (or extend) a crop bank of the carried data, with the colour network's
     augmentation and colour (it serves the colour-free network too, its colour held at zero)."""
-    from jointseg.network.training.bank import build_bank
-    from jointseg.network.training.config import TrainConfig
+    from jointseg.training.bank import build_bank
+    from jointseg.training.config import TrainConfig
 
     cfg = TrainConfig(**data_fields(data), out=out / "unused.pt", num_points=num_points)  # type: ignore[arg-type]
     manifest = build_bank(cfg, out, crops, max_bytes=int(gb * 1e9), workers=workers)
@@ -396,7 +396,7 @@ def main(argv: list[str] | None = None) -> int:
         bank=args.bank,
     )
     if args.what == "one":
-        from jointseg.network.training.loop import train
+        from jointseg.training.loop import train
 
         train(train_config(args.name, opts))
         return 0

@@ -1,4 +1,4 @@
-"""Training batches read from a crop bank (:mod:`jointseg.network.training.bank`).
+"""Training batches read from a crop bank (:mod:`jointseg.training.bank`).
 
 A batch is B bank crops, stacked, with augmentations drawn per step that leave every layer's
 neighbours as they are, so the stored indices stay right: a rotation about the vertical axis, a
@@ -18,8 +18,8 @@ import torch
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.crops import Batch
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training.augment import StepAugment
-from jointseg.network.training.bank import CropBank, layer_sizes
+from jointseg.training.augment import StepAugment
+from jointseg.training.bank import CropBank, layer_sizes
 
 
 def check_bank(bank: CropBank, model: RandLANetConfig, num_points: int, colour: bool) -> None:

@@ -2,17 +2,17 @@
 folder layout, synthetic rooms, each with a share of the crops.
 
 Weighted cross-entropy (weights from the class mixture the crops have), Adam with exponential
-decay, augmentation for other sensors (:mod:`jointseg.network.training.augment`),
+decay, augmentation for other sensors (:mod:`jointseg.training.augment`),
 class-balanced crop centres per source, batches built by worker processes
-(:mod:`jointseg.network.training.batches`), neighbour searches on the GPU when training on one,
+(:mod:`jointseg.training.batches`), neighbour searches on the GPU when training on one,
 validation mIoU per source every epoch, resumable checkpoints with a model card, and the best
 checkpoint by validation kept beside the last.
 
 This module is the epochs and the time budget; the rest lives beside it: the run's model and
-optimiser (:mod:`~jointseg.network.training.run_state`), its batches
-(:mod:`~jointseg.network.training.streams`), one step (:mod:`~jointseg.network.training.step`),
-validation (:mod:`~jointseg.network.training.validation`) and checkpoints
-(:mod:`~jointseg.network.training.checkpoints`).
+optimiser (:mod:`~jointseg.training.run_state`), its batches
+(:mod:`~jointseg.training.streams`), one step (:mod:`~jointseg.training.step`),
+validation (:mod:`~jointseg.training.validation`) and checkpoints
+(:mod:`~jointseg.training.checkpoints`).
 """
 
 from __future__ import annotations
@@ -26,14 +26,14 @@ import numpy as np
 import torch
 
 from jointseg.network.randlanet.crops import Batch
-from jointseg.network.training.batches import CropBatch
-from jointseg.network.training.checkpoints import save_checkpoints
-from jointseg.network.training.config import TrainConfig, TrainingData, training_data
-from jointseg.network.training.run_state import TrainingRun, start_run
-from jointseg.network.training.step import device_batch, train_mode, train_step
-from jointseg.network.training.streams import bank_stream, crop_stream
-from jointseg.network.training.validation import validate_sources
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
+from jointseg.training.batches import CropBatch
+from jointseg.training.checkpoints import save_checkpoints
+from jointseg.training.config import TrainConfig, TrainingData, training_data
+from jointseg.training.run_state import TrainingRun, start_run
+from jointseg.training.step import device_batch, train_mode, train_step
+from jointseg.training.streams import bank_stream, crop_stream
+from jointseg.training.validation import validate_sources
 
 log = logging.getLogger(__name__)
 STAGE = "train"

@@ -25,7 +25,7 @@ import numpy as np
 from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.crops import GridCloud, grid_subsample
-from jointseg.network.training.data import labelled_scan_files, split_validation
+from jointseg.training.data import labelled_scan_files, split_validation
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +46,7 @@ SCANNET_TERMS = (
 )
 SYNTH_TERMS = "synthetic rooms only (jointseg.synth); no third-party data"
 OTHER_TERMS = "user-supplied labelled scans: their own terms of use apply"
-#: Pseudo-labels (jointseg.network.training.pseudo) come from the pipeline's network, trained
+#: Pseudo-labels (jointseg.training.pseudo) come from the pipeline's network, trained
 #: on S3DIS and ScanNet, so they carry the strictest terms of the data behind them.
 PSEUDO_TERMS = (
     "pseudo-labels made by jointseg's pipeline, whose bundled network was trained on data "

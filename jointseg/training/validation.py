@@ -9,9 +9,9 @@ import torch
 from jointseg.metrics import evaluate
 from jointseg.network.randlanet.crops import MIN_CROP, GridCloud, build_batch, crop_indices, pad_to
 from jointseg.network.randlanet.model import RandLANet
-from jointseg.network.training.config import TrainConfig
-from jointseg.network.training.sources import Source
-from jointseg.network.training.step import train_mode
+from jointseg.training.config import TrainConfig
+from jointseg.training.sources import Source
+from jointseg.training.step import train_mode
 
 
 def validation_crop(cloud: GridCloud, num_points: int, rng: np.random.Generator):

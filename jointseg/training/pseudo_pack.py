@@ -1,5 +1,5 @@
 """The prepared run's self-training source: unlabelled real scans labelled by the pipeline
-(:mod:`jointseg.network.training.pseudo`) as a ``pseudo/`` folder of pack arrays beside
+(:mod:`jointseg.training.pseudo`) as a ``pseudo/`` folder of pack arrays beside
 ``s3dis_area6/``, ``scannet/`` and ``synth/``, and its entry in the pack's manifest.
 
 By default the unlabelled scans of ``../shared/data``: the other sensors' captures and the
@@ -8,7 +8,7 @@ views of the training rooms) are not pseudo-labelled: their own labels teach mor
 pipeline's guesses, so they serve only to choose the rule (``bench/pseudo_labels.py``). The
 judging and validation scans are refused outright.
 
-    python -m jointseg.network.training.pseudo_pack --shared ../shared/data --out .gpu/data
+    python -m jointseg.training.pseudo_pack --shared ../shared/data --out .gpu/data
 """
 
 from __future__ import annotations
@@ -23,15 +23,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from jointseg.exceptions import ConfigError
-from jointseg.network.training.prepared import JUDGING, VALIDATION, write_arrays
-from jointseg.network.training.pseudo import (
+from jointseg.scan import Scan
+from jointseg.training.prepared import JUDGING, VALIDATION, write_arrays
+from jointseg.training.pseudo import (
     PSEUDO_VERSION,
     PseudoRule,
     pseudo_label,
     read_unlabelled,
 )
-from jointseg.network.training.sources import PSEUDO_TERMS, matches
-from jointseg.scan import Scan
+from jointseg.training.sources import PSEUDO_TERMS, matches
 
 if TYPE_CHECKING:
     from jointseg.network.backends import Predictor

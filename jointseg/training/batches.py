@@ -29,7 +29,7 @@ from jointseg.network.randlanet.crops import (
     set_search_threads,
 )
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training.augment import (
+from jointseg.training.augment import (
     AugmentParams,
     add_stray_points,
     augment,

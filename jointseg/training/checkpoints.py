@@ -14,9 +14,9 @@ import torch
 from jointseg.classes import CLASS_NAMES
 from jointseg.network.base import pick_device
 from jointseg.network.randlanet.checkpoint import save_checkpoint
-from jointseg.network.training.config import TrainConfig, TrainingData
-from jointseg.network.training.run_state import TrainingRun
-from jointseg.network.training.sources import parse_source, resolve_shares, terms_for
+from jointseg.training.config import TrainConfig, TrainingData
+from jointseg.training.run_state import TrainingRun
+from jointseg.training.sources import parse_source, resolve_shares, terms_for
 
 
 def best_path(out: Path) -> Path:

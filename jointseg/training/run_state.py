@@ -13,7 +13,7 @@ from jointseg.network.base import pick_device
 from jointseg.network.randlanet.checkpoint import load_checkpoint
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.slicing import sliced_init
-from jointseg.network.training.config import TrainConfig, model_config
+from jointseg.training.config import TrainConfig, model_config
 
 
 @dataclass

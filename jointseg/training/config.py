@@ -17,9 +17,9 @@ from jointseg.classes import NUM_CLASSES
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.crops import GridCloud
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training.augment import AugmentParams, StepAugment
-from jointseg.network.training.data import centre_weights
-from jointseg.network.training.sources import (
+from jointseg.training.augment import AugmentParams, StepAugment
+from jointseg.training.data import centre_weights
+from jointseg.training.sources import (
     Source,
     SourceOptions,
     load_sources,
@@ -35,7 +35,7 @@ class TrainConfig(BaseModel):
     data: list[str] = Field(
         default_factory=lambda: ["synth"],
         description="sources, each '[NAME=]PATH[:SHARE]' or 'synth[:SHARE]': a folder of "
-        "labelled scans or a Stanford3dDataset_v1.2 folder (see jointseg.network.training.sources)",
+        "labelled scans or a Stanford3dDataset_v1.2 folder (see jointseg.training.sources)",
     )
     out: Path
     test_area: int = Field(5, ge=1, le=6, description="S3DIS area held out for validation")
@@ -141,7 +141,7 @@ class TrainConfig(BaseModel):
     )
     bank: Path | None = Field(
         None,
-        description="train on the crops of this crop bank (jointseg.network.training.bank): "
+        description="train on the crops of this crop bank (jointseg.training.bank): "
         "crops and their neighbour indices drawn once, read per step, with step_augment",
     )
     bank_crops: int | None = Field(

@@ -1,6 +1,6 @@
 """Shippable weights: a training checkpoint packed (weights and card, float16, gzip) or two
-fine-tunes blended. Above both ``checkpoint`` and ``training``, so the card facts that training
-records are filled in without either importing the other."""
+fine-tunes blended, with the card facts that training records
+(:func:`jointseg.training.checkpoints.card_facts`)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from pathlib import Path
 from jointseg.exceptions import ConfigError
 from jointseg.network.randlanet.checkpoint import load_checkpoint, save_checkpoint
 from jointseg.network.randlanet.model import RandLANet
-from jointseg.network.training.checkpoints import card_facts
-from jointseg.network.training.config import TrainConfig
+from jointseg.training.checkpoints import card_facts
+from jointseg.training.config import TrainConfig
 
 
 def pack_checkpoint(

@@ -4,7 +4,7 @@ up-sampling indices, stored on disk so that a training step only reads them.
 Why: on a 2-core CPU the trainer spent about one core cutting, augmenting and KD-tree-searching
 each batch while the other computed. A bank is built once by both cores (worker processes) and
 then serves any number of runs; training steps read memory-mapped crops and add cheap
-augmentations that leave the neighbours as they are (:mod:`jointseg.network.training.bank_batches`).
+augmentations that leave the neighbours as they are (:mod:`jointseg.training.bank_batches`).
 
 Layout of a bank folder: ``manifest.json`` (:class:`BankManifest`: what the crops were drawn
 from, how, how many, how many bytes) and shards ``shard_FIRST.npy``, each a numpy array of
@@ -40,11 +40,11 @@ from jointseg.exceptions import ConfigError
 from jointseg.io.atomic import atomic_open
 from jointseg.network.randlanet.crops import build_batch, pad_to, set_search_threads
 from jointseg.network.randlanet.model import RandLANetConfig
-from jointseg.network.training.augment import AugmentParams
-from jointseg.network.training.batches import Crop, training_crop
+from jointseg.training.augment import AugmentParams
+from jointseg.training.batches import Crop, training_crop
 
 if TYPE_CHECKING:
-    from jointseg.network.training.config import TrainConfig, TrainingData
+    from jointseg.training.config import TrainConfig, TrainingData
 
 log = logging.getLogger(__name__)
 
@@ -313,7 +313,7 @@ def build_bank(
         return manifest
     check_room(folder, spec, have, crops, max_bytes)
     if data is None:
-        from jointseg.network.training.config import training_data
+        from jointseg.training.config import training_data
 
         data = training_data(cfg, spec.grid)
     manifest.data = data.description

@@ -10,9 +10,9 @@ from jointseg.classes import NUM_CLASSES
 from jointseg.network.randlanet.crops import Batch
 from jointseg.network.randlanet.knn import layer_indices
 from jointseg.network.randlanet.model import RandLANet
-from jointseg.network.training.batches import CropBatch
-from jointseg.network.training.config import TrainConfig
-from jointseg.network.training.run_state import TrainingRun
+from jointseg.training.batches import CropBatch
+from jointseg.training.config import TrainConfig
+from jointseg.training.run_state import TrainingRun
 
 
 def train_mode(model: RandLANet, cfg: TrainConfig) -> None:

@@ -1,5 +1,5 @@
 """Helpers for training data: the scan files of a folder, a stable validation split and
-class-balanced crop centres (the sources themselves: :mod:`jointseg.network.training.sources`).
+class-balanced crop centres (the sources themselves: :mod:`jointseg.training.sources`).
 
 Real labelled rooms are few, so a folder source keeps a named (or deterministic) validation
 split out of training, and crops are centred on points drawn with class-balancing weights so
