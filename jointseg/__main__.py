@@ -1,5 +1,5 @@
 """`python -m jointseg` runs the command line."""
 
-from jointseg.cli import main
+from jointseg.cli import console
 
-main()
+console()

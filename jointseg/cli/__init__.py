@@ -1,5 +1,5 @@
 """The `jointseg` command line."""
 
-from jointseg.cli.app import app, main
+from jointseg.cli.app import app, console, main
 
-__all__ = ["app", "main"]
+__all__ = ["app", "console", "main"]

@@ -6,8 +6,11 @@ anything else is a bug and keeps its traceback.
 
 from __future__ import annotations
 
+import atexit
 import logging
+import os
 import sys
+import threading
 from importlib.metadata import entry_points
 
 import typer
@@ -91,3 +94,35 @@ def main(argv: list[str] | None = None) -> None:
             f"[red]error:[/red] {escape(str(exc))}", highlight=False, soft_wrap=True
         )
         sys.exit(2)
+
+
+def console() -> None:
+    """The console script (``jointseg``, ``python -m jointseg``): :func:`main`, then
+    :func:`leave` with its exit status."""
+    try:
+        main()
+    except SystemExit as exc:
+        leave(exc.code)
+    leave(0)
+
+
+def leave(code: int | str | None) -> None:
+    """Exit with ``code`` without tearing the interpreter down module by module.
+
+    Why: after a run, Python's own shutdown frees every module and object one by one: 0.4 s
+    with torch imported, 0.7 s after ``jointseg segment`` on a 1 M-point room (2-core AMD
+    EPYC), a tenth of a fast run. Exit handlers still run (``atexit``: logging's flush,
+    temporary folders, child processes) and the standard streams are flushed; every file the
+    commands write is closed (and renamed into place) before they return. When another
+    non-daemon thread is still running, or the code is a message, the usual exit waits for it.
+    """
+    others = [t for t in threading.enumerate() if t is not threading.main_thread() and not t.daemon]
+    if others or not (code is None or isinstance(code, int)):
+        raise SystemExit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed or broken pipe: nothing more can be said
+            pass
+    os._exit(code or 0)

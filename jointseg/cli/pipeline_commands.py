@@ -23,6 +23,8 @@ from jointseg.io.atomic import atomic_open
 from jointseg.network.registry import BACKENDS
 
 if TYPE_CHECKING:  # the pipeline (torch, open3d) is imported by the commands that run it
+    from jointseg.network.backends import Predictor
+    from jointseg.network.pending import PendingPredictor
     from jointseg.pipeline.config import PipelineConfig
     from jointseg.pipeline.segment import SegmentedFile
 
@@ -137,6 +139,30 @@ def _import_pipeline(network: str) -> None:
     log.info("imports: %.2f s", time.perf_counter() - started)
 
 
+def _load_beside(cfg: PipelineConfig) -> PendingPredictor:
+    """The network loading in a thread (torch's import, then the weights: seconds) while this
+    one imports the pipeline and the run reads the scan, decides its frame and segments its
+    geometry (:mod:`jointseg.network.pending`). Missing weights are refused here, before
+    anything else runs; an unreadable file fails the run when the network is first needed."""
+    from jointseg.lazy import import_open3d
+    from jointseg.network.pending import PendingPredictor
+    from jointseg.network.registry import import_backend, locate
+
+    def load() -> Predictor:
+        from jointseg.pipeline.stages import load_predictor
+
+        return load_predictor(cfg.network)
+
+    locate(cfg.network.name, cfg.network.weights)
+    pending = PendingPredictor(lambda: import_backend(cfg.network.name), load)
+    started = time.perf_counter()
+    import_open3d()  # first: the pipeline imports open3d
+    import jointseg.pipeline.segment  # noqa: F401 - imported here to be timed
+
+    log.info("imports beside the network's load: %.2f s", time.perf_counter() - started)
+    return pending
+
+
 def segment_scan(
     source: Path = typer.Argument(..., help=SCAN_HELP),
     output: Path = typer.Option(
@@ -197,12 +223,9 @@ def segment_scan(
     info = probe_scan(source, max_points=max_points)
     if work_dir is not None and not work_dir.is_dir():
         raise ConfigError(f"--work-dir {work_dir}: not a folder")
-    _import_pipeline(cfg.network.name)  # torch, open3d: only once every option holds
-    from jointseg.pipeline import load_predictor, segment_file
+    predictor = _load_beside(cfg)  # torch and the weights, while the scan is read
+    from jointseg.pipeline import segment_file
 
-    started = time.perf_counter()
-    predictor = load_predictor(cfg.network)
-    load_s = time.perf_counter() - started
     with progress_bar() as progress:
         done = segment_file(
             source,
@@ -210,7 +233,6 @@ def segment_scan(
             cfg,
             predictor=predictor,
             max_points=max_points,
-            load_s=load_s,
             points=info.n_points,
             progress=progress,
             workdir=work_dir,

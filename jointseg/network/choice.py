@@ -18,6 +18,7 @@ from typing import Any, Literal
 
 from jointseg.lru import LRUCache
 from jointseg.network.backends import Predictor
+from jointseg.network.pending import resolve
 from jointseg.network.registry import REGISTRY, installed_backends, load
 
 log = logging.getLogger(__name__)
@@ -54,9 +55,9 @@ def colour_free_if_needed(predictor: Predictor, choice: Choice, usable_colour: b
     from jointseg.network.randlanet.backend import COLOUR_FREE_WEIGHTS
 
     mode = choice.colour_free
-    if mode == "off" or predictor.card.get("colour") is False:
-        return predictor
     if mode == "auto" and (usable_colour or choice.name != "randlanet"):
+        return predictor  # first: it needs no card, so a network still loading is not waited for
+    if mode == "off" or predictor.card.get("colour") is False:
         return predictor
     if mode == "auto" and choice.weights is not None:
         return predictor  # the user chose these weights
@@ -106,4 +107,4 @@ def network_for(predictor: Predictor, choice: Choice, usable_colour: bool) -> Pr
     (:func:`colour_free_if_needed`), with every installed network averaged in when
     ``choice.ensemble`` (:func:`ensemble_of`)."""
     chosen = colour_free_if_needed(predictor, choice, usable_colour)
-    return ensemble_of(chosen, choice, usable_colour) if choice.ensemble else chosen
+    return ensemble_of(resolve(chosen), choice, usable_colour) if choice.ensemble else chosen

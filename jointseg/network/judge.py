@@ -9,6 +9,7 @@ import numpy as np
 
 from jointseg.labeller import LabelFn
 from jointseg.network.anchored import CropPlan, anchored_cloud
+from jointseg.network.pending import PendingPredictor
 from jointseg.scan import Scan
 
 #: Crops per candidate frame, spread along the scan's longest horizontal direction.
@@ -30,7 +31,19 @@ def _cropping(predictor: Any) -> Any:
 def crop_labeller(predictor: Any, *, crops: int = CROPS, seed: int = 0) -> LabelFn | None:
     """A :data:`~jointseg.labeller.LabelFn` from a loaded predictor; None for one that is
     no loaded network (no ``model``: a remote or stand-in predictor), which the frame stage
-    cannot ask cheaply and without a way to cancel it."""
+    cannot ask cheaply and without a way to cancel it. A network still loading
+    (:class:`~jointseg.network.pending.PendingPredictor`, always a loaded network's stand-in)
+    is waited for only when the frame stage asks it."""
+    if isinstance(predictor, PendingPredictor):
+        pending = predictor
+
+        def when_loaded(xyz: np.ndarray, rgb: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+            label = crop_labeller(pending.get(), crops=crops, seed=seed)
+            if label is None:
+                raise TypeError(f"{type(pending.get()).__name__} cannot judge a frame")
+            return label(xyz, rgb)
+
+        return when_loaded
     net = _cropping(predictor)
     if net is None:
         if getattr(predictor, "model", None) is None:

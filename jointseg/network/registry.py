@@ -212,6 +212,24 @@ def load(
     unknown = sorted(set(options) - set(REGISTRY))
     if unknown:
         raise TypeError(f"load() got unexpected keyword arguments: {', '.join(unknown)}")
+    name, path = locate(name, weights)
+    record = backend(name)
+    chosen = params if params is not None else options.get(name)
+    size = batch_size or default_batch_size(device)
+    return record.load(path, device=device, batch_size=size, options=chosen)
+
+
+def locate(
+    name: str = DEFAULT_BACKEND, weights: str | os.PathLike[str] | None = None
+) -> tuple[str, Path]:
+    """The backend and the weights file :func:`load` would read, found without reading it
+    (no torch): a caller that loads in the background still refuses a missing file at once.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown backend or missing weights, as :func:`load` does.
+    """
     by_suffix = backend_for_suffix(name)
     if weights is None and name not in REGISTRY and by_suffix is not None:
         name, weights = by_suffix, name
@@ -221,9 +239,7 @@ def load(
         raise ConfigError(f"no weights for {name!r}: {record.where_to_get}")
     if not path.is_file():
         raise ConfigError(_missing_weights(name, path, record))
-    chosen = params if params is not None else options.get(name)
-    size = batch_size or default_batch_size(device)
-    return record.load(path, device=device, batch_size=size, options=chosen)
+    return name, path
 
 
 def import_backend(name: str = DEFAULT_BACKEND) -> None:

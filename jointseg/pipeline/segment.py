@@ -17,6 +17,7 @@ from typing import Any
 from jointseg.io import probe_scan, read_scan, write_scan
 from jointseg.metrics import SegmentationMetrics
 from jointseg.network.backends import Predictor
+from jointseg.network.pending import PendingPredictor, resolve
 from jointseg.pipeline import tiled
 from jointseg.pipeline.config import PipelineConfig
 from jointseg.pipeline.outputs import annotate, report_body
@@ -55,7 +56,9 @@ def segment_file(
     source, output : Path
     config : PipelineConfig
     predictor : Predictor
-        Loaded by the caller (the worker keeps it between jobs).
+        Loaded by the caller (the worker keeps it between jobs), or loading
+        (:class:`~jointseg.network.pending.PendingPredictor`: its load's seconds are added to
+        ``load_s``).
     max_points : int
         Refuse larger scans.
     load_s : float
@@ -77,7 +80,10 @@ def segment_file(
     body: dict[str, Any] = {"input": input_name, "output": output_name}
     if points is None:
         points = probe_scan(source, max_points=max_points).n_points
+    pending = predictor if isinstance(predictor, PendingPredictor) else None
     if config.tiles.needs_tiles(points):
+        predictor = resolve(predictor)  # before the tiles' processes start
+        load_s += 0.0 if pending is None else pending.load_s
         done = _tiled(source, output, config, predictor, max_points, progress, cancel, workdir)
         body.update(done.report(config, done.timings))
         body["timings_s"] = {"load_network": load_s, **body["timings_s"]}
@@ -91,6 +97,7 @@ def segment_file(
     t = time.perf_counter()
     write_scan(annotate(scan, result), output, progress=progress)
     write_s = time.perf_counter() - t
+    load_s += 0.0 if pending is None else pending.load_s  # loaded beside the read and the frame
     extra = {"load_network": load_s, "read": read_s, "write": write_s}
     body.update(report_body(scan, result, extra_timings=extra))
     return SegmentedFile(body, result.metrics, None)

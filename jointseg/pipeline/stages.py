@@ -19,6 +19,7 @@ from jointseg.metrics import SegmentationMetrics, evaluate, segment_majority
 from jointseg.network.backends import Predictor
 from jointseg.network.choice import network_for
 from jointseg.network.judge import crop_labeller
+from jointseg.network.pending import PendingPredictor, resolve
 from jointseg.network.registry import load, resolve_weights
 from jointseg.network.results import NetworkResult
 from jointseg.pipeline.config import NetworkConfig, PipelineConfig
@@ -143,8 +144,9 @@ def run(
         Stops both running stages at their next check (between crop batches and geometry
         steps) and raises :class:`Cancelled`.
     predictor : Predictor, optional
-        An already loaded network (e.g. one per worker process); default: loaded from
-        ``config.network``.
+        An already loaded network (e.g. one per worker process), or one still loading
+        (:class:`~jointseg.network.pending.PendingPredictor`: waited for when the frame stage
+        or the network first needs it); default: loaded from ``config.network``.
 
     Returns
     -------
@@ -169,11 +171,19 @@ def run(
 
     seed = config.seed
     frame, work, index, chosen = _frame_stage(scan, config, predictor, progress, timings)
+    waited: list[float] = []
 
     def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
-        return chosen.predict(work, progress, cancel, seed=seed)
+        t = time.perf_counter()
+        ready = resolve(chosen)  # a network still loading (PendingPredictor) is waited for
+        waited.append(time.perf_counter() - t)
+        return ready.predict(work, progress, cancel, seed=seed)
 
     net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
+    chosen = resolve(chosen)
+    if isinstance(predictor, PendingPredictor):  # the wait is the load's, not the network's
+        timings["network"] -= sum(waited)
+        timings["network_wait"] = sum(waited)
 
     fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
     layout = _objects_stage(work, fused, frame, config, geo, timings)
