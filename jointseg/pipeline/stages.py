@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any
 
@@ -144,9 +145,8 @@ def run(
         Stops both running stages at their next check (between crop batches and geometry
         steps) and raises :class:`Cancelled`.
     predictor : Predictor, optional
-        An already loaded network (e.g. one per worker process), or one still loading
-        (:class:`~jointseg.network.pending.PendingPredictor`: waited for when the frame stage
-        or the network first needs it); default: loaded from ``config.network``.
+        An already loaded network (e.g. one per worker process) or one still loading
+        (:mod:`jointseg.network.pending`); default: loaded from ``config.network``.
 
     Returns
     -------
@@ -172,18 +172,10 @@ def run(
     seed = config.seed
     frame, work, index, chosen = _frame_stage(scan, config, predictor, progress, timings)
     waited: list[float] = []
-
-    def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
-        t = time.perf_counter()
-        ready = resolve(chosen)  # a network still loading (PendingPredictor) is waited for
-        waited.append(time.perf_counter() - t)
-        return ready.predict(work, progress, cancel, seed=seed)
-
+    network = _network_when_loaded(chosen, work, seed, waited)
     net, geo = network_and_geometry(work, config, network, progress, cancel, timings)
     chosen = resolve(chosen)
-    if isinstance(predictor, PendingPredictor):  # the wait is the load's, not the network's
-        timings["network"] -= sum(waited)
-        timings["network_wait"] = sum(waited)
+    _load_apart(timings, waited, isinstance(predictor, PendingPredictor))
 
     fused = _fusion_stage(work, config, net, geo, progress, cancel, timings)
     layout = _objects_stage(work, fused, frame, config, geo, timings)
@@ -210,6 +202,29 @@ def run(
         frame=frame,
         layout=layout,
     )
+
+
+def _network_when_loaded(
+    chosen: Predictor, work: Scan, seed: int, waited: list[float]
+) -> Callable[[ProgressFn, CancelToken], NetworkResult]:
+    """The network stage: ``chosen`` labels ``work``, once loaded when it is still loading
+    (:class:`~jointseg.network.pending.PendingPredictor`); the seconds waited go to ``waited``."""
+
+    def network(progress: ProgressFn, cancel: CancelToken) -> NetworkResult:
+        t = time.perf_counter()
+        ready = resolve(chosen)
+        waited.append(time.perf_counter() - t)
+        return ready.predict(work, progress, cancel, seed=seed)
+
+    return network
+
+
+def _load_apart(timings: dict[str, float], waited: list[float], pending: bool) -> None:
+    """A network loaded beside the frame and the geometry: the network stage's wait for it is
+    the load's (``network_wait``), not the network's."""
+    if pending:
+        timings["network"] -= sum(waited)
+        timings["network_wait"] = sum(waited)
 
 
 def _expand_layout(layout: Layout | None, index: np.ndarray, stray: np.ndarray) -> Layout | None:
