@@ -124,9 +124,10 @@ def _write_text(path: Path, text: str) -> None:
         fh.write(text.encode())
 
 
-def _import_pipeline(network: str) -> None:
+def _import_pipeline(network: str | None) -> None:
     """Import the code a run needs (seconds): open3d without its viewer
-    (:func:`~jointseg.lazy.import_open3d`), the pipeline, and the network's backend (torch), so
+    (:func:`~jointseg.lazy.import_open3d`), the pipeline, and the network's backend (torch)
+    unless ``network`` is None (it loads in a thread: :func:`_load_beside`), so
     ``load_network`` in the report times the network's loading, not imports."""
     from jointseg.lazy import import_open3d
     from jointseg.network.registry import import_backend
@@ -135,7 +136,8 @@ def _import_pipeline(network: str) -> None:
     import_open3d()  # first: the pipeline imports open3d
     import jointseg.pipeline.segment  # noqa: F401 - imported here to be timed
 
-    import_backend(network)
+    if network is not None:
+        import_backend(network)
     log.info("imports: %.2f s", time.perf_counter() - started)
 
 
@@ -144,7 +146,6 @@ def _load_beside(cfg: PipelineConfig) -> PendingPredictor:
     one imports the pipeline and the run reads the scan, decides its frame and segments its
     geometry (:mod:`jointseg.network.pending`). Missing weights are refused here, before
     anything else runs; an unreadable file fails the run when the network is first needed."""
-    from jointseg.lazy import import_open3d
     from jointseg.network.pending import PendingPredictor
     from jointseg.network.registry import import_backend, locate
 
@@ -155,11 +156,7 @@ def _load_beside(cfg: PipelineConfig) -> PendingPredictor:
 
     locate(cfg.network.name, cfg.network.weights)
     pending = PendingPredictor(lambda: import_backend(cfg.network.name), load)
-    started = time.perf_counter()
-    import_open3d()  # first: the pipeline imports open3d
-    import jointseg.pipeline.segment  # noqa: F401 - imported here to be timed
-
-    log.info("imports beside the network's load: %.2f s", time.perf_counter() - started)
+    _import_pipeline(None)
     return pending
 
 

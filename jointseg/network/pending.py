@@ -38,8 +38,6 @@ class PendingPredictor:
         self._predictor: Predictor | None = None
         self._error: BaseException | None = None
         self.load_s = 0.0
-        #: Seconds callers spent waiting for the load (summed over every wait).
-        self.waited_s = 0.0
         self._thread = threading.Thread(
             target=self._run, args=(prepare, load), name="network-load", daemon=True
         )
@@ -67,10 +65,7 @@ class PendingPredictor:
         Exception
             Whatever the load raised.
         """
-        if self._thread.is_alive():
-            started = time.perf_counter()
-            self._thread.join()
-            self.waited_s += time.perf_counter() - started
+        self._thread.join()
         if self._error is not None:
             raise self._error
         assert self._predictor is not None
