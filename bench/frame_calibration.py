@@ -65,7 +65,7 @@ log = logging.getLogger("frame_calibration")
 
 PLAN = BENCH.parent / "fit" / "up_axis.json"
 #: Part of every cached case's key: bump it when what is gathered changes.
-VERSION = 1
+VERSION = 3
 #: Reliability bins of the stated confidence.
 EDGES = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0001)
 #: Deliveries made here beyond up_axis_cases's: (name, truth, steps of helpers.deliveries).
@@ -208,7 +208,7 @@ def gather_rows(cases: list[tuple[str, Case]], cache: Path) -> list[Row]:
                      body["seconds"])  # fmt: skip
         evidence = weigh.Evidence(
             np.array(body["file"]), np.array(body["axis_p"]), np.array(body["sign_p"]),
-            bool(body["room_like"]), body["camera_up"],
+            bool(body["room_like"]), body["camera_up"], np.array(body["floor_only"]),
         )  # fmt: skip
         judged = {a: np.array(v) for a, v in body["judged"].items()}
         rows.append(Row(case, split, evidence, judged, float(body["seconds"])))
@@ -231,7 +231,7 @@ def call(row: Row) -> Call:
     w = weigh.weigh(row.evidence, row.judged)
     axis, conf = w.best, w.confidence
     estimate = gravity.UpEstimate(gravity.AXES[axis], axis, 0.0, conf, {})
-    warned = bool(up_warnings(estimate, w.file_axis))
+    warned = bool(up_warnings(estimate, w.file_axis, w.floor_elsewhere))
     return Call(axis, conf, w.probability, w.turned, warned)
 
 

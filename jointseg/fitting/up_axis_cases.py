@@ -182,12 +182,17 @@ def evidence_record(e: weigh.Evidence) -> dict[str, Any]:
         "sign_p": e.sign_p.tolist(),
         "room_like": e.room_like,
         "camera_up": e.camera_up,
+        "floor_only": None if e.floor_only is None else e.floor_only.tolist(),
     }
 
 
 def verdict_record(verdicts: dict[str, np.ndarray]) -> dict[str, list[float]]:
     """The network's verdict per candidate axis as plain lists."""
     return {a: np.asarray(v, dtype=np.float64).tolist() for a, v in verdicts.items()}
+
+
+def _optional(values: list[float] | None) -> np.ndarray | None:
+    return None if values is None else np.array(values)
 
 
 def _from_stored(case: Case, body: dict[str, Any], seconds: float) -> Gathered:
@@ -197,6 +202,7 @@ def _from_stored(case: Case, body: dict[str, Any], seconds: float) -> Gathered:
         sign_p=np.array(body["sign_p"]),
         room_like=bool(body["room_like"]),
         camera_up=body["camera_up"],
+        floor_only=_optional(body.get("floor_only")),
     )
     return Gathered(case, evidence, {a: np.array(v) for a, v in body["net"].items()}, seconds)
 

@@ -158,10 +158,13 @@ def rotation_to_z(up: np.ndarray) -> np.ndarray:
     return np.eye(3) + k + k @ k * (1.0 / (1.0 + c))
 
 
-def up_warnings(up: gravity.UpEstimate, file_axis: str | None) -> list[str]:
+def up_warnings(
+    up: gravity.UpEstimate, file_axis: str | None, floor_elsewhere: str | None = None
+) -> list[str]:
     """The warnings on a decided up: always one when it turns the scan away from the axis its
     file says (``file_axis``), naming both, the confidence and how to undo it, since a scan
-    turned wrongly is labelled upside down or on its side; else one when it is unsure."""
+    turned wrongly is labelled upside down or on its side; else one when it is unsure, naming
+    the axis of a floor without a ceiling (``floor_elsewhere``) when that is why."""
     if file_axis is not None and up.axis != file_axis:
         unsure = "unsure, " if up.confidence < UP_UNSURE else ""
         return [
@@ -170,10 +173,13 @@ def up_warnings(up: gravity.UpEstimate, file_axis: str | None) -> list[str]:
             f'(in the service, rerun the job with the frame correction {{"up": "{file_axis}"}})'
         ]
     if up.confidence < UP_UNSURE:
-        return [
-            f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): check the labels, "
-            "or set it with --up"
-        ]
+        why = (
+            f"the scan has a floor with nothing over it facing {floor_elsewhere}; if that is "
+            f"up, set it with --up {floor_elsewhere}"
+            if floor_elsewhere is not None
+            else "check the labels, or set it with --up"
+        )
+        return [f"up axis unsure ({up.axis}, confidence {up.confidence:.2f}): {why}"]
     return []
 
 
@@ -210,7 +216,7 @@ def decide_frame(
         up, how, evidence = decide_up(scan, sample, centre, params, colour, judge, ahead)
         gravity_aligned = bool(evidence["file"]["gravity_aligned"])
         file_axis = evidence["file_axis"]
-        warnings += up_warnings(up, file_axis)
+        warnings += up_warnings(up, file_axis, evidence.get("floor_elsewhere"))
     else:
         up = _given(sample, params.up, params.level, confidence=1.0)
         how, evidence, gravity_aligned = "set by the user", {}, False
@@ -285,6 +291,7 @@ def gather(
         sign_p=sign_p,
         room_like=bool(tall and capture.kind == "scan"),
         camera_up=capture.camera_up or ("-y" if said.camera else None),
+        floor_only=gravity.floor_only(sample),
     )
     directions = {
         a: _direction(sample, a, level=params.level and not said.gravity_aligned)

@@ -220,6 +220,32 @@ def sign_features(sample: FrameSample, up: np.ndarray, metres_per_unit: float) -
     return np.array([*(prof - _flip(prof)), mass, floor, flat, tops_balance])
 
 
+#: "Nothing over it": the far end of a floor-only axis holds less than this share of what its
+#: near end holds (a cluttered floor under a whole ceiling still counts as both).
+NOTHING_OVER = 0.1
+
+
+def floor_only(sample: FrameSample) -> np.ndarray:
+    """(6,) per signed file axis (``+x, -x, +y, -y, +z, -z``): the share of the sample facing
+    along it in its lowest layer less the share in its highest, where the highest holds next
+    to nothing (:data:`NOTHING_OVER`), else 0. Large for the up of a room scanned without its
+    ceiling (RGB-D reconstructions, phone scans: a floor, nothing over it); 0 along an axis
+    with planes at both ends (walls; floor and ceiling)."""
+    out = np.zeros(6)
+    if len(sample.normals) == 0:
+        return out
+    cos = np.cos(np.radians(FACING_DEGREES))
+    for i, d in enumerate(sample.directions):
+        d = d if d[i] >= 0 else -d
+        t = _normalised(sample.xyz @ d)
+        facing = np.abs(sample.normals @ d) >= cos
+        low = np.count_nonzero(facing & (t <= LAYER)) / len(t)
+        high = np.count_nonzero(facing & (t >= 1 - LAYER)) / len(t)
+        out[2 * i] = low - high if high <= NOTHING_OVER * low else 0.0
+        out[2 * i + 1] = high - low if low <= NOTHING_OVER * high else 0.0
+    return out
+
+
 def _balance(a: int, b: int) -> float:
     return float((a - b) / max(a + b, 1))
 

@@ -76,3 +76,38 @@ def test_a_turn_needs_overwhelming_evidence() -> None:
     assert weigh.choose(p, "+z") == "+z"
     p = np.array([0.0, 0.0, 0.95, 0.0, 0.05, 0.0])
     assert weigh.choose(p, "+z") == "+y"
+
+
+def _floor_only(scan: Scan) -> np.ndarray:
+    return gravity.floor_only(gravity.frame_sample(scan.xyz - np.median(scan.xyz, axis=0)))
+
+
+def test_a_floor_without_a_ceiling_is_found_along_its_up(room) -> None:
+    assert room.labels is not None
+    closed = _floor_only(room)
+    assert closed.max() < weigh.FLOOR_ONLY  # a floor and its ceiling, walls on every side
+    no_ceiling = _part(room, room.labels != 0)  # the ceiling left unscanned
+    open_top = _floor_only(no_ceiling)
+    assert SIGNED_AXES[int(np.argmax(open_top))] == "+z"
+    assert open_top.max() >= weigh.FLOOR_ONLY
+    sideways = replace(no_ceiling, xyz=no_ceiling.xyz @ rotation_to_z(gravity.AXES["-x"]))
+    assert SIGNED_AXES[int(np.argmax(_floor_only(sideways)))] == "-x"
+
+
+def test_a_floor_without_a_ceiling_elsewhere_makes_a_sure_call_unsure() -> None:
+    # the geometry and the file agree on +z, surely; the scan's only floor faces +x
+    floor_only = np.zeros(6)
+    floor_only[SIGNED_AXES.index("+x")] = 0.13
+    sure = replace(_evidence(0.999), floor_only=floor_only)
+    w = weigh.weigh(sure)
+    assert w.best == "+z" and w.probability >= UP_UNSURE
+    assert w.floor_elsewhere == "+x" and w.confidence <= weigh.FLOOR_ELSEWHERE_CAP < UP_UNSURE
+    estimate = gravity.UpEstimate(gravity.AXES["+z"], "+z", 0.0, w.confidence, {})
+    (warning,) = up_warnings(estimate, "+z", w.floor_elsewhere)
+    assert "unsure" in warning and "--up +x" in warning
+    assert w.report()["floor_elsewhere"] == "+x"
+    # the same floor along the axis decided, or in a single camera view, changes nothing
+    along = replace(sure, floor_only=np.roll(floor_only, 4))
+    assert weigh.weigh(along).confidence == weigh.weigh(along).probability
+    camera = replace(sure, camera_up="+z")
+    assert weigh.weigh(camera).floor_elsewhere is None
