@@ -150,7 +150,7 @@ class PlyChunkWriter(ScanWriter):
 
     def _write(self, chunk: Scan) -> None:
         assert self._fh is not None
-        self._fh.write(self._layout.record(chunk, self.path).tobytes())
+        self._layout.write(self._fh, chunk, self.path)
 
     def _finish(self) -> None:
         self._fh = None
