@@ -130,6 +130,7 @@ def main() -> None:
     p.add_argument("--corrected-share", type=float, default=AdaptParams().corrected_share)
     p.add_argument("--replay-rooms", type=int, default=AdaptParams().replay_rooms)
     p.add_argument("--keep-base-above", type=float, default=AdaptParams().keep_base_above)
+    p.add_argument("--min-base-probability", type=float, default=AdaptParams().min_base_probability)
     p.add_argument("--s3dis-rooms", type=int, default=3)
     p.add_argument(
         "--s3dis-judged",
@@ -158,6 +159,7 @@ def main() -> None:
         corrected_share=args.corrected_share,
         replay_rooms=args.replay_rooms,
         keep_base_above=args.keep_base_above,
+        min_base_probability=args.min_base_probability,
     )
     if args.timing:
         timing(args.timing, args.clicks, params)

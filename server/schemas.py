@@ -185,6 +185,14 @@ class ModelParams(BaseModel):
     replay_rooms: int | None = Field(
         None, ge=0, le=20, description="Generated rooms that keep the other classes' labels (4)."
     )
+    min_base_probability: float | None = Field(
+        None,
+        ge=0,
+        lt=1,
+        description="A corrected point whose class the bundled network gives less than this is "
+        "not learnt from where such points are a minority of its corrected segment (another "
+        "object the segment held); 0.01; 0 learns from every corrected point.",
+    )
     seed: int | None = Field(None, ge=0, le=2**31 - 1)
 
 

@@ -46,6 +46,18 @@ def sub_targets(nearest: np.ndarray, user_label: np.ndarray, m: int) -> np.ndarr
     return np.where(votes.any(axis=1), votes.argmax(axis=1), -1).astype(np.int64)
 
 
+def sub_groups(nearest: np.ndarray, user_label: np.ndarray, segment: np.ndarray | None,
+               m: int) -> np.ndarray:  # fmt: skip
+    """Each sub-sampled point's corrected segment (the segment of a corrected scan point it
+    stands for), -1 where none of them was corrected or the result has no segments. (M,)."""
+    out = np.full(m, -1, np.int64)
+    if segment is None:
+        return out
+    given = np.flatnonzero(user_label >= 0)
+    out[nearest[given]] = np.asarray(segment)[given]
+    return out
+
+
 def work_points(
     scan: Scan, predictor: Any, to_work: np.ndarray | None, params: FrameParams | None
 ) -> tuple[Scan, np.ndarray]:
@@ -81,9 +93,12 @@ def scan_examples(
     inputs = head_inputs(predictor, work, seed=seed, progress=progress, cancel=cancel)
     labels = np.asarray(user_label)[rows]
     target = sub_targets(inputs.nearest, labels, len(inputs.features))
+    segment = scan.fields.get("segment")
+    group = sub_groups(inputs.nearest, labels, None if segment is None else segment[rows],
+                       len(inputs.features))  # fmt: skip
     counts = np.bincount(labels[labels >= 0].astype(np.int64), minlength=NUM_CLASSES)
     return ScanExamples(
-        Examples(inputs.features, target, inputs.probs),
+        Examples(inputs.features, target, inputs.probs, group),
         points=len(scan),
         corrected_points=int(np.count_nonzero(labels >= 0)),
         classes={CLASS_NAMES[c]: int(n) for c, n in enumerate(counts) if n},

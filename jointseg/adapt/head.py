@@ -48,21 +48,66 @@ class AdaptParams(BaseModel):
         description="where the bundled head's top probability reaches this, its answer is "
         "kept (None: the adapted head everywhere)",
     )
+    min_base_probability: float = Field(
+        0.01,
+        ge=0,
+        lt=1,
+        description="corrected points whose class the bundled network gives less than this "
+        "are left out of the cross-entropy where they are a minority of their corrected segment "
+        "(in a segment corrected whole, the points of another object; Examples.believable)",
+    )
     seed: int = 0
 
 
 @dataclass(frozen=True)
 class Examples:
     """The head's training points, from every scan: features (M, C) float32, ``target`` (M,)
-    the user's class or -1, ``teacher`` (M, K) the bundled network's probabilities."""
+    the user's class or -1, ``teacher`` (M, K) the bundled network's probabilities, ``group``
+    (M,) the corrected segment each corrected point was given its class in (ids unique over
+    every scan; -1, or None for all, where unknown)."""
 
     features: np.ndarray
     target: np.ndarray
     teacher: np.ndarray
+    group: np.ndarray | None = None
 
     @property
     def corrected(self) -> int:
         return int(np.count_nonzero(self.target >= 0))
+
+    def believable(self, min_base_probability: float) -> np.ndarray:
+        """(M,) bool: the corrected points to learn from.
+
+        A segment corrected whole gives its class to every point it holds, also to those of
+        another object (the chair's legs in a table's segment). The bundled network gives the
+        user's class next to nothing at those: such points are left out when they are the
+        minority of their corrected segment. Where most of a segment's points get next to
+        nothing, the network is wrong about the segment itself (what corrections are for), and
+        all of it counts; so does every point of a class the network gives next to nothing at
+        most of its corrected points. Points of unknown segments count as one segment per
+        class."""
+        given = self.target >= 0
+        if min_base_probability <= 0:
+            return given
+        rows = np.flatnonzero(given)
+        cls = self.target[rows]
+        low = self.teacher[rows, cls] < min_base_probability
+        group = np.full(len(rows), -1) if self.group is None else self.group[rows]
+        # per (segment, class) and per class: the share of points the network gives ~0
+        key = np.unique(np.stack([group, cls], axis=1), axis=0, return_inverse=True)[1].ravel()
+        mostly_low = _share(key, low) >= 0.5
+        class_low = _share(cls, low) >= 0.5
+        keep = ~low | mostly_low | class_low
+        out = np.zeros(len(self.target), bool)
+        out[rows[keep]] = True
+        return out
+
+
+def _share(key: np.ndarray, flag: np.ndarray) -> np.ndarray:
+    """Per element, the share of ``flag`` among the elements of its ``key``."""
+    n = np.bincount(key)
+    hits = np.bincount(key, weights=flag.astype(np.float64), minlength=len(n))
+    return (hits / np.maximum(n, 1))[key]
 
 
 def _class_weights(target: np.ndarray) -> torch.Tensor:
@@ -96,8 +141,9 @@ def fit_head(
         for p in layer.parameters():
             p.requires_grad_(True)
     rng = np.random.default_rng(params.seed)
-    corrected = np.flatnonzero(examples.target >= 0)
-    rest = np.flatnonzero(examples.target < 0)
+    believable = examples.believable(params.min_base_probability)
+    corrected = np.flatnonzero(believable)
+    rest = np.flatnonzero(~believable)
     feats = torch.from_numpy(np.ascontiguousarray(examples.features, np.float32))
     target = torch.from_numpy(examples.target.astype(np.int64))
     teacher = torch.from_numpy(np.ascontiguousarray(examples.teacher, np.float32))

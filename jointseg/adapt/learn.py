@@ -70,7 +70,7 @@ def _read(item: Corrected) -> tuple[Scan, np.ndarray]:
 
 
 def _card(base: dict[str, Any], seen: list[tuple[Corrected, ScanExamples]], params: AdaptParams,
-          seconds: float, base_name: str) -> dict[str, Any]:  # fmt: skip
+          seconds: float, base_name: str, left_out: int) -> dict[str, Any]:  # fmt: skip
     scans = [
         {
             "name": item.name or item.path.name,
@@ -96,6 +96,8 @@ def _card(base: dict[str, Any], seen: list[tuple[Corrected, ScanExamples]], para
             ),
             "scans": scans,
             "corrected_points": sum(s["corrected_points"] for s in scans),
+            # sub-sampled corrected points not learnt from (Examples.believable)
+            "left_out_samples": left_out,
             "params": params.model_dump(),
             "seconds": round(seconds, 1),
             "hardware": f"{platform.machine()} CPU, {os.cpu_count()} cores, "
@@ -148,14 +150,29 @@ def adapt(
         np.concatenate([e.features for e in parts]),
         np.concatenate([e.target for e in parts]),
         np.concatenate([e.teacher for e in parts]),
+        _groups(parts),
     )
     base = cast(RandLANet, net.model)
     head, losses = fit_head(base.head, examples, params, progress=progress, cancel=cancel)
     model = with_head(base, cast(nn.Sequential, head), params.keep_base_above)
-    card = _card(net.card, seen, params, time.perf_counter() - started, _base_name(net))
+    learnt = int(np.count_nonzero(examples.believable(params.min_base_probability)))
+    left_out = examples.corrected - learnt
+    log.info("learning from %d corrected samples, %d left out (another object in a corrected "
+             "segment)", learnt, left_out)  # fmt: skip
+    card = _card(net.card, seen, params, time.perf_counter() - started, _base_name(net), left_out)
     save_checkpoint(out, model, card, half=True, compress=True)
     log.info("adapted model written to %s (%d corrected points)", out, examples.corrected)
     return Adapted(out, card, losses)
+
+
+def _groups(parts: list[Examples]) -> np.ndarray:
+    """The parts' corrected segments as ids unique over every part (-1 stays -1)."""
+    out, offset = [], 0
+    for e in parts:
+        g = np.full(len(e.target), -1, np.int64) if e.group is None else e.group
+        out.append(np.where(g >= 0, g + offset, -1))
+        offset += int(g.max(initial=-1)) + 1
+    return np.concatenate(out)
 
 
 def with_head(base: RandLANet, head: nn.Sequential, keep_base_above: float | None) -> RandLANet:

@@ -59,6 +59,15 @@ def adapt_command(
         "adapted head elsewhere): other buildings keep their labels, re-scans gain less "
         "(docs/benchmarks/corrections.md; default: the adapted head everywhere).",
     ),
+    min_base_probability: float | None = typer.Option(
+        None,
+        min=0.0,
+        max=0.999,
+        help="Leave out corrected points whose class the bundled network gives less than "
+        "this where they are a minority of their corrected segment (the points of another "
+        "object a segment corrected whole held; default 0.01; 0 learns from every corrected "
+        "point).",
+    ),
 ) -> None:
     """Learn from corrected results: the network's head refitted to the users' classes."""
     from jointseg.adapt.head import AdaptParams
@@ -76,7 +85,12 @@ def adapt_command(
             raise ConfigError(f"{path}: no such file")
     to_work: list[np.ndarray | None] = [_to_work(p) for p in report] or [None] * len(results)
     cfg = PipelineConfig().with_network(weights=weights)
-    given = {"steps": steps, "replay_rooms": replay_rooms, "keep_base_above": keep_base_above}
+    given = {
+        "steps": steps,
+        "replay_rooms": replay_rooms,
+        "keep_base_above": keep_base_above,
+        "min_base_probability": min_base_probability,
+    }
     params = AdaptParams(**{k: v for k, v in given.items() if v is not None})
     predictor = load_predictor(cfg.network)
     items = [Corrected(p, p.name, None, m) for p, m in zip(results, to_work, strict=True)]

@@ -191,6 +191,11 @@ def test_bad_model_requests_name_the_field_and_create_nothing(locked: Service, s
             ({"jobs": ["../etc"]}, 404, "jobs[0]"),
             ({"jobs": [queued_id]}, 409, "jobs[0]"),
             ({"jobs": [queued_id], "params": {"steps": 0}}, 422, "body.params.steps"),
+            (
+                {"jobs": [queued_id], "params": {"min_base_probability": 1.5}},
+                422,
+                "body.params.min_base_probability",
+            ),
             ({"jobs": [queued_id], "colour": True}, 422, "body.colour"),
         ):
             _refused(one.post("/v1/models", json=body), status, detail)

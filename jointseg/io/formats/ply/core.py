@@ -689,7 +689,7 @@ def _write_records(
         part = block[: stop - start]
         for name, col in columns.items():
             part[name] = col[start:stop]
-        fh.write(memoryview(part).cast("B"))
+        fh.write(part.view(np.uint8).data)
         if stop < n:
             report(progress, "write", stop / n)
 
