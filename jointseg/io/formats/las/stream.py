@@ -122,7 +122,11 @@ def open_las_chunks(path: Path, *, max_points: int, max_inflation: float) -> Sca
     if header.point_count == 0:
         raise ScanFormatError(f"{path}: the scan contains no points")
     facts = first_pass(
-        path, header.point_count, "points", lambda step: _las_facts(path, header, step)
+        path,
+        header.point_count,
+        "points",
+        lambda step: _las_facts(path, header, step),
+        reader="las",
     )
     log_facts(header, facts, path)
     return _LasChunks(path, header, facts)

@@ -116,7 +116,7 @@ def open_ply_chunks(path: Path, *, max_points: int, max_inflation: float) -> Sca
     offset, dtype = block
     chunks = _PlyChunks(path, vertex.count, offset, dtype, header.meta)
     if _ply_needs_facts(dtype):
-        facts = first_pass(path, vertex.count, "vertices", chunks.gather_facts)
+        facts = first_pass(path, vertex.count, "vertices", chunks.gather_facts, reader="ply")
         _check_ply_facts(path, dtype, facts)
     return chunks
 
