@@ -94,8 +94,7 @@ class Examples:
         low = self.teacher[rows, cls] < min_base_probability
         group = np.full(len(rows), -1) if self.group is None else self.group[rows]
         # per (segment, class) and per class: the share of points the network gives ~0
-        key = np.unique(np.stack([group, cls], axis=1), axis=0, return_inverse=True)[1].ravel()
-        mostly_low = _share(key, low) >= 0.5
+        mostly_low = _share((group + 1) * NUM_CLASSES + cls, low) >= 0.5
         class_low = _share(cls, low) >= 0.5
         keep = ~low | mostly_low | class_low
         out = np.zeros(len(self.target), bool)

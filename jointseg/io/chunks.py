@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
 import time
 import weakref
 from collections.abc import Callable, Generator, Iterator
@@ -26,6 +25,7 @@ import numpy as np
 
 from jointseg.exceptions import ConfigError, ScanFormatError, library_reason
 from jointseg.io.limits import INPUT_ERRORS
+from jointseg.lru import LRUCache
 from jointseg.scan import Scan
 
 __all__ = [
@@ -79,13 +79,12 @@ class WriterOpener(Protocol):
         """
 
 
+#: Files whose whole-file facts are remembered at once (the least recently used forgotten).
+PASSED_FILES = 8
 #: Whole-file facts of the files passed over lately, by reader and the file's identity: a tiled
 #: run opens its input four times (frame, spill, fusion, outputs), and each pass over a 20 M-point
 #: LAZ decompresses it whole (4.6 s of a 5 M-point floor's 11.6 s prepare step).
-_PASSED: dict[tuple[object, ...], object] = {}
-_PASSED_LOCK = threading.Lock()
-#: Files remembered at once (the oldest forgotten first).
-PASSED_FILES = 8
+_PASSED: LRUCache[tuple[object, ...], object] = LRUCache(PASSED_FILES)
 
 
 def first_pass(path: Path, count: int, unit: str, gather: Callable[[int], T], *, reader: str) -> T:
@@ -96,22 +95,17 @@ def first_pass(path: Path, count: int, unit: str, gather: Callable[[int], T], *,
     ``gather`` steps through the file :data:`PASS_POINTS` at a time, so the pass is bounded in
     memory like the chunks; it costs about one more read of the file, worth seeing in the log.
     """
+
+    def run() -> object:
+        began = time.perf_counter()
+        facts = gather(PASS_POINTS)
+        logger.debug(
+            "%s: first pass over %d %s in %.2f s", path, count, unit, time.perf_counter() - began
+        )
+        return facts
+
     key = (reader, os.path.abspath(path), *_file_identity(path))
-    with _PASSED_LOCK:
-        known = _PASSED.get(key)
-    if known is not None:
-        logger.debug("%s: whole-file facts of an earlier pass", path)
-        return known  # type: ignore[return-value]
-    began = time.perf_counter()
-    facts = gather(PASS_POINTS)
-    logger.debug(
-        "%s: first pass over %d %s in %.2f s", path, count, unit, time.perf_counter() - began
-    )
-    with _PASSED_LOCK:
-        while len(_PASSED) >= PASSED_FILES:
-            _PASSED.pop(next(iter(_PASSED)))
-        _PASSED[key] = facts
-    return facts
+    return _PASSED.get_or_load(key, run)  # type: ignore[return-value]
 
 
 def _file_identity(path: Path) -> tuple[int, ...]:
