@@ -147,15 +147,33 @@ def _load_beside(cfg: PipelineConfig) -> PendingPredictor:
     geometry (:mod:`jointseg.network.pending`). Missing weights are refused here, before
     anything else runs; an unreadable file fails the run when the network is first needed."""
     from jointseg.network.pending import PendingPredictor
-    from jointseg.network.registry import import_backend, locate
+    from jointseg.network.registry import import_backend, load_fast, locate
+
+    net = cfg.network
+    compiled: list[Predictor] = []
+
+    def prepare() -> None:
+        """The torch-free compiled network when its cache serves these weights (nothing to
+        import then); else the backend's imports (torch)."""
+        fast = load_fast(net.name, net.weights, device=net.device, batch_size=net.batch_size,
+                         params=net.options())  # fmt: skip
+        if fast is None:
+            import_backend(net.name)
+        else:
+            compiled.append(fast)
 
     def load() -> Predictor:
         from jointseg.pipeline.stages import load_predictor
 
-        return load_predictor(cfg.network)
+        if compiled:
+            warm = getattr(compiled[0], "prepare", None)
+            if warm is not None:  # the forward pass compiled here, beside the scan's reading
+                warm()
+            return compiled[0]
+        return load_predictor(net)
 
-    locate(cfg.network.name, cfg.network.weights)
-    pending = PendingPredictor(lambda: import_backend(cfg.network.name), load)
+    locate(net.name, net.weights)
+    pending = PendingPredictor(prepare, load)
     _import_pipeline(None)
     return pending
 

@@ -27,6 +27,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jointseg.network.presence import drop_absent
+from jointseg.network.results import CellSums
+
 #: Coordinates are summed in these units (micrometres): exact in float64 for any order.
 QUANTUM = 1e-6
 #: Bits per axis of a packed cell id (cells of 4 cm: 83 km per axis).
@@ -190,3 +193,35 @@ def crops_inside(
     """Which crops' centres lie in the x-y box ``[box_min, box_max)`` (absolute)."""
     xy = plan.centres[:, :2].astype(np.float64) + lower[:2]
     return np.all((xy >= box_min) & (xy < box_max), axis=1)
+
+
+def point_probs(
+    cloud: AnchoredCloud,
+    prob_sum: np.ndarray,
+    seen: np.ndarray,
+    xyz: np.ndarray,
+    absent_share: float,
+    absent_max_cells: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every point's labels (N,) and probabilities (N, C) from the crops' sums per sub-sampled
+    point: averaged, classes the scan does not hold taken out
+    (:func:`~jointseg.network.presence.drop_absent`), then each point's nearest sub-sampled
+    point's."""
+    sub_probs = (prob_sum / np.maximum(seen, 1)[:, None]).astype(np.float32)
+    sub_probs = drop_absent(sub_probs, absent_share, absent_max_cells)
+    probs = sub_probs[cloud.nearest(xyz)]
+    return probs.argmax(axis=1).astype(np.int32), probs
+
+
+def tile_sums(
+    cloud: AnchoredCloud, prob_sum: np.ndarray, seen: np.ndarray, xyz: np.ndarray
+) -> CellSums:
+    """A tile's sums per sub-sampled cell (those its crops saw), to be added over all tiles,
+    and the cell of each of its points ``xyz``."""
+    touched = seen > 0
+    return CellSums(
+        ids=cloud.ids[touched],
+        sums=prob_sum[touched],
+        seen=seen[touched],
+        point_cell=cloud.ids[cloud.nearest(xyz)],
+    )

@@ -111,6 +111,9 @@ class Backend:
         else is given.
     suffixes : tuple of str
         Weight file suffixes that name this backend when a path is given instead of a name.
+    fast_loader : str, optional
+        ``"module:function"`` path of a loader that imports no torch and returns None when it
+        cannot serve the weights (:mod:`jointseg.network.randlanet.compiled`); tried first.
     """
 
     name: str
@@ -123,6 +126,7 @@ class Backend:
     bundled: Path | None = None
     published: str | None = None
     suffixes: tuple[str, ...] = ()
+    fast_loader: str | None = None
 
     def options(self, value: Options = None) -> BaseModel | None:
         """``value`` validated by this backend's params model (its defaults for None).
@@ -159,10 +163,34 @@ class Backend:
         ConfigError
             For invalid options or unreadable weights.
         """
+        fast = self.load_fast(path, device=device, batch_size=batch_size, options=options)
+        if fast is not None:
+            return fast
         params = self.options(options)
         loader = cast(Loader, _resolve(self.loader))
         log.debug("network %s: loading %s", self.name, path)
         return loader(path, device=device, batch_size=batch_size, params=params)
+
+    def load_fast(
+        self, path: Path, *, device: str | None, batch_size: int, options: Options = None
+    ) -> Predictor | None:
+        """The predictor of :attr:`fast_loader` (no torch imported), or None when the backend
+        has none or it cannot serve these weights here.
+
+        Raises
+        ------
+        ConfigError
+            For invalid options.
+        """
+        if self.fast_loader is None:
+            return None
+        params = self.options(options)
+        fast = cast(Callable[..., "Predictor | None"], _resolve(self.fast_loader))(
+            path, device=device, batch_size=batch_size, params=params
+        )
+        if fast is not None:
+            log.debug("network %s: %s, compiled", self.name, path)
+        return fast
 
     def read_card(self, path: Path) -> tuple[str, str]:
         """What the weights at ``path`` were trained on, and their card in one line."""

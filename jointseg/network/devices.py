@@ -8,6 +8,8 @@ which imports torch; this module does not, so `jointseg --help` and the API stay
 from __future__ import annotations
 
 import re
+import sys
+from pathlib import Path
 
 from jointseg.exceptions import ConfigError
 
@@ -25,3 +27,16 @@ def check_device_name(device: str) -> None:
     """
     if _DEVICE.fullmatch(str(device)) is None:
         raise ConfigError(f"device {device!r}: unknown device; use 'cpu', 'cuda' or 'cuda:N'")
+
+
+def cuda_possible() -> bool:
+    """Whether torch would find a CUDA device here: its own answer, asked only where torch is
+    already imported or an NVIDIA driver is loaded (without one there is no device, and a
+    command-line run on a CPU machine need not import torch to know it)."""
+    if "torch" not in sys.modules and not (
+        Path("/proc/driver/nvidia/version").exists() or Path("/dev/nvidiactl").exists()
+    ):
+        return False
+    import torch
+
+    return bool(torch.cuda.is_available())

@@ -219,6 +219,29 @@ def load(
     return record.load(path, device=device, batch_size=size, options=chosen)
 
 
+def load_fast(
+    name: str = DEFAULT_BACKEND,
+    weights: str | os.PathLike[str] | None = None,
+    *,
+    device: str | None = None,
+    batch_size: int | None = None,
+    params: Options = None,
+) -> Predictor | None:
+    """What :func:`load` returns when the backend can serve the weights without torch (its
+    compiled forward pass, :mod:`jointseg.network.randlanet.compiled`); None otherwise, having
+    imported nothing heavy. A caller that loads in the background asks this first, and imports
+    torch only when it gets None.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`load`.
+    """
+    name, path = locate(name, weights)
+    size = batch_size or default_batch_size(device)
+    return backend(name).load_fast(path, device=device, batch_size=size, options=params)
+
+
 def locate(
     name: str = DEFAULT_BACKEND, weights: str | os.PathLike[str] | None = None
 ) -> tuple[str, Path]:
@@ -277,7 +300,7 @@ GPU_BATCH_SIZE = 8
 def default_batch_size(device: str | None) -> int:
     """The forward-pass batch for ``device`` (None: CUDA when present)."""
     if device is None:
-        import torch  # only here: choosing a default for a network about to be loaded
+        from jointseg.network.devices import cuda_possible  # torch's answer where imported
 
-        device = "cuda" if torch.cuda.is_available() else "cpu"
+        device = "cuda" if cuda_possible() else "cpu"
     return GPU_BATCH_SIZE if str(device).startswith("cuda") else CPU_BATCH_SIZE

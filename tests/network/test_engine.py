@@ -8,20 +8,19 @@ batch workers), so everything that loads OpenVINO runs in a child interpreter of
 
 from __future__ import annotations
 
-import json
 import os
-import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import pytest
 import torch
 
 from jointseg.exceptions import ConfigError
+from jointseg.network.randlanet.backend import BACKEND
 from jointseg.network.randlanet.engine import openvino_available
 from jointseg.network.randlanet.params import RandLANetParams
-from jointseg.network.registry import load
+from jointseg.network.randlanet.predict import RandLANetPredictor, load_randlanet
+from tests.support.child_python import in_child
 
 pytestmark = pytest.mark.skipif(
     not openvino_available(), reason="jointseg[openvino] is not installed"
@@ -139,17 +138,6 @@ print(json.dumps({"engine": net.engine, "forks": len(forks)}))
 """
 
 
-def in_child(code: str, cache: Path, *args: str) -> dict:
-    """Run ``code`` in a fresh interpreter with ``JOINTSEG_CACHE=cache``; its last JSON line."""
-    env = {**os.environ, "JOINTSEG_CACHE": str(cache)}
-    done = subprocess.run(
-        [sys.executable, "-c", textwrap.dedent(code), *args],
-        env=env, capture_output=True, text=True, timeout=300, check=False,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
 @pytest.mark.slow
 def test_openvino_labels_a_room_as_torch_does_and_caches_its_export(tmp_path) -> None:
     first = in_child(SAME_LABELS, tmp_path)
@@ -207,8 +195,16 @@ def test_the_default_engine_falls_back_to_torch_when_openvino_cannot_compile(
     assert out == {"engine": "torch", "same": True}
 
 
+def torch_predictor(params: RandLANetParams | None = None) -> RandLANetPredictor:
+    """The bundled weights in torch's predictor (``load`` may give the compiled one, once this
+    process's cache has its export: tests/network/test_compiled.py)."""
+    predictor = load_randlanet(BACKEND.bundled, device=None, batch_size=1, params=params)
+    assert isinstance(predictor, RandLANetPredictor)
+    return predictor
+
+
 def test_auto_is_openvino_on_the_cpu_torch_where_it_cannot_run(monkeypatch) -> None:
-    net = load("randlanet")
+    net = torch_predictor()
     assert net.params.engine == "auto" and net.engine == "openvino"
     monkeypatch.setattr("jointseg.network.randlanet.predict.usable_here", lambda: False)
     assert net.engine == "torch"  # e.g. forked from a process that ran OpenVINO
@@ -217,7 +213,7 @@ def test_auto_is_openvino_on_the_cpu_torch_where_it_cannot_run(monkeypatch) -> N
 
 
 def test_the_engine_is_torch_on_a_gpu_and_refused_when_missing(monkeypatch) -> None:
-    net = load("randlanet", params=RandLANetParams(engine="openvino"))
+    net = torch_predictor(RandLANetParams(engine="openvino"))
     monkeypatch.setattr("jointseg.network.randlanet.predict.openvino_available", lambda: False)
     with pytest.raises(ConfigError, match=r"jointseg\[openvino\]"):
         _ = net.engine

@@ -16,6 +16,7 @@ COLOUR_FREE_WEIGHTS = WEIGHTS_DIR / "randlanet_indoor_nocolour.pt"
 BACKEND = Backend(
     name="randlanet",
     loader="jointseg.network.randlanet.predict:load_randlanet",
+    fast_loader="jointseg.network.randlanet.compiled:load_compiled",
     card_reader="jointseg.network.randlanet.predict:read_randlanet_card",
     env="JOINTSEG_RANDLANET_WEIGHTS",
     where_to_get=(

@@ -13,20 +13,12 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from jointseg.network.randlanet.model import RandLANetConfig
+from jointseg.network.randlanet.config import RandLANetConfig
+from jointseg.network.randlanet.crop_arrays import Crop, crop_arrays, search_threads
+from jointseg.network.randlanet.crop_arrays import set_search_threads as set_search_threads
 from jointseg.voxels import cell_majority, cell_means, voxel_index
 
 MIN_CROP = 1024
-
-#: Threads of each KD-tree search (-1: all cores). Batch-building worker processes set 1: the
-#: processes are the parallelism there, and threads of each would only contend.
-_search_threads = -1
-
-
-def set_search_threads(threads: int) -> None:
-    """Threads per KD-tree search in this process (-1 for all cores)."""
-    global _search_threads
-    _search_threads = threads
 
 
 @dataclass(frozen=True)
@@ -63,7 +55,7 @@ def crop_indices(cloud: GridCloud, centre: np.ndarray, num_points: int) -> np.nd
     n = len(cloud.xyz)
     if n <= num_points:
         return np.arange(n)
-    _, idx = cloud.tree.query(centre[None, :], k=num_points, workers=_search_threads)
+    _, idx = cloud.tree.query(centre[None, :], k=num_points, workers=search_threads())
     return np.asarray(idx).reshape(-1)
 
 
@@ -109,66 +101,27 @@ def pad_to(indices: np.ndarray, size: int, rng: np.random.Generator) -> np.ndarr
     return np.concatenate([indices, extra])
 
 
-Crop = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]
-
-
 def build_batch(
     crops: Sequence[Crop],
     config: RandLANetConfig,
 ) -> Batch:
-    """Per-layer neighbours, pooling and upsampling indices for crops of equal size.
+    """Per-layer neighbours, pooling and upsampling indices for crops of equal size
+    (:func:`~jointseg.network.randlanet.crop_arrays.crop_arrays`), as tensors.
 
     Each crop is (xyz (N, 3) float32, rgb (N, 3) float32, labels (N,) or None, indices (N,)),
     already shuffled: the first N / ratio points of a layer are its random sample.
     """
-    feats, labels, idx = [], [], []
-    per_layer: list[list[list[np.ndarray]]] = [[], [], [], []]
-    for xyz, rgb, lab, ind in crops:
-        pts = xyz.copy()
-        pts[:, :2] -= pts[:, :2].mean(axis=0)
-        feats.append(np.concatenate([pts, rgb], axis=1))
-        labels.append(lab)
-        idx.append(ind)
-        layers = _layer_indices(pts, config)
-        for slot, arrays in zip(per_layer, layers, strict=True):
-            slot.append(arrays)
-    stacked = [
-        [torch.from_numpy(np.stack([crop[i] for crop in slot])) for i in range(len(slot[0]))]
-        for slot in per_layer
+    arrays = crop_arrays(crops, config)
+    tensors = [
+        [torch.from_numpy(a) for a in layers]
+        for layers in (arrays.coords, arrays.neighbours, arrays.pools, arrays.upsamples)
     ]
-    label_tensor = None
-    known = [lab for lab in labels if lab is not None]
-    if len(known) == len(labels):
-        label_tensor = torch.from_numpy(np.stack(known).astype(np.int64))
     return Batch(
-        torch.from_numpy(np.stack(feats)),
-        stacked[0],
-        stacked[1],
-        stacked[2],
-        stacked[3],
-        np.stack(idx),
-        label_tensor,
+        torch.from_numpy(arrays.features),
+        tensors[0],
+        tensors[1],
+        tensors[2],
+        tensors[3],
+        arrays.indices,
+        None if arrays.labels is None else torch.from_numpy(arrays.labels),
     )
-
-
-def _layer_indices(
-    pts: np.ndarray, config: RandLANetConfig
-) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
-    coords, neighbours, pools, ups = [], [], [], []
-    current = pts
-    for ratio in config.ratios:
-        tree = cKDTree(current)
-        k = min(config.k, len(current))
-        _, nb = tree.query(current, k=k, workers=_search_threads)
-        nb = np.asarray(nb).reshape(len(current), k)
-        if k < config.k:
-            nb = np.concatenate([nb, np.repeat(nb[:, :1], config.k - k, axis=1)], axis=1)
-        keep = max(1, len(current) // ratio)
-        sub = current[:keep]
-        _, up = cKDTree(sub).query(current, k=1, workers=_search_threads)
-        coords.append(current)
-        neighbours.append(nb.astype(np.int64))
-        pools.append(nb[:keep].astype(np.int64))
-        ups.append(np.asarray(up).reshape(-1, 1).astype(np.int64))
-        current = sub
-    return coords, neighbours, pools, ups

@@ -12,16 +12,20 @@ later process pays about 0.2 s instead of about 1 s. Crops of a shape beyond the
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import logging
 import os
-import sys
 import warnings
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
+
+from jointseg.network.randlanet import ov_runtime
+from jointseg.network.randlanet.config import RandLANetConfig
+from jointseg.network.randlanet.manifest import record_export, shape_key
+from jointseg.network.randlanet.ov_runtime import cache_dir, import_openvino, usable_here
+from jointseg.network.randlanet.ov_runtime import openvino_available as openvino_available
 
 log = logging.getLogger(__name__)
 
@@ -29,48 +33,15 @@ log = logging.getLogger(__name__)
 MAX_SHAPES = 4
 
 
-def openvino_available() -> bool:
-    """Whether OpenVINO and the ONNX exporter's package are installed."""
-    return all(importlib.util.find_spec(m) is not None for m in ("openvino", "onnx"))
-
-
-#: The process that created an OpenVINO runtime, if any (its thread pool lives there).
-_runtime_pid: int | None = None
-
-
-def usable_here() -> bool:
-    """Whether this process may run OpenVINO: not in a child forked from a process that already
-    had a runtime (OpenVINO's thread pool does not survive a fork: such a child hangs)."""
-    return _runtime_pid is None or _runtime_pid == os.getpid()
-
-
-def import_openvino() -> Any:
-    """``openvino``, without its model-conversion tools' telemetry.
-
-    Why: ``import openvino`` imports ``openvino.tools.ovc``, which sends usage telemetry unless
-    the user opted out, from a thread that forks a process. A fork while another thread is
-    inside OpenBLAS (the geometry stage runs beside the network) leaves that thread spinning
-    forever in ``exec_blas``: ``jointseg segment`` hung so. jointseg reads ONNX files with the
-    runtime and never converts models, so the tools are kept out; a later explicit import of
-    them by the caller still works.
-    """
-    if "openvino" in sys.modules:
-        return sys.modules["openvino"]
-    blocked = "openvino.tools.ovc" not in sys.modules
-    if blocked:
-        sys.modules["openvino.tools.ovc"] = None  # type: ignore[assignment]  # ImportError
-    try:
-        import openvino
-    finally:
-        if blocked and sys.modules.get("openvino.tools.ovc", 0) is None:
-            del sys.modules["openvino.tools.ovc"]
-    return openvino
-
-
-def cache_dir() -> Path:
-    """``$JOINTSEG_CACHE`` or ``~/.cache/jointseg``, its ``openvino`` folder."""
-    root = os.environ.get("JOINTSEG_CACHE") or Path.home() / ".cache" / "jointseg"
-    return Path(root) / "openvino"
+def model_digest(model: torch.nn.Module) -> str:
+    """What names a model's export: its weights and its configuration (two models of the same
+    weights may compute differently, e.g. an adapted model's gate, :mod:`jointseg.adapt`, and
+    must not share an export)."""
+    state = b"".join(t.detach().cpu().numpy().tobytes() for t in model.state_dict().values())
+    config = getattr(model, "config", None)
+    if config is not None and hasattr(config, "model_dump_json"):
+        state += config.model_dump_json().encode()
+    return hashlib.sha1(state).hexdigest()[:16]
 
 
 class FlatInputs(torch.nn.Module):
@@ -95,26 +66,25 @@ class CompiledForward:
         folder: Path | None = None,
         *,
         strict: bool = True,
+        source: tuple[Path, dict[str, Any], str] | None = None,
     ) -> None:
+        """``source`` is (weights file, its card, :func:`model_digest` of the model as read
+        from it): each shape compiled is then recorded in the file's manifest for the
+        torch-free path (:mod:`jointseg.network.randlanet.compiled`), when the model is still
+        the file's."""
         ov = import_openvino()
         self.model = model
         self.strict = strict
         self.threads = threads
         self.folder = folder or cache_dir()
         self.folder.mkdir(parents=True, exist_ok=True)
-        global _runtime_pid
         if not usable_here():
             raise RuntimeError("forked from a process that ran OpenVINO")
         self.core = ov.Core()
-        _runtime_pid = os.getpid()
+        ov_runtime.claim_runtime()
         self.core.set_property({"CACHE_DIR": str(self.folder / "blobs")})
-        state = b"".join(t.detach().cpu().numpy().tobytes() for t in model.state_dict().values())
-        # the configuration too: two models of the same weights may compute differently (an
-        # adapted model's gate, jointseg.adapt), and must not share an export
-        config = getattr(model, "config", None)
-        if config is not None and hasattr(config, "model_dump_json"):
-            state += config.model_dump_json().encode()
-        self.digest = hashlib.sha1(state).hexdigest()[:16]
+        self.digest = model_digest(model)
+        self.source = source if source is not None and source[2] == self.digest else None
         #: infer request per input shape; None for a shape that failed to compile (torch runs it)
         self.compiled: dict[tuple, Any] = {}
 
@@ -164,4 +134,10 @@ class CompiledForward:
         config = {"INFERENCE_NUM_THREADS": self.threads, "PERFORMANCE_HINT": "LATENCY",
                   "INFERENCE_PRECISION_HINT": "f32"}  # fmt: skip
         compiled = self.core.compile_model(self.core.read_model(str(path)), "CPU", config)
-        return compiled.create_infer_request()
+        request = compiled.create_infer_request()
+        if self.source is not None:
+            weights, card, _ = self.source
+            model_config = cast(RandLANetConfig, self.model.config)
+            record_export(weights, config=model_config, card=card, shape=shape_key(flat),
+                          export=path, folder=self.folder)  # fmt: skip
+        return request

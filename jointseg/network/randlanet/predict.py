@@ -26,7 +26,6 @@ from jointseg.exceptions import ConfigError
 from jointseg.network.anchored import (
     AnchoredCloud,
     CropPlan,
-    anchored_cloud,
     crop_members,
     plan_crops,
 )
@@ -41,12 +40,14 @@ from jointseg.network.randlanet.crops import Batch, build_batch
 from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
 from jointseg.network.randlanet.engine import (
     CompiledForward,
+    model_digest,
     openvino_available,
     usable_here,
 )
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.views import in_view
+from jointseg.network.randlanet.whole_scan import add_crop_outputs, predict_tile, predict_whole
 from jointseg.network.results import CellSums, NetworkResult
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -123,6 +124,10 @@ class RandLANetPredictor(NetworkPredictor):
         self.params = params or RandLANetParams()
         self.min_possibility = self.params.coverage
         self._compiled: CompiledForward | None = None
+        #: The file the model was read from (:func:`load_randlanet`), and the model's digest
+        #: then: its compiled shapes are recorded for the torch-free path while it is unchanged.
+        self.weights_path: Path | None = None
+        self._read_digest: str | None = None
         self._compiled_pid = -1
         self._failed_pid = -1
 
@@ -156,7 +161,10 @@ class RandLANetPredictor(NetworkPredictor):
             # not survive a fork, so each process compiles (from the shared cache) for itself
             try:
                 self._compiled = CompiledForward(
-                    self.model, forward_threads(), strict=self.params.engine == "openvino"
+                    self.model,
+                    forward_threads(),
+                    strict=self.params.engine == "openvino",
+                    source=self._source(),
                 )
             except (OSError, RuntimeError) as exc:
                 if self.params.engine == "openvino":
@@ -166,6 +174,12 @@ class RandLANetPredictor(NetworkPredictor):
                 return self.model
             self._compiled_pid = pid
         return self._compiled
+
+    def _source(self) -> tuple[Path, dict[str, Any], str] | None:
+        """The weights file, card and read digest for :class:`CompiledForward` to record."""
+        if self.weights_path is None or self._read_digest is None:
+            return None
+        return self.weights_path, self.card, self._read_digest
 
     def batches(
         self, cloud: AnchoredCloud, plan: CropPlan, crops: np.ndarray, seed: int
@@ -205,19 +219,16 @@ class RandLANetPredictor(NetworkPredictor):
         float64 sums and (M,) counts of crops that saw each point."""
         cfg = self.model.config
         m = len(cloud.xyz)
-        prob_sum = torch.zeros((m, cfg.num_classes), dtype=torch.float64)
-        seen = torch.zeros(m, dtype=torch.float64)
+        prob_sum = np.zeros((m, cfg.num_classes), dtype=np.float64)
+        seen = np.zeros(m, dtype=np.float64)
         source = self.batches(cloud, plan, np.asarray(crops, dtype=np.int64), seed)
         with torch.inference_mode(), cancellable(self.model, cancel), Prefetcher(source) as ahead:
             for batch, done in ahead:
                 batch = batch.to(self.device)
-                flat_idx = torch.from_numpy(batch.indices.reshape(-1))
                 for logits in self._view_logits(batch, cancel):
-                    probs = torch.softmax(logits.float(), dim=-1).cpu().double()
-                    prob_sum.index_add_(0, flat_idx, probs.reshape(-1, cfg.num_classes))
-                    seen.index_add_(0, flat_idx, torch.ones(len(flat_idx), dtype=torch.float64))
+                    add_crop_outputs(prob_sum, seen, logits.float().cpu().numpy(), batch.indices)
                 report(progress, STAGE, 0.95 * done / max(len(crops), 1))
-        return prob_sum.numpy(), seen.numpy()
+        return prob_sum, seen
 
     def _device_crop_sums(
         self,
@@ -317,29 +328,8 @@ class RandLANetPredictor(NetworkPredictor):
             raise ConfigError("cannot run the network on an empty scan")
         if self.on_device:
             return self._predict_on_device(scan, progress, cancel, seed)
-        timings: dict[str, float] = {}
-        t = time.perf_counter()
         torch.manual_seed(seed)
-        cloud = anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, scan.xyz.min(axis=0))
-        plan = self.plan(cloud, seed)
-        timings["subsample"] = time.perf_counter() - t
-        t = time.perf_counter()
-        crops = np.arange(len(plan))
-        prob_sum, seen = self.crop_sums(
-            cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
-        )
-        timings["crops"] = time.perf_counter() - t
-        t = time.perf_counter()
-        sub_probs = (prob_sum / np.maximum(seen, 1)[:, None]).astype(np.float32)
-        sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
-        probs_full = sub_probs[cloud.nearest(scan.xyz)]
-        labels = probs_full.argmax(axis=1).astype(np.int32)
-        timings["project"] = time.perf_counter() - t
-        report(progress, STAGE, 1.0)
-        log.info(
-            "network: %d points, %d sub-sampled, %d crops", len(scan), len(cloud.xyz), len(plan)
-        )
-        return NetworkResult(labels, probs_full, len(plan), timings)
+        return predict_whole(self, scan, progress, cancel, seed)
 
     def predict_cells(
         self,
@@ -374,18 +364,7 @@ class RandLANetPredictor(NetworkPredictor):
         torch.manual_seed(seed)
         if self.on_device:
             return self._cells_on_device(scan, plan, lower, crops, progress, cancel, seed)
-        cloud = anchored_cloud([(scan.xyz, scan.rgb)], self.grid_size, lower)
-        prob_sum, seen = self.crop_sums(
-            cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
-        )
-        touched = seen > 0
-        report(progress, STAGE, 1.0)
-        return CellSums(
-            ids=cloud.ids[touched],
-            sums=prob_sum[touched],
-            seen=seen[touched],
-            point_cell=cloud.ids[cloud.nearest(scan.xyz)],
-        )
+        return predict_tile(self, scan, plan, lower, crops, progress, cancel, seed)
 
     def _cells_on_device(
         self,
@@ -431,9 +410,13 @@ def load_randlanet(
         When the file is not a readable jointseg checkpoint.
     """
     model, card, _ = load_checkpoint(path)
-    return RandLANetPredictor(
+    predictor = RandLANetPredictor(
         model, card, device=device, batch_size=batch_size, params=params or RandLANetParams()
     )
+    predictor.weights_path = Path(path)
+    if predictor.engine == "openvino":  # the model as read, so a changed one is not recorded
+        predictor._read_digest = model_digest(model)
+    return predictor
 
 
 def read_randlanet_card(path: Path) -> tuple[str, str]:
