@@ -211,3 +211,20 @@ def test_the_carried_folders_name_their_datasets_terms(tmp_path: Path) -> None:
     cfg = train_config("colour", RunOptions(data=tmp_path, out=tmp_path / "out"))
     terms = {terms_for(parse_source(spec)) for spec in cfg.data}
     assert terms == {S3DIS_TERMS, SCANNET_TERMS}
+
+
+def test_the_learning_rate_decays_per_step_alike_on_the_cpu_and_the_gpu(tmp_path: Path) -> None:
+    """The CPU recipe's epochs are 4 steps, the GPU's 50: at 0.97 an epoch either way, a CPU
+    run's rate fell to a millionth of its start in 500 epochs (25 minutes) and it learnt no
+    more. The decay is per step now: after 1 000 steps both are where the GPU's always was."""
+    rng = np.random.default_rng(0)
+    write_arrays(rng.uniform(0, 3, (500, 3)), None, np.zeros(500, np.int64),
+                 tmp_path / "s3dis_area6" / "room.npz")  # fmt: skip
+    after = {}
+    for device in ("cpu", "cuda"):
+        cfg = train_config(
+            "colour", RunOptions(data=tmp_path, out=tmp_path / device, device=device)
+        )
+        after[device] = cfg.gamma ** (1000 / cfg.steps_per_epoch)
+    assert after["cpu"] == pytest.approx(0.97**20, rel=1e-9)
+    assert after["cuda"] == pytest.approx(0.97**20, rel=1e-9)
