@@ -29,7 +29,6 @@ from jointseg.exceptions import ConfigError
 from jointseg.network.anchored import (
     AnchoredCloud,
     CropPlan,
-    crop_members,
     plan_crops,
 )
 from jointseg.network.devices import cuda_possible
@@ -38,15 +37,16 @@ from jointseg.network.randlanet.crop_arrays import crop_arrays
 from jointseg.network.randlanet.manifest import read_manifest, shape_key
 from jointseg.network.randlanet.ov_runtime import (
     cache_dir,
-    claim_runtime,
-    import_openvino,
+    infer_request,
     openvino_available,
+    runtime,
     usable_here,
 )
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.whole_scan import (
     STAGE,
     add_crop_outputs,
+    crop_batches,
     predict_tile,
     predict_whole,
 )
@@ -156,14 +156,8 @@ class CompiledRandLANet:
         if self._request_pid != pid:  # a fork never uses its parent's requests
             self._requests, self._request_pid = {}, pid
         if key not in self._requests:
-            ov = import_openvino()
-            core = ov.Core()
-            claim_runtime()
-            core.set_property({"CACHE_DIR": str(self.folder / "blobs")})
-            config = {"INFERENCE_NUM_THREADS": self.threads, "PERFORMANCE_HINT": "LATENCY",
-                      "INFERENCE_PRECISION_HINT": "f32"}  # fmt: skip
-            model = core.read_model(str(self.folder / export))
-            self._requests[key] = core.compile_model(model, "CPU", config).create_infer_request()
+            core = runtime(self.folder)
+            self._requests[key] = infer_request(core, self.folder / export, self.threads)
         return self._requests[key]
 
     def prepare(self, crop_size: int | None = None) -> bool:
@@ -215,17 +209,8 @@ class CompiledRandLANet:
         prob_sum = np.zeros((m, classes), dtype=np.float64)
         seen = np.zeros(m, dtype=np.float64)
         crops = np.asarray(crops, dtype=np.int64)
-
-        def batches() -> Any:
-            for first in range(0, len(crops), self.batch_size):
-                chosen = crops[first : first + self.batch_size]
-                members = [crop_members(cloud, plan, int(c), seed) for c in chosen]
-                arrays = crop_arrays(
-                    [(cloud.xyz[i], cloud.rgb[i], None, i) for i in members], self.config
-                )
-                yield arrays, first + len(chosen)
-
-        with Prefetcher(batches()) as ahead:
+        source = crop_batches(cloud, plan, crops, seed, self.batch_size, self.config)
+        with Prefetcher(source) as ahead:
             for arrays, done in ahead:
                 check_cancel(cancel)
                 flat = arrays.flat()

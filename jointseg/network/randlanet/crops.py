@@ -14,7 +14,7 @@ import torch
 from scipy.spatial import cKDTree
 
 from jointseg.network.randlanet.config import RandLANetConfig
-from jointseg.network.randlanet.crop_arrays import Crop, crop_arrays, search_threads
+from jointseg.network.randlanet.crop_arrays import Crop, CropArrays, crop_arrays, search_threads
 from jointseg.network.randlanet.crop_arrays import set_search_threads as set_search_threads
 from jointseg.voxels import cell_majority, cell_means, voxel_index
 
@@ -71,6 +71,23 @@ class Batch:
     indices: np.ndarray  # (B, N) indices into the GridCloud
     labels: torch.Tensor | None
 
+    @classmethod
+    def from_arrays(cls, arrays: CropArrays) -> Batch:
+        """The numpy inputs (:func:`crop_arrays`) as tensors sharing their memory."""
+        tensors = [
+            [torch.from_numpy(a) for a in layers]
+            for layers in (arrays.coords, arrays.neighbours, arrays.pools, arrays.upsamples)
+        ]
+        return cls(
+            torch.from_numpy(arrays.features),
+            tensors[0],
+            tensors[1],
+            tensors[2],
+            tensors[3],
+            arrays.indices,
+            None if arrays.labels is None else torch.from_numpy(arrays.labels),
+        )
+
     def to(self, device: torch.device | str, *, non_blocking: bool = False) -> Batch:
         """Move every tensor to ``device`` (without waiting, from pinned memory, when
         ``non_blocking``)."""
@@ -111,17 +128,4 @@ def build_batch(
     Each crop is (xyz (N, 3) float32, rgb (N, 3) float32, labels (N,) or None, indices (N,)),
     already shuffled: the first N / ratio points of a layer are its random sample.
     """
-    arrays = crop_arrays(crops, config)
-    tensors = [
-        [torch.from_numpy(a) for a in layers]
-        for layers in (arrays.coords, arrays.neighbours, arrays.pools, arrays.upsamples)
-    ]
-    return Batch(
-        torch.from_numpy(arrays.features),
-        tensors[0],
-        tensors[1],
-        tensors[2],
-        tensors[3],
-        arrays.indices,
-        None if arrays.labels is None else torch.from_numpy(arrays.labels),
-    )
+    return Batch.from_arrays(crop_arrays(crops, config))

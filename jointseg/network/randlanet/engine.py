@@ -24,7 +24,7 @@ import torch
 from jointseg.network.randlanet import ov_runtime
 from jointseg.network.randlanet.config import RandLANetConfig
 from jointseg.network.randlanet.manifest import record_export, shape_key
-from jointseg.network.randlanet.ov_runtime import cache_dir, import_openvino, usable_here
+from jointseg.network.randlanet.ov_runtime import cache_dir, usable_here
 from jointseg.network.randlanet.ov_runtime import openvino_available as openvino_available
 
 log = logging.getLogger(__name__)
@@ -72,7 +72,6 @@ class CompiledForward:
         from it): each shape compiled is then recorded in the file's manifest for the
         torch-free path (:mod:`jointseg.network.randlanet.compiled`), when the model is still
         the file's."""
-        ov = import_openvino()
         self.model = model
         self.strict = strict
         self.threads = threads
@@ -80,9 +79,7 @@ class CompiledForward:
         self.folder.mkdir(parents=True, exist_ok=True)
         if not usable_here():
             raise RuntimeError("forked from a process that ran OpenVINO")
-        self.core = ov.Core()
-        ov_runtime.claim_runtime()
-        self.core.set_property({"CACHE_DIR": str(self.folder / "blobs")})
+        self.core = ov_runtime.runtime(self.folder)
         self.digest = model_digest(model)
         self.source = source if source is not None and source[2] == self.digest else None
         #: infer request per input shape; None for a shape that failed to compile (torch runs it)
@@ -131,10 +128,7 @@ class CompiledForward:
                                   dynamo=False, opset_version=17)  # fmt: skip
             tmp.replace(path)  # whole, or not at all: other processes read the same cache
             log.info("exported RandLA-Net for crops of %s points to %s", key[0][1], path.name)
-        config = {"INFERENCE_NUM_THREADS": self.threads, "PERFORMANCE_HINT": "LATENCY",
-                  "INFERENCE_PRECISION_HINT": "f32"}  # fmt: skip
-        compiled = self.core.compile_model(self.core.read_model(str(path)), "CPU", config)
-        request = compiled.create_infer_request()
+        request = ov_runtime.infer_request(self.core, path, self.threads)
         if self.source is not None:
             weights, card, _ = self.source
             model_config = cast(RandLANetConfig, self.model.config)

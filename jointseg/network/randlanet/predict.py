@@ -26,7 +26,6 @@ from jointseg.exceptions import ConfigError
 from jointseg.network.anchored import (
     AnchoredCloud,
     CropPlan,
-    crop_members,
     plan_crops,
 )
 from jointseg.network.backends import Predictor, card_summary
@@ -36,7 +35,7 @@ from jointseg.network.device_crops import device_plan_crops
 from jointseg.network.device_grid import DeviceCloud, device_anchored_cloud
 from jointseg.network.presence import drop_absent
 from jointseg.network.randlanet.checkpoint import load_checkpoint
-from jointseg.network.randlanet.crops import Batch, build_batch
+from jointseg.network.randlanet.crops import Batch
 from jointseg.network.randlanet.device import DeviceBatch, add_outputs, device_batches
 from jointseg.network.randlanet.engine import (
     CompiledForward,
@@ -47,7 +46,12 @@ from jointseg.network.randlanet.engine import (
 from jointseg.network.randlanet.model import RandLANet
 from jointseg.network.randlanet.params import RandLANetParams
 from jointseg.network.randlanet.views import in_view
-from jointseg.network.randlanet.whole_scan import add_crop_outputs, predict_tile, predict_whole
+from jointseg.network.randlanet.whole_scan import (
+    add_crop_outputs,
+    crop_batches,
+    predict_tile,
+    predict_whole,
+)
 from jointseg.network.results import CellSums, NetworkResult
 from jointseg.progress import CancelToken, ProgressFn, check_cancel, report
 from jointseg.scan import Scan
@@ -187,13 +191,10 @@ class RandLANetPredictor(NetworkPredictor):
         """Batches of the crops ``crops`` (indices into ``plan``), each with the number of
         crops done after it. Depends only on the geometry, never on the network's outputs, so
         it runs a batch ahead in a thread (:class:`Prefetcher`)."""
-        for first in range(0, len(crops), self.batch_size):
-            chosen = crops[first : first + self.batch_size]
-            batch_crops = []
-            for crop in chosen:
-                idx = crop_members(cloud, plan, int(crop), seed)
-                batch_crops.append((cloud.xyz[idx], cloud.rgb[idx], None, idx))
-            yield build_batch(batch_crops, self.model.config), first + len(chosen)
+        for arrays, done in crop_batches(
+            cloud, plan, crops, seed, self.batch_size, self.model.config
+        ):
+            yield Batch.from_arrays(arrays), done
 
     def _view_logits(
         self, batch: Batch | DeviceBatch, cancel: CancelToken | None

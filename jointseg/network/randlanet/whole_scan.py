@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Iterator
 from typing import Any, Protocol
 
 import numpy as np
@@ -17,9 +18,12 @@ from jointseg.network.anchored import (
     AnchoredCloud,
     CropPlan,
     anchored_cloud,
+    crop_members,
     point_probs,
     tile_sums,
 )
+from jointseg.network.randlanet.config import RandLANetConfig
+from jointseg.network.randlanet.crop_arrays import CropArrays, crop_arrays
 from jointseg.network.results import CellSums, NetworkResult
 from jointseg.progress import CancelToken, ProgressFn, report
 from jointseg.scan import Scan
@@ -49,6 +53,24 @@ class CropSummer(Protocol):
         progress: ProgressFn | None = None,
         cancel: CancelToken | None = None,
     ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def crop_batches(
+    cloud: AnchoredCloud,
+    plan: CropPlan,
+    crops: np.ndarray,
+    seed: int,
+    batch_size: int,
+    config: RandLANetConfig,
+) -> Iterator[tuple[CropArrays, int]]:
+    """The inputs of the crops ``crops`` (indices into ``plan``), ``batch_size`` at a time,
+    each with the number of crops done after it. Depends only on the geometry, never on the
+    network's outputs, so it runs a batch ahead in a thread (:class:`Prefetcher`)."""
+    for first in range(0, len(crops), batch_size):
+        chosen = crops[first : first + batch_size]
+        members = [crop_members(cloud, plan, int(c), seed) for c in chosen]
+        batch = [(cloud.xyz[i], cloud.rgb[i], None, i) for i in members]
+        yield crop_arrays(batch, config), first + len(chosen)
 
 
 def add_crop_outputs(
