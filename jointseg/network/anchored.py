@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -34,6 +35,8 @@ from jointseg.network.results import CellSums
 QUANTUM = 1e-6
 #: Bits per axis of a packed cell id (cells of 4 cm: 83 km per axis).
 AXIS_BITS = 21
+#: How points take the sub-sample's outputs (``RandLANetParams.projection``).
+Projection = Literal["nearest", "cell"]
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,8 @@ class AnchoredCloud:
     tree : cKDTree over ``xyz``
     lower : ndarray of shape (3,)
         The whole scan's lower corner.
+    grid : float
+        The cells' side (m).
     """
 
     ids: np.ndarray
@@ -57,12 +62,30 @@ class AnchoredCloud:
     rgb: np.ndarray
     tree: cKDTree
     lower: np.ndarray
+    grid: float
 
     def nearest(self, xyz: np.ndarray) -> np.ndarray:
         """Index of the sub-sampled point nearest each of ``xyz`` (N, 3) absolute."""
         query = (xyz - self.lower).astype(np.float32)
         _, idx = self.tree.query(query, k=1, workers=-1)
         return np.asarray(idx, dtype=np.int64)
+
+    def own_cell(self, xyz: np.ndarray) -> np.ndarray:
+        """Index of the sub-sampled point of each of ``xyz``'s own grid cell (a sorted lookup,
+        a quarter of :meth:`nearest`'s time); a point whose cell the cloud lacks (one not among
+        the points it was made from) takes its nearest."""
+        wanted = cell_ids(xyz, self.grid, self.lower)
+        idx = np.searchsorted(self.ids, wanted)
+        np.minimum(idx, len(self.ids) - 1, out=idx)
+        missing = np.flatnonzero(self.ids[idx] != wanted)
+        if len(missing):
+            idx[missing] = self.nearest(xyz[missing])
+        return idx
+
+    def rows(self, xyz: np.ndarray, projection: Projection = "nearest") -> np.ndarray:
+        """The sub-sampled point each of ``xyz`` takes its output from, by ``projection``
+        (:attr:`~jointseg.network.randlanet.params.RandLANetParams.projection`)."""
+        return self.own_cell(xyz) if projection == "cell" else self.nearest(xyz)
 
 
 @dataclass(frozen=True)
@@ -140,7 +163,7 @@ def anchored_cloud(
     count = sums[:, 0:1]
     xyz = (sums[:, 1:4] / count * QUANTUM).astype(np.float32)
     rgb = (sums[:, 4:7] / count / 255.0).astype(np.float32)
-    return AnchoredCloud(ids, xyz, rgb, cKDTree(xyz), lower)
+    return AnchoredCloud(ids, xyz, rgb, cKDTree(xyz), lower, float(grid))
 
 
 def plan_crops(
@@ -202,26 +225,31 @@ def point_probs(
     xyz: np.ndarray,
     absent_share: float,
     absent_max_cells: int,
+    projection: Projection = "nearest",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every point's labels (N,) and probabilities (N, C) from the crops' sums per sub-sampled
     point: averaged, classes the scan does not hold taken out
     (:func:`~jointseg.network.presence.drop_absent`), then each point's nearest sub-sampled
-    point's."""
+    point's (or its own cell's: ``projection``)."""
     sub_probs = (prob_sum / np.maximum(seen, 1)[:, None]).astype(np.float32)
     sub_probs = drop_absent(sub_probs, absent_share, absent_max_cells)
-    probs = sub_probs[cloud.nearest(xyz)]
+    probs = sub_probs[cloud.rows(xyz, projection)]
     return probs.argmax(axis=1).astype(np.int32), probs
 
 
 def tile_sums(
-    cloud: AnchoredCloud, prob_sum: np.ndarray, seen: np.ndarray, xyz: np.ndarray
+    cloud: AnchoredCloud,
+    prob_sum: np.ndarray,
+    seen: np.ndarray,
+    xyz: np.ndarray,
+    projection: Projection = "nearest",
 ) -> CellSums:
     """A tile's sums per sub-sampled cell (those its crops saw), to be added over all tiles,
-    and the cell of each of its points ``xyz``."""
+    and the cell each of its points ``xyz`` reads from (by ``projection``)."""
     touched = seen > 0
     return CellSums(
         ids=cloud.ids[touched],
         sums=prob_sum[touched],
         seen=seen[touched],
-        point_cell=cloud.ids[cloud.nearest(xyz)],
+        point_cell=cloud.ids[cloud.rows(xyz, projection)],
     )

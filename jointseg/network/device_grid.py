@@ -55,6 +55,23 @@ class DeviceCloud:
             return torch.zeros(0, dtype=torch.int64, device=self.xyz.device)
         return torch.cat(parts)
 
+    def own_cell(self, xyz: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """Index of the sub-sampled point of each of ``xyz``'s own cell, as
+        :meth:`AnchoredCloud.own_cell` (the nearest where the cloud lacks the cell)."""
+        device = self.xyz.device
+        query = torch.as_tensor(xyz, device=device).to(torch.float64)
+        lower = torch.as_tensor(self.lower, dtype=torch.float64, device=device)
+        wanted = _pack(_cells(query, self.grid, lower))
+        idx = torch.searchsorted(self.ids, wanted).clamp_(max=max(len(self) - 1, 0))
+        missing = torch.nonzero(self.ids[idx] != wanted).reshape(-1)
+        if len(missing):
+            idx[missing] = self.nearest(query[missing])
+        return idx
+
+    def rows(self, xyz: np.ndarray | torch.Tensor, projection: str = "nearest") -> torch.Tensor:
+        """The sub-sampled point each of ``xyz`` takes its output from (``projection``)."""
+        return self.own_cell(xyz) if projection == "cell" else self.nearest(xyz)
+
 
 def _cells(xyz: torch.Tensor, grid: float, lower: torch.Tensor) -> torch.Tensor:
     """(N, 3) int64 cell of each point: the same float64 operations as ``cell_ids``."""

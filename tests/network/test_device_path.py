@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from jointseg.network.anchored import anchored_cloud, crop_members, crops_inside, plan_crops
+from jointseg.network.anchored import (
+    anchored_cloud,
+    cell_ids,
+    crop_members,
+    crops_inside,
+    plan_crops,
+)
 from jointseg.network.device_crops import device_crop_members, device_plan_crops
 from jointseg.network.device_grid import device_anchored_cloud
 from jointseg.network.randlanet.model import RandLANet, RandLANetConfig
@@ -152,3 +158,25 @@ def test_device_path_cells_are_the_cpu_paths(predictors, room) -> None:
     np.testing.assert_array_equal(got.seen, want.seen)
     np.testing.assert_allclose(got.sums, want.sums, atol=1e-4)
     np.testing.assert_array_equal(got.point_cell, want.point_cell)
+
+
+def test_own_cell_is_the_point_s_own_grid_cell_and_the_nearest_outside_the_cloud() -> None:
+    xyz, rgb = _cloud_points(3, 20_000, 250.0)
+    lower = xyz.min(axis=0) - 0.013
+    cloud = anchored_cloud([(xyz, rgb)], GRID, lower)
+    rows = cloud.own_cell(xyz)
+    # each point's row is the cell holding it, and a cell's centroid lies in it
+    np.testing.assert_array_equal(cloud.ids[rows], cell_ids(xyz, GRID, lower))
+    centroid_cells = np.floor((cloud.xyz[rows].astype(np.float64)) / GRID)
+    assert np.mean(np.all(centroid_cells == np.floor((xyz - lower) / GRID), axis=1)) > 0.99
+    # a point of a cell the cloud lacks takes its nearest sub-sampled point
+    strangers = np.array([[-5.0, -5.0, -5.0], [10.0, 10.0, 10.0]]) + 250.0
+    np.testing.assert_array_equal(cloud.own_cell(strangers), cloud.nearest(strangers))
+    assert np.array_equal(cloud.rows(xyz, "cell"), rows)
+    assert np.array_equal(cloud.rows(xyz, "nearest"), cloud.nearest(xyz))
+    # most points' own cell is their nearest centroid's, not all (that is the difference)
+    assert 0.5 < np.mean(rows == cloud.nearest(xyz)) < 1.0
+    # the device twin gives the same rows
+    dev = device_anchored_cloud([(xyz, rgb)], GRID, lower, "cpu")
+    queries = np.concatenate([xyz, strangers])
+    np.testing.assert_array_equal(dev.rows(queries, "cell").numpy(), cloud.own_cell(queries))

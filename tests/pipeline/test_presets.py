@@ -121,6 +121,36 @@ def test_views_keep_tiled_network_labels_those_of_the_untiled_run(tmp_path: Path
     assert np.mean(labels == untiled.network_labels) > 0.999
 
 
+@pytest.mark.slow
+def test_fast_labels_a_tiled_floor_as_the_untiled_run_by_the_points_own_cells(
+    tmp_path: Path,
+) -> None:
+    """fast's projection (each point from its own grid cell) is the same whether a tile or the
+    whole scan made the cells, and is not the nearest sub-sampled point's everywhere."""
+    floor = make_floor(6, rooms=3, points=60_000)
+    source = write_scan(floor, tmp_path / "floor.ply")
+    config = PipelineConfig.model_validate(
+        {"quality": "fast", "tiles": {"max_points": 25_000, "overlap": 3.5}}
+    )
+    assert config.network.randlanet.projection == "cell"
+    predictor = load_predictor(config.network)
+    untiled = run(floor, config, predictor=predictor)
+    tiled = segment_file(
+        source, tmp_path / "tiled.ply", config, predictor=predictor, max_points=10**7
+    )
+    assert tiled.tiles is not None and tiled.tiles >= 2
+    from jointseg.io import read_scan
+
+    labels = read_scan(tmp_path / "tiled.ply").fields["network_label"]
+    assert np.mean(labels == untiled.network_labels) > 0.999
+    nearest = PipelineConfig.model_validate(
+        {"quality": "fast", "network": {"randlanet": {"projection": "nearest"}}}
+    )
+    by_nearest = run(floor, nearest, predictor=load_predictor(nearest.network))
+    same = np.mean(by_nearest.network_labels == untiled.network_labels)
+    assert 0.9 < same < 1.0, same
+
+
 def test_fast_sub_samples_on_a_coarser_grid_with_fewer_cells() -> None:
     from jointseg.network.anchored import anchored_cloud
 

@@ -291,7 +291,7 @@ class RandLANetPredictor(NetworkPredictor):
         t = time.perf_counter()
         sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).to(torch.float32).cpu().numpy()
         sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
-        nearest = cloud.nearest(xyz)
+        nearest = cloud.rows(xyz, self.params.projection)
         probs = torch.as_tensor(sub_probs, device=self.device)[nearest]
         labels = probs.argmax(dim=1).to(torch.int32).cpu().numpy()
         probs_full = probs.cpu().numpy()
@@ -384,7 +384,7 @@ class RandLANetPredictor(NetworkPredictor):
             cloud, plan, crops, seed=seed, progress=progress, cancel=cancel
         )
         touched = seen > 0
-        point_cell = cloud.ids[cloud.nearest(xyz)]
+        point_cell = cloud.ids[cloud.rows(xyz, self.params.projection)]
         report(progress, STAGE, 1.0)
         return CellSums(
             ids=cloud.ids[touched].cpu().numpy(),

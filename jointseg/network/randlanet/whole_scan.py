@@ -112,7 +112,13 @@ def predict_whole(
     t = time.perf_counter()
     params = net.params
     labels, probs = point_probs(
-        cloud, prob_sum, seen, scan.xyz, params.absent_share, params.absent_max_cells
+        cloud,
+        prob_sum,
+        seen,
+        scan.xyz,
+        params.absent_share,
+        params.absent_max_cells,
+        params.projection,
     )
     timings["project"] = time.perf_counter() - t
     report(progress, STAGE, 1.0)
@@ -135,4 +141,4 @@ def predict_tile(
     cloud = anchored_cloud([(scan.xyz, scan.rgb)], net.grid_size, lower)
     prob_sum, seen = net.crop_sums(cloud, plan, crops, seed=seed, progress=progress, cancel=cancel)
     report(progress, STAGE, 1.0)
-    return tile_sums(cloud, prob_sum, seen, scan.xyz)
+    return tile_sums(cloud, prob_sum, seen, scan.xyz, net.params.projection)
