@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from jointseg.boxes import in_box
+
 FACE_NAMES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
@@ -284,4 +286,4 @@ def _plane_region(
     normal, offset = fit_plane(xyz[seeds])
     near = free[np.abs(xyz[free] @ normal + offset) < plane_distance]
     lo, hi = xyz[seeds].min(axis=0) - margin, xyz[seeds].max(axis=0) + margin
-    return near[np.all((xyz[near] >= lo) & (xyz[near] <= hi), axis=1)]
+    return near[in_box(xyz[near], lo, hi)]

@@ -19,7 +19,7 @@ from collections.abc import Callable, Generator, Iterator
 from contextlib import ExitStack
 from pathlib import Path
 from types import TracebackType
-from typing import Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -177,6 +177,39 @@ class ScanChunks:
         self._running.add(iteration)
         return iteration
 
+    def sample(self, stride: int, size: int = DEFAULT_CHUNK_POINTS) -> Scan:
+        """Every ``stride``-th point of the file (points 0, stride, 2 stride, ...): coordinates
+        and colour as :meth:`chunks` gives them, no labels or fields, the file's ``meta``.
+
+        Why not :meth:`chunks` and a slice: a format can skip what the sample does not need
+        (a LAZ file's other layers, the records between the sampled ones), and a tiled run's
+        frame looks at a sample of every file before it reads the file whole.
+        """
+        if self._closed:
+            raise ValueError(f"{self.path}: sample() called after the file was closed")
+        if isinstance(stride, bool) or not isinstance(stride, int | np.integer) or stride < 1:
+            raise ConfigError(f"sample stride must be a positive integer, got {stride!r}")
+        return self._sample(int(stride), size)
+
+    def coordinates(self, size: int = DEFAULT_CHUNK_POINTS) -> Iterator[np.ndarray]:
+        """The points' coordinates (n, 3) float64 in chunks of ``size``, in file order: the
+        ``xyz`` of :meth:`chunks`, for a pass that needs nothing else (a LAZ file's other
+        layers are then not decompressed: its objects pass over a 20 M-point floor)."""
+        for chunk in self.chunks(size):
+            yield chunk.xyz
+
+    def _sample(self, stride: int, size: int) -> Scan:
+        xyz, rgb, seen = [], [], 0
+        meta: dict[str, Any] = {}
+        for chunk in self.chunks(size):
+            first = (-seen) % stride
+            xyz.append(chunk.xyz[first::stride])
+            if chunk.rgb is not None:
+                rgb.append(chunk.rgb[first::stride])
+            meta = meta or dict(chunk.meta)
+            seen += len(chunk)
+        return sample_scan(xyz, rgb, meta, self.format)
+
     def close(self) -> None:
         """Stop the iterations still running (closing their files)."""
         for iteration in list(self._running):
@@ -237,6 +270,15 @@ class FileChunks(ScanChunks):
                 f"{self.path}: the file changed since it was opened for reading in chunks; "
                 f"open it again"
             )
+
+
+def sample_scan(
+    xyz: list[np.ndarray], rgb: list[np.ndarray], meta: dict[str, Any], fmt: str
+) -> Scan:
+    """A sample's parts as one scan (colour only when every part had it)."""
+    colour = np.concatenate(rgb) if rgb and len(rgb) == len(xyz) else None
+    points = np.concatenate(xyz) if xyz else np.zeros((0, 3))
+    return Scan(points, colour, meta=meta, source_format=fmt)
 
 
 def _signature(scan: Scan) -> dict[str, object]:

@@ -13,6 +13,7 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from jointseg.boxes import in_box
 from jointseg.classes import CLASS_INDEX, CLASS_NAMES, NUM_CLASSES
 from jointseg.exceptions import ConfigError
 
@@ -217,7 +218,7 @@ def _selection(
         return mask
     assert edit.box is not None  # the model allows no other case
     lo, hi = np.asarray(edit.box.min), np.asarray(edit.box.max)
-    return np.all((xyz >= lo) & (xyz <= hi), axis=1)
+    return in_box(xyz, lo, hi)
 
 
 def version_labels(machine_labels: np.ndarray, user_label: np.ndarray | None) -> np.ndarray:

@@ -28,6 +28,8 @@ from typing import Literal
 import numpy as np
 from scipy.spatial import cKDTree
 
+from jointseg.boxes import in_box
+from jointseg.grouping import compact_ids
 from jointseg.network.presence import drop_absent
 from jointseg.network.results import CellSums
 
@@ -114,6 +116,31 @@ def cell_ids(xyz: np.ndarray, grid: float, lower: np.ndarray) -> np.ndarray:
     """Packed id of the ``grid``-sized cell of each point, counted from ``lower``."""
     cells = np.floor((xyz - lower) / grid).astype(np.int64)
     np.clip(cells, 0, (1 << AXIS_BITS) - 1, out=cells)
+    return _pack(cells)
+
+
+def _distinct_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The packed ids of the distinct cells of ``cells`` (N, 3), ascending, and the row of each
+    point's cell: ``np.unique(packed ids, return_inverse=True)``, the same arrays.
+
+    Why: packed ids spread over 63 bits, so ``np.unique`` falls back to an argsort (0.6 s for
+    5 M points); numbered densely over the block's own cell box in the same (x, y, z) order,
+    they are grouped by :func:`~jointseg.grouping.compact_ids`' one packed sort instead.
+    """
+    first = cells.min(axis=0)
+    span = cells.max(axis=0) - first + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:  # an 83 km block: no room
+        return np.unique(_pack(cells), return_inverse=True)
+    local = cells - first
+    dense = (local[:, 0] * span[1] + local[:, 1]) * span[2] + local[:, 2]
+    distinct, inverse = compact_ids(dense)
+    z = distinct % span[2]
+    rest = distinct // span[2]
+    distinct_cells = np.stack([rest // span[1], rest % span[1], z], axis=1) + first
+    return _pack(distinct_cells), inverse
+
+
+def _pack(cells: np.ndarray) -> np.ndarray:
     return (cells[:, 0] << (2 * AXIS_BITS)) | (cells[:, 1] << AXIS_BITS) | cells[:, 2]
 
 
@@ -121,8 +148,9 @@ def _cell_sums(
     xyz: np.ndarray, rgb: np.ndarray | None, grid: float, lower: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unique cell ids and per-cell sums [count, x, y, z (µm), r, g, b] of one block."""
-    ids = cell_ids(xyz, grid, lower)
-    unique, inverse = np.unique(ids, return_inverse=True)
+    cells = np.floor((xyz - lower) / grid).astype(np.int64)
+    np.clip(cells, 0, (1 << AXIS_BITS) - 1, out=cells)
+    unique, inverse = _distinct_cells(cells)
     q = np.rint((xyz - lower) / QUANTUM)
     columns = [np.ones(len(xyz)), q[:, 0], q[:, 1], q[:, 2]]
     colour = np.zeros((len(xyz), 3)) if rgb is None else rgb.astype(np.float64)
@@ -215,7 +243,7 @@ def crops_inside(
 ) -> np.ndarray:
     """Which crops' centres lie in the x-y box ``[box_min, box_max)`` (absolute)."""
     xy = plan.centres[:, :2].astype(np.float64) + lower[:2]
-    return np.all((xy >= box_min) & (xy < box_max), axis=1)
+    return in_box(xy, box_min, box_max, open_upper=True)
 
 
 def point_probs(

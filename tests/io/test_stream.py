@@ -103,6 +103,52 @@ def test_chunks_join_to_read_scan(tmp_path, room, ext, variant, size):
     assert_same_scan(read_chunked(path, size, streams=True), read_scan(path))
 
 
+@pytest.mark.parametrize("stride", [1, 7, 1000, 10**6])
+@pytest.mark.parametrize("variant", ["full", "bare", "result"])
+@pytest.mark.parametrize("ext", [".las", ".laz", ".ply", ".pcd"])
+def test_a_sample_is_every_stride_th_point_of_the_chunks(tmp_path, room, ext, variant, stride):
+    """The LAS reader's own sample (only the coordinate and colour layers of a LAZ read, only
+    the sampled records converted) is the chunks' points 0, stride, 2 stride, ..."""
+    path = write_scan(_variants(room)[variant], tmp_path / f"s{ext}")
+    whole = read_scan(path)
+    with open_chunks(path) as source:
+        got = source.sample(stride, 300)  # chunks of 300: the sample crosses their borders
+    np.testing.assert_array_equal(got.xyz, whole.xyz[::stride])
+    assert (got.rgb is None) == (whole.rgb is None)
+    if whole.rgb is not None:
+        np.testing.assert_array_equal(got.rgb, whole.rgb[::stride])
+    assert got.labels is None and not got.fields
+    assert got.source_format == whole.source_format
+    assert list(got.meta) == list(whole.meta)
+    for key, value in whole.meta.items():
+        np.testing.assert_equal(got.meta[key], value, err_msg=key)
+
+
+@pytest.mark.parametrize("variant", ["full", "bare", "result"])
+@pytest.mark.parametrize("ext", [".las", ".laz", ".ply", ".txt"])
+def test_coordinates_are_the_chunks_xyz(tmp_path, room, ext, variant):
+    """A pass over the coordinates alone (a LAZ's other layers not read) gives the chunks' xyz,
+    chunk for chunk."""
+    path = write_scan(_variants(room)[variant], tmp_path / f"s{ext}")
+    with open_chunks(path) as source:
+        got = list(source.coordinates(700))
+        want = [c.xyz for c in source.chunks(700)]
+    assert [len(g) for g in got] == [len(w) for w in want]
+    for g, w in zip(got, want, strict=True):
+        assert g.dtype == w.dtype
+        np.testing.assert_array_equal(g, w)
+
+
+def test_a_sample_stride_must_be_a_positive_integer(tmp_path, room):
+    path = write_scan(room, tmp_path / "s.laz")
+    with open_chunks(path) as source:
+        for bad in (0, -3, 2.5, True):
+            with pytest.raises(ConfigError, match="stride"):
+                source.sample(bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="closed"):
+        source.sample(3)
+
+
 @pytest.mark.parametrize("ext", [".pcd", ".npz", ".txt"])
 def test_other_formats_fall_back_to_slices(tmp_path, room, ext):
     path = write_scan(room, tmp_path / f"s{ext}")

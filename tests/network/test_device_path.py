@@ -180,3 +180,20 @@ def test_own_cell_is_the_point_s_own_grid_cell_and_the_nearest_outside_the_cloud
     dev = device_anchored_cloud([(xyz, rgb)], GRID, lower, "cpu")
     queries = np.concatenate([xyz, strangers])
     np.testing.assert_array_equal(dev.rows(queries, "cell").numpy(), cloud.own_cell(queries))
+
+
+@pytest.mark.parametrize("spread", [3.0, 2.0e5])
+def test_distinct_cells_are_np_unique_of_the_packed_ids(spread: float) -> None:
+    """The dense renumbering (a small box) and the fallback (cells across 83 km, a box too big
+    to number densely) both give np.unique's ids and inverse."""
+    from jointseg.network.anchored import AXIS_BITS, _distinct_cells, _pack
+
+    rng = np.random.default_rng(7)
+    xyz = rng.uniform(0, spread, (30_000, 3))
+    xyz[:100] = xyz[100:200]  # shared cells
+    cells = np.floor(xyz / GRID).astype(np.int64)
+    np.clip(cells, 0, (1 << AXIS_BITS) - 1, out=cells)
+    want_ids, want_inverse = np.unique(_pack(cells), return_inverse=True)
+    ids, inverse = _distinct_cells(cells)
+    np.testing.assert_array_equal(ids, want_ids)
+    np.testing.assert_array_equal(np.asarray(inverse).reshape(-1), want_inverse.reshape(-1))

@@ -38,19 +38,8 @@ def sample_scan(source: Any, max_points: int) -> tuple[Scan, int]:
     file's point count."""
     with open_chunks(source, max_points=max_points) as chunks:
         count = chunks.count
-        stride = max(1, count // SAMPLE_POINTS)
-        xyz, rgb, seen = [], [], 0
-        meta: dict[str, Any] = {}
-        fmt = chunks.format
-        for chunk in chunks.chunks(1_000_000):
-            first = (-seen) % stride
-            xyz.append(chunk.xyz[first::stride])
-            if chunk.rgb is not None:
-                rgb.append(chunk.rgb[first::stride])
-            meta = meta or dict(chunk.meta)
-            seen += len(chunk)
-    colour = np.concatenate(rgb) if rgb and len(rgb) == len(xyz) else None
-    return Scan(np.concatenate(xyz), colour, meta=meta, source_format=fmt), count
+        sample = chunks.sample(max(1, count // SAMPLE_POINTS), 1_000_000)
+    return sample, count
 
 
 def decide(

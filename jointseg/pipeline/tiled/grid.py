@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from jointseg.boxes import in_box
 from jointseg.exceptions import ConfigError
 from jointseg.pipeline.tile_params import TileParams
 
@@ -39,17 +40,17 @@ class Tile:
 
     def core_mask(self, xy: np.ndarray) -> np.ndarray:
         """Points of ``xy`` (N, 2) inside the core (upper edges open)."""
-        return np.all((xy >= self.core_min) & (xy < self.core_max), axis=1)
+        return in_box(xy, self.core_min, self.core_max, open_upper=True)
 
     def near_core_mask(self, xy: np.ndarray, margin: float) -> np.ndarray:
         """Points of ``xy`` (N, 2) within ``margin`` of the core (its box grown by it)."""
         lo = np.array(self.core_min) - margin
         hi = np.array(self.core_max) + margin
-        return np.all((xy >= lo) & (xy < hi), axis=1)
+        return in_box(xy, lo, hi, open_upper=True)
 
     def outer_mask(self, xy: np.ndarray) -> np.ndarray:
         """Points of ``xy`` (N, 2) inside the outer box (closed: the margin may overlap)."""
-        return np.all((xy >= self.outer_min) & (xy <= self.outer_max), axis=1)
+        return in_box(xy, self.outer_min, self.outer_max)
 
 
 def plan_tiles(sample_xy: np.ndarray, total_points: int, params: TileParams) -> list[Tile]:

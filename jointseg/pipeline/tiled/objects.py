@@ -18,7 +18,6 @@ import numpy as np
 from jointseg.objects.layout import find_layout
 from jointseg.objects.params import ObjectParams
 from jointseg.objects.records import LayoutReport
-from jointseg.scan import Scan
 from jointseg.spacing import estimate_spacing
 
 #: Voxel side, metres: the room grid's cell, and small beside the objects' contact distance.
@@ -143,16 +142,17 @@ def _merge(
 
 
 def chunk_inputs(
-    chunks: Iterator[Scan], fused: np.ndarray, confidence: np.ndarray, stream: object | None
+    chunks: Iterator[np.ndarray], fused: np.ndarray, confidence: np.ndarray, stream: object | None
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-    """(work xyz, fused labels, confidence, kept) per chunk of the input, in the scan's order."""
+    """(work xyz, fused labels, confidence, kept) per chunk of the input's coordinates
+    (:meth:`~jointseg.io.chunks.ScanChunks.coordinates`), in the scan's order."""
     start = 0
-    for chunk in chunks:
-        stop = start + len(chunk)
+    for xyz in chunks:
+        stop = start + len(xyz)
         if stream is None:
-            work, kept = chunk.xyz, np.ones(len(chunk), dtype=bool)
+            work, kept = xyz, np.ones(len(xyz), dtype=bool)
         else:
-            work = stream.work_xyz(chunk.xyz)  # type: ignore[attr-defined]
-            kept = ~stream.stray(chunk.xyz)  # type: ignore[attr-defined]
+            work = stream.work_xyz(xyz)  # type: ignore[attr-defined]
+            kept = ~stream.stray(xyz)  # type: ignore[attr-defined]
         yield work, fused[start:stop], confidence[start:stop], kept
         start = stop

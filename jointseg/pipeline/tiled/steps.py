@@ -206,7 +206,7 @@ def _layout(
         to_user = np.linalg.inv(np.array(plan.frame["report"]["to_work"], dtype=np.float64))
     with open_chunks(source, max_points=max_points) as chunks:
         inputs = chunk_inputs(
-            chunks.chunks(CHUNK_POINTS), merged.fused_label, merged.fused_confidence, stream
+            chunks.coordinates(CHUNK_POINTS), merged.fused_label, merged.fused_confidence, stream
         )
         return tiled_layout(inputs, to_user, config.objects)
 

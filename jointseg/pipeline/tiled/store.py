@@ -28,6 +28,7 @@ from typing import Any, BinaryIO
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from jointseg.boxes import in_box
 from jointseg.exceptions import ConfigError, ScanFormatError
 from jointseg.geometry.params import GeometryParams, ResolvedGeometryParams
 from jointseg.pipeline.tile_params import TileParams
@@ -397,7 +398,7 @@ def _list_tiles(
                 (inside + start).astype("<i8").tofile(fh)
                 outer_points[t.index] += len(inside)
                 core_points[t.index] += int(np.count_nonzero(t.core_mask(xy[inside])))
-            near = np.all((xy >= patch[0]) & (xy <= patch[1]), axis=1)
+            near = in_box(xy, patch[0], patch[1])
             patch_xyz.append(xyz[near])
             if rgb is not None:
                 patch_rgb.append(rgb[near])

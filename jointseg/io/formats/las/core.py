@@ -246,6 +246,7 @@ def points_to_scan(
     path: Path,
     *,
     start: int | None = None,
+    bare: bool = False,
 ) -> Scan:
     """Turn LAS point records into a :class:`Scan`, deciding as ``facts`` (the whole file's) say.
 
@@ -261,20 +262,19 @@ def points_to_scan(
         The file, for messages.
     start : int, optional
         Index of the first point in the file when ``points`` is one chunk, for messages.
+    bare : bool
+        Coordinates and colour only, no labels or fields: records read without those layers
+        (a LAZ's selective decompression, for a sample or a coordinates pass) serve.
 
     Returns
     -------
     Scan
     """
     arr = points.array
-    scales, offsets = header.scales, header.offsets
-    xyz = np.empty((len(points), 3), dtype=np.float64)
-    for i, axis in enumerate("XYZ"):
-        np.multiply(arr[axis], scales[i], out=xyz[:, i])
-        xyz[:, i] += offsets[i]
-    rgb = None
-    if facts.colour is not None and facts.colour[1] > 0:  # colour 0 everywhere means none
-        rgb = to_rgb8(np.stack([arr[c] for c in _RGB], axis=1), path=path, value_range=facts.colour)
+    xyz, rgb = _xyz_rgb(points, header, facts, path)
+    fmt = "laz" if header.are_points_compressed else "las"
+    if bare:
+        return build_scan(path, fmt, xyz, rgb, None, {}, start=start)
     fields: dict[str, np.ndarray] = {}
     labels = None
     source = label_source(points.point_format)
@@ -298,8 +298,24 @@ def points_to_scan(
         if ours and name.startswith("extra_") and name[6:] not in fields:
             key = name[6:]  # undo the renaming done by write_las
         fields[key] = np.array(points[name])
-    fmt = "laz" if header.are_points_compressed else "las"
     return build_scan(path, fmt, xyz, rgb, labels, fields, start=start)
+
+
+def _xyz_rgb(
+    points: laspy.PackedPointRecord, header: laspy.LasHeader, facts: LasFacts, path: Path
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The records' coordinates (float64, scaled and offset) and 8-bit colour as the whole
+    file's ``facts`` decide (None when the file has none)."""
+    arr = points.array
+    scales, offsets = header.scales, header.offsets
+    xyz = np.empty((len(points), 3), dtype=np.float64)
+    for i, axis in enumerate("XYZ"):
+        np.multiply(arr[axis], scales[i], out=xyz[:, i])
+        xyz[:, i] += offsets[i]
+    rgb = None
+    if facts.colour is not None and facts.colour[1] > 0:  # colour 0 everywhere means none
+        rgb = to_rgb8(np.stack([arr[c] for c in _RGB], axis=1), path=path, value_range=facts.colour)
+    return xyz, rgb
 
 
 def point_read_error(path: Path, header: laspy.LasHeader, exc: Exception) -> ScanFormatError:
