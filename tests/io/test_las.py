@@ -187,3 +187,20 @@ def test_large_las_reads_fast(tmp_path, make_scan):
     back = read_scan(path)
     assert time.perf_counter() - start < 1.0
     np.testing.assert_allclose(back.xyz, scan.xyz, atol=1e-4)
+
+
+def test_laz_is_compressed_on_every_core_into_one_core_s_bytes(tmp_path) -> None:
+    """The LAZ writer's backend compresses chunks in parallel where lazrs can, and the file is
+    the one a single-core compressor writes, byte for byte."""
+    import io as _io
+
+    from jointseg.io.formats.las.core import laz_backend
+    from jointseg.synth import make_room
+
+    assert laz_backend(False) is None
+    assert laz_backend(True) is laspy.LazBackend.LazrsParallel
+    path = write_scan(make_room(2, points=120_000), tmp_path / "room.laz")  # 3 LAZ chunks
+    las = laspy.read(path)
+    one_core = _io.BytesIO()
+    las.write(one_core, do_compress=True, laz_backend=laspy.LazBackend.Lazrs)
+    assert one_core.getvalue() == path.read_bytes()
