@@ -43,7 +43,8 @@ class CellSums:
     seen : ndarray of shape (K,), float64
         Crops that saw each cell.
     point_cell : ndarray of shape (N,), int64
-        The cell whose outputs each input point takes (its nearest sub-sampled point).
+        The cell whose outputs each input point takes (its own, or its nearest sub-sampled
+        point's: ``RandLANetParams.projection``).
     """
 
     ids: np.ndarray

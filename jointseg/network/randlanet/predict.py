@@ -1,6 +1,6 @@
 """Whole-scan inference: crops chosen by the 'possibility' scheme until every sub-sampled point
 is covered, softmax outputs averaged over the crops that saw a point, then back to every input
-point through its nearest sub-sampled point.
+point through its own cell's sub-sampled point (or its nearest: ``RandLANetParams.projection``).
 
 A crop adds 1 - d²/r² to the possibility of each of its points (d: distance to the crop centre,
 r: the crop's radius); Open3D-ML adds the square of that, which leaves the outer half of every
