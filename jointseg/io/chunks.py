@@ -208,7 +208,7 @@ class ScanChunks:
                 rgb.append(chunk.rgb[first::stride])
             meta = meta or dict(chunk.meta)
             seen += len(chunk)
-        return sample_scan(xyz, rgb, meta, self.format)
+        return joined_sample(xyz, rgb, meta, self.format)
 
     def close(self) -> None:
         """Stop the iterations still running (closing their files)."""
@@ -272,7 +272,7 @@ class FileChunks(ScanChunks):
             )
 
 
-def sample_scan(
+def joined_sample(
     xyz: list[np.ndarray], rgb: list[np.ndarray], meta: dict[str, Any], fmt: str
 ) -> Scan:
     """A sample's parts as one scan (colour only when every part had it)."""

@@ -84,7 +84,7 @@ class AnchoredCloud:
             idx[missing] = self.nearest(xyz[missing])
         return idx
 
-    def rows(self, xyz: np.ndarray, projection: Projection = "nearest") -> np.ndarray:
+    def rows(self, xyz: np.ndarray, projection: Projection) -> np.ndarray:
         """The sub-sampled point each of ``xyz`` takes its output from, by ``projection``
         (:attr:`~jointseg.network.randlanet.params.RandLANetParams.projection`)."""
         return self.own_cell(xyz) if projection == "cell" else self.nearest(xyz)
@@ -114,9 +114,14 @@ class CropPlan:
 
 def cell_ids(xyz: np.ndarray, grid: float, lower: np.ndarray) -> np.ndarray:
     """Packed id of the ``grid``-sized cell of each point, counted from ``lower``."""
+    return _pack(_grid_cells(xyz, grid, lower))
+
+
+def _grid_cells(xyz: np.ndarray, grid: float, lower: np.ndarray) -> np.ndarray:
+    """(N, 3) int64 cell of each point, counted from ``lower``, each axis within AXIS_BITS."""
     cells = np.floor((xyz - lower) / grid).astype(np.int64)
     np.clip(cells, 0, (1 << AXIS_BITS) - 1, out=cells)
-    return _pack(cells)
+    return cells
 
 
 def _distinct_cells(cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,9 +153,7 @@ def _cell_sums(
     xyz: np.ndarray, rgb: np.ndarray | None, grid: float, lower: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Unique cell ids and per-cell sums [count, x, y, z (µm), r, g, b] of one block."""
-    cells = np.floor((xyz - lower) / grid).astype(np.int64)
-    np.clip(cells, 0, (1 << AXIS_BITS) - 1, out=cells)
-    unique, inverse = _distinct_cells(cells)
+    unique, inverse = _distinct_cells(_grid_cells(xyz, grid, lower))
     q = np.rint((xyz - lower) / QUANTUM)
     columns = [np.ones(len(xyz)), q[:, 0], q[:, 1], q[:, 2]]
     colour = np.zeros((len(xyz), 3)) if rgb is None else rgb.astype(np.float64)
@@ -253,7 +256,7 @@ def point_probs(
     xyz: np.ndarray,
     absent_share: float,
     absent_max_cells: int,
-    projection: Projection = "nearest",
+    projection: Projection,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every point's labels (N,) and probabilities (N, C) from the crops' sums per sub-sampled
     point: averaged, classes the scan does not hold taken out
@@ -270,7 +273,7 @@ def tile_sums(
     prob_sum: np.ndarray,
     seen: np.ndarray,
     xyz: np.ndarray,
-    projection: Projection = "nearest",
+    projection: Projection,
 ) -> CellSums:
     """A tile's sums per sub-sampled cell (those its crops saw), to be added over all tiles,
     and the cell each of its points ``xyz`` reads from (by ``projection``)."""

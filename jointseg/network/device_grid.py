@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from jointseg.network.anchored import AXIS_BITS, QUANTUM
+from jointseg.network.anchored import AXIS_BITS, QUANTUM, Projection
 
 _MASK = (1 << AXIS_BITS) - 1
 #: Points projected at once (about 1 GiB of temporaries).
@@ -68,7 +68,7 @@ class DeviceCloud:
             idx[missing] = self.nearest(query[missing])
         return idx
 
-    def rows(self, xyz: np.ndarray | torch.Tensor, projection: str = "nearest") -> torch.Tensor:
+    def rows(self, xyz: np.ndarray | torch.Tensor, projection: Projection) -> torch.Tensor:
         """The sub-sampled point each of ``xyz`` takes its output from (``projection``)."""
         return self.own_cell(xyz) if projection == "cell" else self.nearest(xyz)
 

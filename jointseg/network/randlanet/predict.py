@@ -291,8 +291,8 @@ class RandLANetPredictor(NetworkPredictor):
         t = time.perf_counter()
         sub_probs = (prob_sum / seen.clamp(min=1)[:, None]).to(torch.float32).cpu().numpy()
         sub_probs = drop_absent(sub_probs, self.params.absent_share, self.params.absent_max_cells)
-        nearest = cloud.rows(xyz, self.params.projection)
-        probs = torch.as_tensor(sub_probs, device=self.device)[nearest]
+        rows = cloud.rows(xyz, self.params.projection)
+        probs = torch.as_tensor(sub_probs, device=self.device)[rows]
         labels = probs.argmax(dim=1).to(torch.int32).cpu().numpy()
         probs_full = probs.cpu().numpy()
         timings["project"] = time.perf_counter() - t

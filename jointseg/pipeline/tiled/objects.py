@@ -142,12 +142,15 @@ def _merge(
 
 
 def chunk_inputs(
-    chunks: Iterator[np.ndarray], fused: np.ndarray, confidence: np.ndarray, stream: object | None
+    coordinates: Iterator[np.ndarray],
+    fused: np.ndarray,
+    confidence: np.ndarray,
+    stream: object | None,
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """(work xyz, fused labels, confidence, kept) per chunk of the input's coordinates
     (:meth:`~jointseg.io.chunks.ScanChunks.coordinates`), in the scan's order."""
     start = 0
-    for xyz in chunks:
+    for xyz in coordinates:
         stop = start + len(xyz)
         if stream is None:
             work, kept = xyz, np.ones(len(xyz), dtype=bool)

@@ -26,7 +26,7 @@ from jointseg.io.chunks import (
     ScanChunks,
     ScanWriter,
     first_pass,
-    sample_scan,
+    joined_sample,
 )
 from jointseg.io.formats.las.core import (
     LASPY_ERRORS,
@@ -116,7 +116,7 @@ class _LasChunks(FileChunks):
                     if part.rgb is not None:
                         rgb.append(part.rgb)
                 seen += len(points)
-        return sample_scan(xyz, rgb, las_meta(self._header), self.format)
+        return joined_sample(xyz, rgb, las_meta(self._header), self.format)
 
 
 def _las_points(
